@@ -1,0 +1,41 @@
+# `make demo` and `make test` each do all set-up on a fresh machine.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+FMUS   := dist/fmus/.built
+
+.PHONY: all env build demo test test-slow bench clean
+
+all: demo
+
+# virtual environment with the pinned dependencies (requirements.lock) and the project, editable
+$(STAMP): pyproject.toml requirements.lock
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -c requirements.lock -e '.[dask,cosim,test]'
+	touch $@
+
+env: $(STAMP)
+
+$(FMUS): $(STAMP) $(shell find fmus -name '*.py' 2>/dev/null)
+	$(BIN)/flexfusion build
+	touch $@
+
+build: $(FMUS)
+
+demo: $(FMUS)
+	$(BIN)/flexfusion run orchestration/scenarios/flagship.toml --out results/flagship
+	$(BIN)/flexfusion plot results/flagship
+
+test: $(FMUS)
+	$(BIN)/pytest -q
+
+test-slow: $(FMUS)
+	$(BIN)/pytest -q -m slow
+
+bench: $(FMUS)
+	for b in benchmarks/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+clean:
+	rm -rf dist build results .pytest_cache

@@ -1,0 +1,1 @@
+"""Shared model library of every FlexFusion FMU: parameters, kinematics, dynamics, noise, FMI base."""

@@ -49,8 +49,12 @@ def validate_fmu(path: Path) -> list[str]:
     return list(fmpy_validate(str(path)))
 
 
-def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: bool = False) -> list[Path]:
+def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: bool = False,
+              scripts: list[Path] | None = None) -> list[Path]:
     """Build (and validate) every FMU, or those whose script stem or class is in ``only``.
+
+    ``scripts`` replaces the FMU scripts found below ``fmus/`` (e.g. the test toys in
+    ``tests/fmus``); they still bundle the ``fmus`` package.
 
     Raises
     ------
@@ -67,7 +71,7 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     with tempfile.TemporaryDirectory(prefix="flexfusion_stage_") as tmp:
         stage = Path(tmp)
         package = _stage_package(stage)
-        for script in fmu_scripts():
+        for script in (fmu_scripts() if scripts is None else [Path(p) for p in scripts]):
             if only and script.stem not in only and not set(only) & set(_CLASS.findall(script.read_text())):
                 continue
             t0 = time.perf_counter()
@@ -75,7 +79,7 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
                 fmu = FmuBuilder.build_FMU(script, dest=dest,
                                            project_files=[package, stage / "requirements.txt"])
             except Exception as exc:  # noqa: BLE001 - collect and report every failure at once
-                failures.append(f"{script.relative_to(REPO)}: build failed: {type(exc).__name__}: {exc}")
+                failures.append(f"{_shown(script)}: build failed: {type(exc).__name__}: {exc}")
                 continue
             problems = validate_fmu(Path(fmu))
             if problems:
@@ -87,6 +91,13 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     if failures:
         raise BuildError("FMU build failed:\n  " + "\n  ".join(failures))
     return built
+
+
+def _shown(script: Path) -> str:
+    try:
+        return str(script.resolve().relative_to(REPO))
+    except ValueError:
+        return str(script)
 
 
 def main(argv: list[str] | None = None) -> int:

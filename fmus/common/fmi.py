@@ -61,6 +61,10 @@ _UNITS: dict[str, dict[str, int]] = {
     "rad/s/s": {"rad": 1, "s": -2},
     "m/s2.s0.5": {"m": 1, "s": -1},  # noise density (m/s2)/sqrt(Hz); exponent rounded (FMI needs ints)
     "rad/s.s0.5": {"rad": 1},        # noise density (rad/s)/sqrt(Hz); exponent rounded
+    "m/s2/s0.5": {"m": 1, "s": -2},  # random-walk intensity (m/s2)/sqrt(s); exponent rounded
+    "rad/s/s0.5": {"rad": 1, "s": -1},  # random-walk intensity (rad/s)/sqrt(s); exponent rounded
+    "rad/s0.5": {"rad": 1},          # random-walk intensity rad/sqrt(s); exponent rounded
+    "N/s0.5": {"kg": 1, "m": 1, "s": -2},  # random-walk intensity N/sqrt(s); exponent rounded
 }
 
 

@@ -1,0 +1,131 @@
+"""Planar forward kinematics of the two-axis arm: positions, Jacobians, accelerations.
+
+World frame x forward, z up, origin at axis 2; rotations are about +y. With the arm angles
+``q = (q1, q2)`` and the tool angle ``phi = q1 + q2``,
+
+* elbow ``p_e = l1 (sin q1, cos q1)``,
+* tool point ``p_tool = p_e + l2 (cos phi, -sin phi)``,
+* a point fixed to the tool at ``o = (o_x, o_z)`` in the tool frame:
+  ``p = p_tool + R(phi) o`` with ``R(phi) = [[cos, sin], [-sin, cos]]`` (tool frame to world).
+
+The accelerometer model of Axelsson et al. (2012), eqs. 17-19, is :func:`specific_force`:
+the sensor measures ``R_s^T (p_ddot - g_vec)`` with ``g_vec = (0, -g)``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+POINTS = ("tool", "sensor", "elbow")
+
+
+def rotation(phi: float) -> np.ndarray:
+    """``R(phi)``: tool frame (x, z) to world (x, z), a rotation by ``phi`` about +y."""
+    c, s = math.cos(phi), math.sin(phi)
+    return np.array([[c, s], [-s, c]])
+
+
+def _offset(point: str, p) -> tuple[float, float]:
+    """The point's offset from the tool point, in the tool frame."""
+    if point == "tool":
+        return 0.0, 0.0
+    if point == "sensor":
+        return float(p.sensor_offset[0]), float(p.sensor_offset[1])
+    raise ValueError(f"unknown point {point!r}; expected one of {POINTS}")
+
+
+def _geometry(q, p, point: str) -> tuple[float, float, float, float]:
+    """Lever arms of joints 1 and 2 to the point: ``r1 = p - 0`` and ``r2 = p - p_e`` (x, z each)."""
+    q1, phi = float(q[0]), float(q[0]) + float(q[1])
+    s1, c1, sp, cp = math.sin(q1), math.cos(q1), math.sin(phi), math.cos(phi)
+    if point == "elbow":
+        return p.l1 * s1, p.l1 * c1, 0.0, 0.0
+    ox, oz = _offset(point, p)
+    # forearm part in world: l2 (cos, -sin) + R(phi) o
+    r2x = p.l2 * cp + cp * ox + sp * oz
+    r2z = -p.l2 * sp - sp * ox + cp * oz
+    return p.l1 * s1 + r2x, p.l1 * c1 + r2z, r2x, r2z
+
+
+def position(q, p, point: str = "tool") -> np.ndarray:
+    """World position of ``point`` ("tool", "sensor" or "elbow") at arm angles ``q``."""
+    x, z, _, _ = _geometry(q, p, point)
+    return np.array([x, z])
+
+
+def tool_position(q, p) -> np.ndarray:
+    """Tool point position (world x, z): the rigid forward kinematics."""
+    return position(q, p, "tool")
+
+
+def sensor_position(q, p) -> np.ndarray:
+    """Accelerometer mount position (world x, z)."""
+    return position(q, p, "sensor")
+
+
+def jacobian(q, p, point: str = "tool") -> np.ndarray:
+    """``J(q) = dp/dq`` of ``point``; a rotation about +y maps ``r`` to ``(r_z, -r_x)``."""
+    rx, rz, r2x, r2z = _geometry(q, p, point)
+    elbow_x, elbow_z = rx - r2x, rz - r2z
+    # joint 1 turns the whole chain about the origin; joint 2 the forearm about the elbow
+    return np.array([[rz, r2z], [-rx, -r2x]]) if point != "elbow" else np.array([[elbow_z, 0.0], [-elbow_x, 0.0]])
+
+
+def jacobian_dot(q, dq, p, point: str = "tool") -> np.ndarray:
+    """Time derivative of :func:`jacobian` along ``dq``.
+
+    Each column is ``omega_k x r_k``-type: ``d/dt (r_z, -r_x) = (v_z, -v_x)`` of the lever arm.
+    """
+    rx, rz, r2x, r2z = _geometry(q, p, point)
+    w1, w12 = float(dq[0]), float(dq[0]) + float(dq[1])
+    # velocity of the lever arms: r1 = e + r2 with e turning at w1 and r2 at w12
+    ex, ez = rx - r2x, rz - r2z
+    v2x, v2z = w12 * r2z, -w12 * r2x
+    if point == "elbow":
+        v2x = v2z = 0.0
+    v1x, v1z = w1 * ez + v2x, -w1 * ex + v2z
+    if point == "elbow":
+        return np.array([[v1z, 0.0], [-v1x, 0.0]])
+    return np.array([[v1z, v2z], [-v1x, -v2x]])
+
+
+def velocity(q, dq, p, point: str = "tool") -> np.ndarray:
+    """World velocity ``J(q) dq`` of ``point``."""
+    return jacobian(q, p, point) @ np.asarray(dq, float)
+
+
+def point_acceleration(q, dq, ddq, p, point: str = "tool") -> np.ndarray:
+    """World acceleration ``J(q) ddq + J_dot(q, dq) dq`` of ``point`` (2012 paper, eq. 18)."""
+    dq = np.asarray(dq, float)
+    return jacobian(q, p, point) @ np.asarray(ddq, float) + jacobian_dot(q, dq, p, point) @ dq
+
+
+def specific_force(q, dq, ddq, p) -> np.ndarray:
+    """Noise-free accelerometer reading in the sensor frame (x, z): Axelsson 2012, eqs. 17-19.
+
+    ``rho_s = R(phi)^T (p_ddot_s - g_vec)``, ``g_vec = (0, -g)``; at rest it reads ``+g`` along
+    the world's up direction.
+    """
+    a = point_acceleration(q, dq, ddq, p, "sensor")
+    return rotation(float(q[0]) + float(q[1])).T @ (a - np.array([0.0, -p.g]))
+
+
+def inverse_kinematics(p_tool, p) -> np.ndarray:
+    """Arm angles putting the tool at ``p_tool``, on the branch of the home pose (``|q2| <= pi/2``).
+
+    ``|p|^2 = l1^2 + l2^2 - 2 l1 l2 sin q2`` gives ``q2``; with ``A = l1 - l2 sin q2`` and
+    ``B = l2 cos q2``, ``q1 = atan2(x, z) - atan2(B, A)``.
+
+    Raises
+    ------
+    ValueError
+        If the point is out of reach.
+    """
+    x, z = float(p_tool[0]), float(p_tool[1])
+    s2 = (p.l1 ** 2 + p.l2 ** 2 - (x * x + z * z)) / (2 * p.l1 * p.l2)
+    if not -1.0 <= s2 <= 1.0:
+        raise ValueError(f"point ({x:g}, {z:g}) m is out of reach of links {p.l1:g} m and {p.l2:g} m")
+    q2 = math.asin(s2)
+    q1 = math.atan2(x, z) - math.atan2(p.l2 * math.cos(q2), p.l1 - p.l2 * s2)
+    return np.array([q1, q2])

@@ -1,0 +1,65 @@
+"""Seeded, reproducible noise for the sensor models.
+
+Every random quantity in FlexFusion comes from a :class:`numpy.random.Generator` made by
+:func:`make_rng` from an integer ``seed`` (an FMU parameter) and a stream name. Different stream
+names give statistically independent generators for the same seed, so that e.g. the white noise
+and the bias random walk of a sensor, or the accelerometer and the gyro of an IMU, never share
+random numbers, and changing one noise level does not shift the random numbers of another
+(common random numbers across a Monte Carlo or tuning study).
+"""
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+
+
+def stream_key(stream: str) -> int:
+    """A stable 32-bit hash of a stream name (CRC-32; unlike ``hash()`` it is not salted)."""
+    return zlib.crc32(stream.encode("utf-8")) & 0xFFFFFFFF
+
+
+def make_rng(seed: int, stream: str = "") -> np.random.Generator:
+    """A deterministic generator for ``(seed, stream)``.
+
+    Parameters
+    ----------
+    seed
+        Non-negative integer seed (the ``seed`` parameter of an FMU or a scenario).
+    stream
+        Name of the random stream; different names give independent generators.
+
+    Returns
+    -------
+    numpy.random.Generator
+        PCG64 generator seeded with ``SeedSequence([seed, crc32(stream)])``.
+
+    Raises
+    ------
+    ValueError
+        If ``seed`` is negative or not an integer.
+    """
+    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed), stream_key(stream)])))
+
+
+def white_noise(rng: np.random.Generator, sigma: float | np.ndarray, n: int) -> np.ndarray:
+    """``n`` zero-mean Gaussian samples with standard deviation ``sigma`` (scalar or per channel).
+
+    The ``n`` standard normal numbers are always drawn, even when ``sigma`` is zero, so that the
+    stream position does not depend on the noise level.
+    """
+    return np.asarray(sigma, dtype=float) * rng.standard_normal(n)
+
+
+def random_walk_increment(rng: np.random.Generator, sigma_per_sqrt_s: float | np.ndarray,
+                          dt: float, n: int) -> np.ndarray:
+    """Increments of a Wiener process with intensity ``sigma_per_sqrt_s`` over ``dt`` seconds.
+
+    After a time ``t`` the walk has standard deviation ``sigma_per_sqrt_s * sqrt(t)``.
+    """
+    return np.asarray(sigma_per_sqrt_s, dtype=float) * np.sqrt(dt) * rng.standard_normal(n)
+
+
+__all__ = ["make_rng", "stream_key", "white_noise", "random_walk_increment"]

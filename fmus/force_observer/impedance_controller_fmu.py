@@ -1,0 +1,145 @@
+"""FMU adapter of the LQR impedance controller (impedance paper, eqs. 2-3, 40-41).
+
+The math is in :mod:`fmus.force_observer.impedance_math`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pythonfmu.enums import Fmi2Status
+
+from fmus.common.fmi import FlexFusionSlave
+from fmus.common.parameters import ParameterError, param
+from fmus.force_observer import impedance_math as imp
+
+PAPER = "García, Robertsson, Gómez Ortega, Johansson (impedance paper)"
+
+
+@dataclass(frozen=True)
+class ImpedanceControllerParameters:
+    """Parameters of the ImpedanceController FMU."""
+
+    K_z: float = param(2000.0, "N/m", "target stiffness along the normal (eq. 2)", low=0.0,
+                       low_inclusive=False, source=f"{PAPER}, eq. 2")
+    D_z: float = param(350.0, "N.s/m", "target damping along the normal (eq. 2)", low=0.0,
+                       source=f"{PAPER}, eq. 2")
+    normal: tuple = param((1.0, 0.0), "1", "contact normal, world x and z: the direction in which "
+                          "the tool pushes into the surface (normalised)")
+    m_design: float = param(150.0, "kg", "design model: effective robot mass along the normal",
+                            low=0.0, low_inclusive=False)
+    f_design: float = param(3.0, "Hz", "design model: bandwidth of the robot's position loop",
+                            low=0.0, low_inclusive=False)
+    zeta_design: float = param(0.7, "1", "design model: damping ratio of the robot's position loop",
+                               low=0.0, low_inclusive=False)
+    k_env: float = param(5000.0, "N/m", "design model: surface stiffness", low=0.0,
+                         source=f"{PAPER}, section III (5 N/mm screen)")
+    q_e: float = param(1e5, "1", "LQR weight on the position error e (1/m^2)", low=0.0)
+    q_de: float = param(1e2, "1", "LQR weight on de/dt ((s/m)^2)", low=0.0)
+    q_int: float = param(1.0, "1", "LQR weight on the integral of the impedance variable (1/(N.s)^2)",
+                         low=0.0)
+    r: float = param(4e4, "1", "LQR weight on the reference offset (1/m^2)", low=0.0, low_inclusive=False)
+    tau_v: float = param(0.01, "s", "time constant of the filtered derivative of e", low=0.0)
+    delta_max: float = param(0.05, "m", "largest reference offset along the normal", low=0.0,
+                             low_inclusive=False)
+
+    def check(self) -> None:
+        if np.hypot(*self.normal) < 1e-9:
+            raise ParameterError(f"parameter 'normal' = {self.normal} must not be the zero vector")
+
+    def design(self) -> imp.ImpedanceDesign:
+        """The math module's design settings."""
+        return imp.ImpedanceDesign(K_z=self.K_z, D_z=self.D_z, m_r=self.m_design,
+                                   w_r=2 * np.pi * self.f_design, zeta_r=self.zeta_design,
+                                   k_env=self.k_env, q_e=self.q_e, q_de=self.q_de,
+                                   q_int=self.q_int, r=self.r)
+
+
+class ImpedanceController(FlexFusionSlave):
+    """Impedance control normal to a contact surface: outputs a Cartesian reference offset.
+
+    ``f_contact_hat`` is the force of the tool ON the environment (the ForceObserver's output,
+    or a raw reading in the same sign). The controller drives the impedance variable
+    ``z = (F - F_d) + K_z e + D_z de/dt`` (eq. 3, ``e = n.(p_tool - p_ref)``, ``F = n.f``) to
+    zero with ``Delta = -L (e, de/dt, integral z)``, ``L`` from ``control.lqr`` at
+    initialisation, and outputs ``dp_ref = n Delta``.
+
+    Bad input: a non-finite input or ``force_fault > 0`` holds ``dp_ref`` and the integrator,
+    sets ``fault`` and logs a warning when the episode begins. No NaN ever leaves.
+    """
+
+    parameters_class = ImpedanceControllerParameters
+    nan_inputs = "pass"
+    description = "LQR impedance controller along a contact normal (reference offset output)"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("f_contact_hat", 2, unit="N", description="force of the tool on the environment, world")
+        self.input("p_tool", 2, unit="m", description="tool position (estimate), world", start=(1.2, 0.9))
+        self.input("p_ref", 2, unit="m", description="reference tool position, world", start=(1.2, 0.9))
+        self.input("f_desired", unit="N", description="desired force bias F_d along the normal")
+        self.input("force_fault", unit="1", description="fault flag of the force input (0 = good)")
+        deps = ("p_tool", "p_ref", "force_fault")
+        all_in = ("f_contact_hat", "p_tool", "p_ref", "f_desired", "force_fault")
+        self.output("dp_ref", 2, unit="m", depends_on=deps,
+                    description="Cartesian reference offset for the MotionController, world")
+        self.output("f_normal", unit="N", depends_on=("f_contact_hat",),
+                    description="force along the normal used by the controller")
+        self.output("e_normal", unit="m", depends_on=("p_tool", "p_ref"),
+                    description="position error along the normal, n.(p_tool - p_ref)")
+        self.output("z_impedance", unit="N", depends_on=all_in, description="impedance variable z (eq. 3)")
+        self.output("saturated", unit="1", description="1 while |Delta| is at delta_max")
+        self.output("fault", unit="1", depends_on=all_in, description="1 while a bad input holds the output")
+        self.output("lqr_gain", 3, unit="1", description="LQR gain L on (e [m], de/dt [m/s], int z [N.s])")
+
+    def setup(self, params: ImpedanceControllerParameters) -> None:
+        d = params.design()
+        L = imp.design_gains(d)
+        poles = imp.closed_loop_poles(d, L, d.k_env)
+        if not np.all(np.real(poles) < 0):
+            raise ParameterError(f"LQR design is not stable on the design model (poles {poles})")
+        self.lqr_gain[:] = L
+        self.n = np.array(params.normal, dtype=float) / np.hypot(*params.normal)
+        self.law = imp.ImpedanceLaw(L, d.K_z, d.D_z, tau_v=params.tau_v, delta_max=params.delta_max)
+        self._h_last = 0.0
+        self._delta = 0.0
+        self._in_fault = False
+        self.update_outputs()
+
+    def _bad(self) -> bool:
+        vals = np.concatenate([self.f_contact_hat, self.p_tool, self.p_ref, [self.f_desired, self.force_fault]])
+        return (not np.all(np.isfinite(vals))) or self.force_fault > 0
+
+    def update_outputs(self) -> None:
+        bad = self._bad()
+        self.fault = 1.0 if bad else 0.0
+        if bad:
+            self.dp_ref[:] = self.n * self._delta
+            return
+        F = float(self.n @ self.f_contact_hat)
+        x = float(self.n @ self.p_tool)
+        xr = float(self.n @ self.p_ref)
+        self.f_normal, self.e_normal = F, x - xr
+        self.z_impedance = self.law.impedance_variable(F, x, xr, self.f_desired, self._h_last)
+        self._delta = self.law.output(F, x, xr, self.f_desired, self._h_last)   # last good output
+        self.dp_ref[:] = self.n * self._delta
+
+    def step(self, t: float, dt: float) -> None:
+        if self._inputs_dirty:      # else the outputs are current
+            self.update_outputs()
+        if self.fault:
+            if not self._in_fault:
+                self.log(f"{self.instance_name}: bad force/position input at t = {t:.6g} s "
+                         f"(f_contact_hat = {list(self.f_contact_hat)}, force_fault = {self.force_fault}, "
+                         f"p_tool = {list(self.p_tool)}); holding dp_ref", Fmi2Status.warning)
+            self._in_fault = True
+            self.law.e_prev = None      # no derivative across the gap
+        else:
+            self._in_fault = False
+            F = float(self.n @ self.f_contact_hat)
+            x = float(self.n @ self.p_tool)
+            xr = float(self.n @ self.p_ref)
+            self.law.advance(F, x, xr, self.f_desired, self._h_last, dt)
+            self.saturated = 1.0 if self.law.saturated else 0.0
+            self._h_last = dt
+        self.update_outputs()

@@ -1,0 +1,379 @@
+"""Impedance control normal to a contact surface, LQR-designed (impedance paper, eqs. 2-3, 39-41).
+
+Target impedance (eq. 2) along the surface normal ``n`` (the direction in which the tool
+pushes into the surface), with ``F`` the force the tool exerts on the environment, ``x`` the
+tool position, ``x_r`` the reference position and ``F_d`` a desired (bias) force:
+
+.. math:: F - F_d = K_z\\,(x_r - x) - D_z\\,\\dot x
+
+written as the impedance variable (eq. 3) that the controller drives to zero,
+
+.. math:: z = (F - F_d) + K_z e + D_z \\dot e, \\qquad e = x - x_r .
+
+The controller outputs a Cartesian reference offset ``Delta`` for the robot's position
+controller (the MotionController's ``dp_ref = n Delta``). As in the paper (eq. 40,
+``u = -L X + c F^ + l_r x_r`` with ``L`` from an LQR on a model of the position-controlled
+robot and tool, eqs. 39 and 41), the gains come from an LQR; here the design model is
+
+.. math::
+
+   m_r \\ddot e &= k_r(\\Delta - e) - d_r \\dot e - k_{env} e \\\\
+   \\dot\\zeta &= z = (K_z + k_{env}) e + D_z \\dot e \\quad (+\\text{const})
+
+-- the position-controlled robot along ``n`` as a mass ``m_r`` held by the position loop's
+stiffness ``k_r = m_r w_r^2`` and damping ``d_r = 2 zeta_r w_r m_r``, pressed on a surface of
+stiffness ``k_env`` -- with the state ``s = (e, e', zeta)`` and ``Delta = -L s``. The integral
+``zeta`` of the impedance variable makes ``z = 0`` the only equilibrium: the stationary
+contact satisfies the target impedance exactly, whatever the robot's static compliance or the
+true surface stiffness. With a wall of stiffness ``k_w`` at ``x_w`` the stationary contact is
+(:func:`stationary_contact`)
+
+.. math::
+
+   x_s = \\frac{F_d + K_z x_r + k_w x_w}{K_z + k_w}, \\qquad F_s = k_w (x_s - x_w)
+
+(for ``x_s > x_w``; else no contact and ``x_s = x_r``): a stiff target (large ``K_z``) puts
+``x_s`` near ``x_r``, a stiff environment near ``x_w``, as the paper notes (Fig. 4).
+
+Besides the controller, :func:`simulate_1dof` closes the loop on a one-axis model (robot
+position loop + rigid or compliant tool + one-sided wall + force sensor + accelerometer +
+force observer), used by the tests and to judge whether the paper's compliant tool matters.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fmus.force_observer import force_observer_math as fom
+
+
+def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Continuous-time LQR gain ``L`` (``u = -L x``) with python-control's ``control.lqr``."""
+    import control  # imported here: only the design needs it
+
+    L, _, _ = control.lqr(np.asarray(A, float), np.asarray(B, float), np.asarray(Q, float),
+                          np.atleast_2d(np.asarray(R, float)))
+    return np.asarray(L)
+
+
+@dataclass(frozen=True)
+class ImpedanceDesign:
+    """Target impedance, design model and LQR weights (SI units)."""
+
+    K_z: float = 2000.0        # target stiffness (N/m), eq. 2
+    D_z: float = 350.0         # target damping (N.s/m), eq. 2
+    m_r: float = 150.0         # effective robot mass along n (kg)
+    w_r: float = 2 * np.pi * 3.0   # position-loop bandwidth (rad/s)
+    zeta_r: float = 0.7        # position-loop damping ratio
+    k_env: float = 5000.0      # design surface stiffness (N/m)
+    q_e: float = 1e5           # LQR weight on e (1/m^2)
+    q_de: float = 1e2          # LQR weight on e' ((s/m)^2)
+    q_int: float = 1.0         # LQR weight on zeta (1/(N.s)^2)
+    r: float = 4e4             # LQR weight on Delta (1/m^2)
+    tool_m: float = 0.0        # compliant tool (paper Fig. 3, eq. 39): tool mass (kg); 0 = rigid
+    tool_k: float = 0.0        # compliant tool spring (N/m); 0 = rigid tool
+    tool_d: float = 0.0        # compliant tool damper (N.s/m)
+
+    def __post_init__(self) -> None:
+        for name in ("K_z", "m_r", "w_r", "zeta_r", "r"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"impedance design: {name} = {getattr(self, name)} must be > 0")
+        for name in ("D_z", "k_env", "q_e", "q_de", "q_int", "tool_m", "tool_k", "tool_d"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"impedance design: {name} = {getattr(self, name)} must be >= 0")
+
+    @property
+    def compliant(self) -> bool:
+        """Whether the design model has the compliant tool (5 states) or a rigid one (3)."""
+        return self.tool_k > 0.0 and self.tool_m > 0.0
+
+    @property
+    def k_r(self) -> float:
+        """Position-loop stiffness ``m_r w_r^2`` (N/m)."""
+        return self.m_r * self.w_r ** 2
+
+    @property
+    def d_r(self) -> float:
+        """Position-loop damping ``2 zeta_r w_r m_r`` (N.s/m)."""
+        return 2.0 * self.zeta_r * self.w_r * self.m_r
+
+
+def replace_design(d: ImpedanceDesign, **changes) -> ImpedanceDesign:
+    """A copy of ``d`` with some fields changed (validated)."""
+    import dataclasses
+    return dataclasses.replace(d, **changes)
+
+
+def design_model(d: ImpedanceDesign, k_env: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(A, B)`` of the design model and input ``Delta``.
+
+    Rigid tool: states ``(e, e', zeta)``. Compliant tool (``d.compliant``; the paper's robot +
+    Optidrive model, eq. 39): states ``(e_f, e_f', dl, dl', zeta)`` with ``e_f`` the flange
+    (force sensor) position error and ``dl = x_tool - x_flange`` the tool deflection; the
+    robot mass ``m_r`` then includes the tool, the flange carries ``m_r - tool_m``.
+    """
+    ke = d.k_env if k_env is None else k_env
+    if d.compliant:
+        kr, dr, kc, dc, mt = d.k_r, d.d_r, d.tool_k, d.tool_d, d.tool_m
+        mf = d.m_r - mt
+        A = np.zeros((5, 5))
+        B = np.zeros((5, 1))
+        A[0, 1] = A[2, 3] = 1.0
+        A[1] = [-kr / mf, -dr / mf, kc / mf, dc / mf, 0.0]
+        B[1, 0] = kr / mf
+        A[3] = np.array([-ke / mt, 0.0, -(kc + ke) / mt, -dc / mt, 0.0]) - A[1]
+        B[3, 0] = -kr / mf
+        A[4] = [ke + d.K_z, d.D_z, ke + d.K_z, d.D_z, 0.0]
+        return A, B
+    A = np.array([[0.0, 1.0, 0.0],
+                  [-(d.k_r + ke) / d.m_r, -d.d_r / d.m_r, 0.0],
+                  [d.K_z + ke, d.D_z, 0.0]])
+    B = np.array([[0.0], [d.k_r / d.m_r], [0.0]])
+    return A, B
+
+
+def design_gains(d: ImpedanceDesign) -> np.ndarray:
+    """LQR gain ``L`` for ``Delta = -L s`` (eqs. 40-41 analogue): shape (3,) for a rigid tool,
+    (5,) for the compliant one (no weight on the deflection states)."""
+    A, B = design_model(d)
+    q = [d.q_e, d.q_de, 0.0, 0.0, d.q_int] if d.compliant else [d.q_e, d.q_de, d.q_int]
+    return lqr_gain(A, B, np.diag(q), np.array([[d.r]]))[0]
+
+
+def closed_loop_poles(d: ImpedanceDesign, L: np.ndarray, k_env: float) -> np.ndarray:
+    """Poles of the design model with gain ``L`` on a surface of stiffness ``k_env``."""
+    A, B = design_model(d, k_env)
+    return np.linalg.eigvals(A - B @ np.atleast_2d(L))
+
+
+def stationary_contact(K_z: float, k_wall: float, x_r: float, x_w: float, F_d: float = 0.0
+                       ) -> tuple[float, float]:
+    """Stationary position and force from the impedance relation and the wall (module doc).
+
+    Positions along the normal (the tool pushes towards +x); returns ``(x_s, F_s)``.
+    """
+    x_free = x_r + F_d / K_z
+    if x_free <= x_w:
+        return x_free, 0.0
+    x_s = (F_d + K_z * x_r + k_wall * x_w) / (K_z + k_wall)
+    return x_s, k_wall * (x_s - x_w)
+
+
+class ImpedanceLaw:
+    """The sampled impedance controller on one axis (the surface normal).
+
+    Call :meth:`output` for ``Delta`` at this sample (no state change), then :meth:`advance`
+    to commit the sample. Velocities come from first-order filtered differences (time constant
+    ``tau_v``); ``|Delta| <= delta_max`` with conditional integration (anti-windup).
+
+    With a gain of length 3 (rigid tool) the state is ``(e, e', zeta)``, ``e = x - x_r``; with
+    length 5 (compliant tool, :func:`design_model`) it is ``(e_f, e_f', dl, dl', zeta)`` and
+    the flange position ``x_flange`` must be given; ``x`` is always the tool position, used in
+    the impedance variable ``z``.
+    """
+
+    def __init__(self, L: np.ndarray, K_z: float, D_z: float, tau_v: float = 0.01,
+                 delta_max: float = 0.05) -> None:
+        self.L = np.asarray(L, dtype=float).ravel()
+        if self.L.size not in (3, 5):
+            raise ValueError(f"impedance gain must have 3 or 5 entries, not {self.L.size}")
+        self.K_z, self.D_z = float(K_z), float(D_z)
+        self.tau_v, self.delta_max = float(tau_v), float(delta_max)
+        self.zeta = 0.0
+        npos = 1 if self.L.size == 3 else 2
+        self.q_prev: np.ndarray | None = None
+        self.dq = np.zeros(npos)
+        self.saturated = False
+
+    @property
+    def e_prev(self) -> float | None:
+        """Last committed position error (``None`` before the first sample or after a gap)."""
+        return None if self.q_prev is None else float(self.q_prev[0])
+
+    @e_prev.setter
+    def e_prev(self, value: None) -> None:
+        if value is not None:
+            raise ValueError("e_prev can only be reset to None")
+        self.q_prev = None
+
+    def _positions(self, x: float, x_r: float, x_flange: float | None) -> np.ndarray:
+        if self.L.size == 3:
+            return np.array([x - x_r])
+        if x_flange is None:
+            raise ValueError("the compliant-tool impedance law needs the flange position")
+        return np.array([x_flange - x_r, x - x_flange])
+
+    def _rates(self, q: np.ndarray, h: float) -> np.ndarray:
+        if self.q_prev is None or h <= 0:
+            return self.dq
+        alpha = h / (self.tau_v + h)
+        return self.dq + alpha * ((q - self.q_prev) / h - self.dq)
+
+    def _state(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        if self.L.size == 3:
+            return np.array([q[0], dq[0], self.zeta])
+        return np.array([q[0], dq[0], q[1], dq[1], self.zeta])
+
+    def _z(self, F: float, F_d: float, q: np.ndarray, dq: np.ndarray) -> float:
+        return (F - F_d) + self.K_z * float(np.sum(q)) + self.D_z * float(np.sum(dq))
+
+    def output(self, F: float, x: float, x_r: float, F_d: float = 0.0, h: float = 0.0,
+               x_flange: float | None = None) -> float:
+        """``Delta`` (m) along the normal at this sample; ``h`` is the time since the last one."""
+        q = self._positions(x, x_r, x_flange)
+        delta = -float(self.L @ self._state(q, self._rates(q, h)))
+        return float(np.clip(delta, -self.delta_max, self.delta_max))
+
+    def impedance_variable(self, F: float, x: float, x_r: float, F_d: float = 0.0, h: float = 0.0,
+                           x_flange: float | None = None) -> float:
+        """``z`` of eq. 3 at this sample (N)."""
+        q = self._positions(x, x_r, x_flange)
+        return self._z(F, F_d, q, self._rates(q, h))
+
+    def advance(self, F: float, x: float, x_r: float, F_d: float, h_prev: float, h: float,
+                x_flange: float | None = None) -> None:
+        """Commit this sample (``h_prev`` since the last one) and integrate ``z`` over ``h``."""
+        q = self._positions(x, x_r, x_flange)
+        dq = self._rates(q, h_prev)
+        z = self._z(F, F_d, q, dq)
+        delta_free = -float(self.L @ self._state(q, dq))
+        self.saturated = abs(delta_free) > self.delta_max
+        # conditional integration: stop integrating when that would push further into the limit
+        dz = -self.L[-1] * z      # sign of d(Delta)/dt due to the integrator
+        if not (self.saturated and np.sign(dz) == np.sign(delta_free)):
+            self.zeta += h * z
+        self.q_prev, self.dq = q, dq
+
+
+# ---------------------------------------------------------------------------------------------
+# one-axis closed loop (tests, compliant-tool study)
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class OneAxisPlant:
+    """Robot position loop + tool + one-sided wall along one axis (SI).
+
+    ``compliant``: the tool mass ``m_t`` hangs on a spring ``k_c`` / damper ``d_c`` between the
+    force sensor (on the robot flange) and the tool (the paper's Optidrive, Fig. 3); else the
+    tool is rigid and part of the robot mass.
+    """
+
+    m_r: float = 150.0           # robot effective mass incl. a rigid tool (kg)
+    w_r: float = 2 * np.pi * 3.0
+    zeta_r: float = 0.7
+    m_t: float = 12.0            # tool mass (kg)
+    compliant: bool = False
+    k_c: float = 2.0e4           # tool spring (N/m)
+    d_c: float = 200.0           # tool damper (N.s/m)
+    k_w: float = 5000.0          # wall stiffness (N/m), 5 N/mm
+    d_w: float = 50.0            # wall damping (N.s/m)
+    x_w: float = 0.0             # wall position (m)
+    tau_act: float = 0.005       # servo lag of the position command (s); 0 = none
+
+
+def _wall(x: float, v: float, p: OneAxisPlant) -> float:
+    if x <= p.x_w:
+        return 0.0
+    return max(0.0, p.k_w * (x - p.x_w) + p.d_w * v)
+
+
+def simulate_1dof(plant: OneAxisPlant, design: ImpedanceDesign, x_ref, t_end: float, *,
+                  h: float = 0.004, substeps: int = 16, observer: str = "static",
+                  obs_cfg: fom.ObserverConfig | None = None, use_raw: bool = False,
+                  x0: float = -0.05, F_d: float = 0.0, noise_f: float = 0.0, noise_a: float = 0.0,
+                  seed: int = 0, tau_v: float = 0.01, controller=None) -> dict[str, np.ndarray]:
+    """Close the impedance loop on :class:`OneAxisPlant`.
+
+    ``x_ref(t)`` is the reference along the normal. The force fed back is the observer's
+    estimate (``observer`` = one of :data:`fom.OBSERVER_KINDS`) or, with ``use_raw``, the raw
+    sensor reading ``u = F + m_t a``. The plant is integrated with RK4, ``substeps`` per
+    controller step ``h``. ``controller(t, u, a, x, x_ref) -> (F_hat, Delta)``, if given,
+    replaces the built-in observer and impedance law for one sample (advancing over ``h``).
+    Returns time series (``t, x, v, a, F, u, F_hat, delta, x_ref``).
+    """
+    rng = np.random.default_rng(seed)
+    L = design_gains(design)
+    law = ImpedanceLaw(L, design.K_z, design.D_z, tau_v=tau_v)
+    cfg = obs_cfg or fom.ObserverConfig(kind=observer, m=plant.m_t)
+    obs = fom.ForceObserverCore(cfg)
+    k_r = plant.m_r * plant.w_r ** 2
+    d_r = 2 * plant.zeta_r * plant.w_r * plant.m_r
+    m_fl = plant.m_r - plant.m_t if plant.compliant else plant.m_r
+
+    lag = plant.tau_act > 0.0
+
+    def deriv(s: np.ndarray, x_cmd: float) -> np.ndarray:
+        # last state: the servo-filtered command (first-order lag tau_act)
+        xc = s[-1] if lag else x_cmd
+        dxc = (x_cmd - s[-1]) / plant.tau_act if lag else 0.0
+        if plant.compliant:
+            xf, vf, xt, vt = s[:4]
+            f_c = plant.k_c * (xf - xt) + plant.d_c * (vf - vt)
+            F = _wall(xt, vt, plant)
+            af = (k_r * (xc - xf) - d_r * vf - f_c) / m_fl
+            at = (f_c - F) / plant.m_t
+            return np.array([vf, af, vt, at, dxc])
+        x, v = s[:2]
+        F = _wall(x, v, plant)
+        return np.array([v, (k_r * (xc - x) - d_r * v - F) / m_fl, dxc])
+
+    if design.compliant and not plant.compliant:
+        raise ValueError("a compliant-tool design needs a compliant-tool plant")
+
+    def measure(s: np.ndarray, x_cmd: float) -> tuple[float, float, float, float]:
+        """tool position, tool acceleration, true contact force, sensor reading."""
+        ds = deriv(s, x_cmd)
+        if plant.compliant:
+            xt, vt, at = s[2], s[3], ds[3]
+            F = _wall(xt, vt, plant)
+            u = plant.k_c * (s[0] - s[2]) + plant.d_c * (s[1] - s[3])
+            return xt, at, F, u
+        F = _wall(s[0], s[1], plant)
+        return s[0], ds[1], F, F + plant.m_t * ds[1]
+
+    n = int(round(t_end / h))
+    s = np.array([x0, 0.0, x0, 0.0, x0]) if plant.compliant else np.array([x0, 0.0, x0])
+    iv = 3 if plant.compliant else 1      # index of the tool velocity
+    out = {k: np.empty(n) for k in ("t", "x", "v", "a", "F", "u", "F_hat", "delta", "x_ref")}
+    delta = 0.0
+    dt = h / substeps
+    for k in range(n):
+        t = k * h
+        xr = float(x_ref(t))
+        x_cmd_prev = xr + delta
+        x_t, a_t, F, u = measure(s, x_cmd_prev)
+        u_m = u + noise_f * rng.normal()
+        a_m = a_t + noise_a * rng.normal()
+        if controller is not None:   # e.g. the FMUs of observer and controller
+            F_hat, delta = controller(t, u_m, a_m, x_t, xr)
+        else:
+            F_hat = float(obs.output(np.array([u_m]), np.array([a_m]), np.array([x_t]))[0])
+            F_fb = u_m if use_raw else F_hat
+            h_prev = h if k else 0.0
+            x_fl = float(s[0]) if design.compliant else None
+            delta = law.output(F_fb, x_t, xr, F_d, h_prev, x_fl)
+            law.advance(F_fb, x_t, xr, F_d, h_prev, h, x_fl)
+            obs.advance(np.array([u_m]), np.array([a_m]), np.array([x_t]), h)
+        for key, val in (("t", t), ("x", x_t), ("v", s[iv]), ("a", a_t), ("F", F), ("u", u_m),
+                         ("F_hat", F_hat), ("delta", delta), ("x_ref", xr)):
+            out[key][k] = val
+        x_cmd = xr + delta
+        for _ in range(substeps):  # RK4 with the command held
+            k1 = deriv(s, x_cmd)
+            k2 = deriv(s + 0.5 * dt * k1, x_cmd)
+            k3 = deriv(s + 0.5 * dt * k2, x_cmd)
+            k4 = deriv(s + dt * k3, x_cmd)
+            s = s + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return out
+
+
+def smooth_ramp(x0: float, x1: float, t0: float, t1: float):
+    """A reference moving from ``x0`` to ``x1`` between ``t0`` and ``t1`` (quintic smooth-step)."""
+    def f(t: float) -> float:
+        s = min(max((t - t0) / (t1 - t0), 0.0), 1.0)
+        return x0 + (x1 - x0) * s ** 3 * (10 - 15 * s + 6 * s * s)
+    return f
+
+
+__all__ = ["lqr_gain", "ImpedanceDesign", "replace_design", "design_model", "design_gains", "closed_loop_poles",
+           "stationary_contact", "ImpedanceLaw", "OneAxisPlant", "simulate_1dof", "smooth_ramp"]

@@ -1,0 +1,64 @@
+"""FMU adapter of the motor-side angle encoders of joints 2 and 3 (math in
+:mod:`fmus.robot_plant.sensor_model`)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from fmus.common.fmi import FlexFusionSlave
+from fmus.common.parameters import param
+from fmus.robot_plant.sensor_model import SensorChannels
+
+RESOLVER = "16-bit resolver-to-digital conversion per motor revolution (e.g. AD2S1210 at 16 bit)"
+
+
+@dataclass(frozen=True)
+class EncoderParameters:
+    """Parameters of the Encoder FMU (both joints share them except bias and scale)."""
+
+    resolution: float = param(2.0 * math.pi / 2 ** 16, "rad", "quantisation step on the motor side "
+                              "(2 pi / 2^16 = 9.6e-5 rad; 0 = off)", low=0.0, source=RESOLVER)
+    noise: float = param(2e-5, "rad", "white noise std per sample (about 0.2 LSB)", low=0.0,
+                         source="assumed resolver electrical noise, below one count")
+    bias: tuple = param((0.0, 0.0), "rad", "constant offset per joint (calibrated: 0)")
+    bias_rw: float = param(0.0, "rad/s0.5", "bias random-walk intensity per sqrt(s)", low=0.0)
+    scale: tuple = param((0.0, 0.0), "1", "scale-factor error per joint (reading = (1+scale) q)",
+                         low=-0.5, high=0.5)
+    cutoff: float = param(0.0, "Hz", "anti-aliasing low-pass cut-off (0 = off; an encoder has none)",
+                          low=0.0)
+    filter_order: int = param(2, "1", "anti-aliasing filter order (1 or 2, Butterworth)", low=1, high=2)
+    sample_rate: float = param(0.0, "Hz", "sample rate with sample-and-hold (0 = every communication "
+                               "step; the papers sample at 2 kHz). Its period must be an integer "
+                               "multiple of the communication step", low=0.0,
+                               source="2009 and 2012 papers: 2 kHz")
+    seed: int = param(1, "1", "seed of the noise streams", low=0)
+
+
+class Encoder(FlexFusionSlave):
+    """Motor angle measurement ``q_m_meas`` of joints 2 and 3 (quantised, noisy, sampled).
+
+    No direct feedthrough: the reading at ``t + dt`` is the sample of the input held over the
+    step ``[t, t + dt)`` (one communication step of transport delay). Right after initialisation
+    the output is the noise-free reading of the initial input. The check that the sample period
+    is a multiple of the communication step happens at the first ``doStep`` (an FMU does not
+    know its step before), which then fails with a message naming ``sample_rate``.
+    """
+
+    parameters_class = EncoderParameters
+    description = "Motor-side angle encoders of joints 2 and 3: quantisation, noise, sample-and-hold"
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.input("q_m", 2, unit="rad", description="true motor angle, motor side")
+        self.output("q_m_meas", 2, unit="rad", description="measured motor angle, motor side")
+        self.channels: SensorChannels | None = None
+
+    def setup(self, p: EncoderParameters) -> None:
+        self.channels = SensorChannels(
+            2, seed=p.seed, stream="encoder", noise=p.noise, bias=p.bias, bias_rw=p.bias_rw,
+            scale=p.scale, resolution=p.resolution, sample_rate=p.sample_rate, cutoff=p.cutoff,
+            filter_order=p.filter_order)
+        self.q_m_meas[:] = self.channels.initial(self.q_m)
+
+    def step(self, t: float, dt: float) -> None:
+        self.q_m_meas[:] = self.channels.step(self.q_m, dt)

@@ -1,0 +1,69 @@
+"""FMU adapter of the flexible two-axis robot (2012 paper eqs. 10-11, 2009 paper eq. 2)."""
+from __future__ import annotations
+
+import numpy as np
+
+from fmus.common import dynamics, kinematics
+from fmus.common.fmi import FlexFusionSlave
+from fmus.robot_plant.plant_model import PlantParameters
+
+
+class FlexibleRobot2DOF(FlexFusionSlave):
+    """Flexible-joint model of axes 2 and 3 of a large industrial robot.
+
+    Every physical parameter is an FMU parameter, so a scenario can give the estimators a model
+    that differs from the plant. The arm starts at rest in static equilibrium under gravity at
+    ``q_a0``. Outputs at the end of a step use the state at that time and the inputs held over
+    the step; the accelerations depend directly on ``f_ext``.
+    """
+
+    parameters_class = PlantParameters
+    description = "Flexible two-axis industrial robot (axes 2 and 3), nonlinear gearbox springs"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("tau_m", 2, unit="N.m", description="motor torque, motor side")
+        self.input("f_ext", 2, unit="N", description="external force on the tool, world x and z")
+        acc = ("f_ext",)
+        self.output("q_a", 2, unit="rad", description="arm angle")
+        self.output("dq_a", 2, unit="rad/s", description="arm angular velocity")
+        self.output("ddq_a", 2, unit="rad/s2", description="arm angular acceleration", depends_on=acc)
+        self.output("q_m", 2, unit="rad", description="motor angle, motor side")
+        self.output("dq_m", 2, unit="rad/s", description="motor angular velocity, motor side")
+        self.output("p_tool", 2, unit="m", description="tool position, world x and z")
+        self.output("v_tool", 2, unit="m/s", description="tool velocity, world x and z")
+        self.output("a_tool", 2, unit="m/s2", description="tool acceleration, world x and z", depends_on=acc)
+        self.output("phi_tool", unit="rad", description="tool angle about world y")
+        self.output("omega_tool", unit="rad/s", description="tool angular rate about world y")
+        self.output("p_sensor", 2, unit="m", description="accelerometer mount position, world x and z")
+        self.output("a_sensor", 2, unit="m/s2", description="accelerometer mount acceleration, world x and z",
+                    depends_on=acc)
+        self.output("tau_s", 2, unit="N.m", description="gearbox spring torque, arm side")
+
+    def setup(self, params: PlantParameters) -> None:
+        self.robot = params.robot()
+        self.model = dynamics.FlexibleRobotModel(self.robot, params.initial_angles(), substeps=params.substeps)
+        self.update_outputs()
+
+    def step(self, t: float, dt: float) -> None:
+        self.model.step(self.tau_m, self.f_ext, dt)
+        self.update_outputs()
+
+    def update_outputs(self) -> None:
+        p = self.robot
+        x = self.model.x
+        q, qm, dq, dqm = x[0:2], x[2:4], x[4:6], x[6:8]
+        ddq = dynamics.arm_acceleration(x, self.f_ext, p)
+        self.q_a[:] = q
+        self.dq_a[:] = dq
+        self.ddq_a[:] = ddq
+        self.q_m[:] = qm
+        self.dq_m[:] = dqm
+        self.p_tool[:] = kinematics.tool_position(q, p)
+        self.v_tool[:] = kinematics.jacobian(q, p, "tool") @ dq
+        self.a_tool[:] = kinematics.point_acceleration(q, dq, ddq, p, "tool")
+        self.phi_tool = float(q[0] + q[1])
+        self.omega_tool = float(dq[0] + dq[1])
+        self.p_sensor[:] = kinematics.sensor_position(q, p)
+        self.a_sensor[:] = kinematics.point_acceleration(q, dq, ddq, p, "sensor")
+        self.tau_s[:] = dynamics.spring_torque(q, qm, p)

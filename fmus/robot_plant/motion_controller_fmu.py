@@ -1,0 +1,79 @@
+"""FMU adapter of the robot's motion controller (path, inverse kinematics, feed-forward, motor PID).
+
+The math is in :mod:`fmus.robot_plant.motion_control_model` and :mod:`fmus.robot_plant.trajectory`.
+"""
+from __future__ import annotations
+
+from fmus.common.fmi import FlexFusionSlave
+from fmus.robot_plant.motion_control_model import COLUMNS, MotionControllerParameters, build_controller
+
+# outputs copied straight from the reference-table row
+_ROW_OUTPUTS = tuple((name, COLUMNS[name]) for name in
+                     ("dq_a_ref", "ddq_a_ref", "dddq_a_ref", "v_ref", "a_ref", "dq_m_ref", "tau_ff"))
+
+
+class MotionController(FlexFusionSlave):
+    """Motion controller of the flexible two-axis robot.
+
+    Follows a Cartesian tool path (parameter ``path``: ``p1``, ``p2``, ``iso9283``, ``square`` or
+    ``csv`` with ``csv_file``), plus a Cartesian offset ``dp_ref`` from an impedance controller.
+    Outputs the motor torque from a motor-side PID with rigid-body and flexible-joint
+    feed-forward, and the arm references including the jerk (the 2012 paper's EKF input). The
+    robot parameters are the controller's own model of the robot: set them differently from the
+    plant's to study model errors. The torque is computed from the measurement at the start of
+    each communication step and held over it.
+    """
+
+    parameters_class = MotionControllerParameters
+    description = "Motion controller: smooth Cartesian paths, IK, flexible-joint feed-forward, motor PID"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("q_m", 2, unit="rad", description="measured motor angle, motor side")
+        self.input("dq_m", 2, unit="rad/s", description="measured motor angular velocity, motor side")
+        self.input("dp_ref", 2, unit="m", description="Cartesian offset of the tool reference, world x and z")
+        meas = ("q_m", "dq_m", "dp_ref")
+        off = ("dp_ref",)
+        self.output("tau_m", 2, unit="N.m", description="motor torque command, motor side", depends_on=meas)
+        self.output("q_a_ref", 2, unit="rad", description="arm angle reference (with the dp_ref offset)",
+                    depends_on=off)
+        self.output("dq_a_ref", 2, unit="rad/s", description="arm angular velocity reference")
+        self.output("ddq_a_ref", 2, unit="rad/s2", description="arm angular acceleration reference")
+        self.output("dddq_a_ref", 2, unit="rad/s3", description="arm angular jerk reference (EKF input)")
+        self.output("p_ref", 2, unit="m", description="tool position reference, world x and z (with dp_ref)",
+                    depends_on=off)
+        self.output("v_ref", 2, unit="m/s", description="tool velocity reference, world x and z")
+        self.output("a_ref", 2, unit="m/s2", description="tool acceleration reference, world x and z")
+        self.output("q_m_ref", 2, unit="rad", description="motor angle reference, motor side (with deflection)",
+                    depends_on=off)
+        self.output("dq_m_ref", 2, unit="rad/s", description="motor angular velocity reference, motor side")
+        self.output("tau_ff", 2, unit="N.m", description="feed-forward motor torque, motor side")
+        self.output("e_m", 2, unit="rad", description="motor angle error q_m_ref - q_m, motor side",
+                    depends_on=meas)
+        self._eval_t = None
+
+    def setup(self, params: MotionControllerParameters) -> None:
+        self.ctrl = build_controller(params)
+        self._evaluate(self._time)
+
+    def _evaluate(self, t: float) -> None:
+        c = self.ctrl
+        c.evaluate(t, self.q_m, self.dq_m, self.dp_ref)
+        self._eval_t = t
+        row = c.row
+        for name, cols in _ROW_OUTPUTS:
+            getattr(self, name)[:] = row[cols]
+        self.tau_m[:] = c.tau
+        self.q_a_ref[:] = c.q_a_ref
+        self.q_m_ref[:] = c.q_m_ref
+        self.p_ref[:] = c.p_ref
+        self.e_m[:] = c.error
+
+    def update_outputs(self) -> None:
+        self._evaluate(self._time)
+
+    def step(self, t: float, dt: float) -> None:
+        if self._inputs_dirty or self._eval_t != t:
+            self._evaluate(t)
+        self.ctrl.advance(dt)
+        self._evaluate(t + dt)

@@ -1,0 +1,206 @@
+"""The ``flexfusion`` command line: build, run, plot, export-ssp, study.
+
+Every error a user can cause ends in one line ``error: ...`` on stderr and exit status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+from typing import Any
+
+EXIT_USER_ERROR = 2
+
+
+def _error(message: str) -> int:
+    print("error: " + " ".join(str(message).split()), file=sys.stderr)
+    return EXIT_USER_ERROR
+
+
+def _show_warning(message: Any, category: Any, filename: str, lineno: int, file: Any = None,
+                  line: Any = None) -> None:
+    print(f"warning: {message}", file=sys.stderr)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from .master import RunError, run
+    from .scenario import ScenarioError, load_scenario
+
+    try:
+        scenario = load_scenario(args.scenario, args.set or ())
+        out = args.out or Path("results") / scenario.name
+        result = run(scenario, out_dir=out, progress=not args.no_progress)
+    except (ScenarioError, RunError) as exc:
+        msg = str(exc)
+        out_dir = getattr(exc, "out_dir", None)
+        if out_dir is not None:
+            msg += f" (results up to the failure in {out_dir})"
+        return _error(msg)
+    print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
+    for name, value in result.metrics.items():
+        print(f"  {name:<32} {value:.6g}")
+    return 0
+
+
+def _variables_figure(result: Any, path: Path, max_vars: int = 40) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = result.variables()[:max_vars]
+    n = max(len(names), 1)
+    fig, axes = plt.subplots(n, 1, figsize=(9, 1.9 * n + 0.6), sharex=True, squeeze=False)
+    for ax, name in zip(axes[:, 0], names):
+        y = result[name]
+        y = y.reshape(len(y), -1)
+        for j in range(y.shape[1]):
+            ax.plot(result.time, y[:, j], lw=0.9, label=f"[{j + 1}]" if y.shape[1] > 1 else None)
+        ax.set_ylabel(name, fontsize=8)
+        ax.grid(alpha=0.3)
+        if y.shape[1] > 1:
+            ax.legend(fontsize=7, loc="upper right")
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _tool_figure(result: Any, path: Path, truth: str, estimates: list[str]) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    p = result[truth]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5))
+    ax1.plot(p[:, 0], p[:, 1], "k", lw=1.5, label=truth)
+    for est in estimates:
+        q = result[est]
+        ax1.plot(q[:, 0], q[:, 1], lw=0.9, label=est)
+        ax2.plot(result.time, 1e3 * np.linalg.norm(q - p, axis=1), lw=0.9, label=est)
+    ax1.set_xlabel("x (m)")
+    ax1.set_ylabel("z (m)")
+    ax1.set_title("tool path (x-z plane)")
+    ax1.axis("equal")
+    ax1.legend(fontsize=8)
+    ax1.grid(alpha=0.3)
+    ax2.set_xlabel("time (s)")
+    ax2.set_ylabel("|p_hat - p| (mm)")
+    ax2.set_title("tool position error")
+    ax2.legend(fontsize=8)
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_run(out_dir: Path) -> list[Path]:
+    """PNG plots of a run folder: every recorded variable over time (``variables.png``) and,
+    when the run recorded ``plant.p_tool`` and some ``*.p_tool_hat``, the tool path with the
+    estimates and the error norm over time (``tool_path.png``)."""
+    from .results import Result
+
+    result = Result.load(out_dir)
+    written = [_variables_figure(result, Path(out_dir) / "variables.png")]
+    variables = result.variables()
+    truth = "plant.p_tool"
+    estimates = [v for v in variables if v.endswith(".p_tool_hat")]
+    if truth in variables and estimates and result[truth].ndim == 2 and result[truth].shape[1] >= 2:
+        written.append(_tool_figure(result, Path(out_dir) / "tool_path.png", truth, estimates))
+    return written
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    out = Path(args.dir)
+    if not out.is_dir():
+        return _error(f"{out}: no such run folder")
+    try:
+        written = plot_run(out)
+    except (FileNotFoundError, ValueError, KeyError) as exc:
+        return _error(f"{out}: cannot plot: {exc}")
+    for p in written:
+        print(p)
+    return 0
+
+
+def export_ssp(scenario_path: Path, out: Path, overrides: list[str] | tuple[str, ...] = ()) -> Path:
+    """Write a scenario as an SSP package (see :mod:`orchestration.ssp`)."""
+    from .scenario import load_scenario
+    from .ssp import SspComponent, write_ssp
+
+    sc = load_scenario(scenario_path, overrides)
+    inputs: dict[str, list[str]] = {n: [] for n in sc.components}
+    outputs: dict[str, list[str]] = {n: [] for n in sc.components}
+    conns: list[tuple[str, str, str, str]] = []
+    for c in sc.connections:
+        for s, d in c.pairs:
+            if s not in outputs[c.src]:
+                outputs[c.src].append(s)
+            inputs[c.dst].append(d)
+            conns.append((c.src, s, c.dst, d))
+    for col in sc.record_columns():        # recorded outputs are connectors too
+        cname, var = col.split(".", 1)
+        info = sc.components[cname].variables[var]
+        if info.causality == "output" and var not in outputs[cname]:
+            outputs[cname].append(var)
+    comps = [SspComponent(c.name, c.fmu, c.step, dict(c.parameters), inputs[c.name], outputs[c.name])
+             for c in sc.components.values()]
+    return write_ssp(out, sc.name, comps, conns, sc.base_step, sc.stop_time)
+
+
+def cmd_export_ssp(args: argparse.Namespace) -> int:
+    from .scenario import ScenarioError
+    try:
+        path = export_ssp(Path(args.scenario), Path(args.output), args.set or ())
+    except ScenarioError as exc:
+        return _error(str(exc))
+    except OSError as exc:
+        return _error(f"cannot write {args.output}: {exc}")
+    print(path)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="flexfusion", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("build", help="build and validate every FMU into dist/fmus", add_help=False)
+
+    p_run = sub.add_parser("run", help="run a scenario: results.csv, metrics.json, run.json")
+    p_run.add_argument("scenario", type=Path, help="scenario file (TOML)")
+    p_run.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE",
+                       help="override a parameter (repeatable); also scenario.seed=N, scenario.stop_time=T")
+    p_run.add_argument("--out", type=Path, help="output folder (default results/<scenario name>)")
+    p_run.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    p_plot = sub.add_parser("plot", help="PNG plots of a run folder")
+    p_plot.add_argument("dir", type=Path, help="a run folder (flexfusion run --out)")
+
+    p_ssp = sub.add_parser("export-ssp", help="export a scenario as an SSP package")
+    p_ssp.add_argument("scenario", type=Path, help="scenario file (TOML)")
+    p_ssp.add_argument("-o", "--output", required=True, type=Path, help="the .ssp file to write")
+    p_ssp.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE", help="override a parameter")
+
+    args, rest = parser.parse_known_args(argv)
+    if args.command == "build":
+        from orchestration import build
+        return build.main(rest)
+    if rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp}
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        return handlers[args.command](args)
+
+
+def console_main() -> None:
+    """The ``flexfusion`` console script: :func:`main`, then an exit that skips pythonfmu's
+    crashing library destructors (see :mod:`orchestration.fmpy_compat`)."""
+    from orchestration import fmpy_compat
+    fmpy_compat.exit_without_finalizers(main())
+
+
+if __name__ == "__main__":
+    sys.exit(main())

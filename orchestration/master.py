@@ -1,0 +1,612 @@
+"""The co-simulation master algorithm on fmpy's ``FMU2Slave``.
+
+* Fixed base step ``h``; a component with communication step ``k h`` is stepped every ``k`` base
+  steps (``doStep(t, k h)``) and its outputs are held in between (multi-rate).
+* Gauss–Seidel: the components are stepped in topological order of the connection graph, each
+  one's inputs set from the freshest outputs of its producers. A cycle of connections is broken
+  at one edge, preferably one whose target input has no direct feedthrough to an output; the
+  consumer on that edge reads the producer's previous value (Jacobi) and a
+  :class:`CouplingWarning` names the edge once. A cycle made of direct-feedthrough dependencies
+  only (output -> input -> output ...) is an algebraic loop and is rejected.
+* Initialisation in dependency order: every instance enters initialisation mode and gets its
+  parameters; then, in Gauss–Seidel order, each gets its inputs from its producers' initial
+  outputs and leaves initialisation mode, and its outputs are read.
+* Per component and step: one batched ``fmi2SetReal`` of all connected inputs and one batched
+  ``fmi2GetReal`` of all needed outputs, straight from/to one shared value buffer (ctypes arrays
+  and numpy views, value references precomputed).
+* A NaN on a connection, or an FMU status error/discard/fatal, stops the run with a
+  :class:`RunError` naming the component, the variable and the time (with the FMU's own log).
+  Instances are always terminated and freed.
+"""
+from __future__ import annotations
+
+import atexit
+import os
+import ctypes
+import shutil
+import sys
+import tempfile
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Iterable
+
+import numpy as np
+
+from .scenario import Component, Scenario, ScenarioError
+
+if TYPE_CHECKING:
+    from .results import Result
+
+
+class RunError(RuntimeError):
+    """A run failed (FMU error, NaN on a connection); the message names component and time."""
+
+    def __init__(self, message: str, time: float | None = None, component: str | None = None) -> None:
+        super().__init__(message)
+        self.time = time
+        self.component = component
+
+
+class CouplingWarning(UserWarning):
+    """A connection of a cycle uses the producer's previous value (Jacobi)."""
+
+
+# ---------------------------------------------------------------------------------------------
+# ordering
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Plan:
+    """Gauss–Seidel order and the connections that read a previous value."""
+    order: list[str]
+    broken: list[tuple[str, str]] = field(default_factory=list)  # (producer, consumer) edges
+    broken_text: list[str] = field(default_factory=list)         # the connections on them
+
+
+def _feedthrough(comp: Component, input_scalar: str) -> bool:
+    return any(input_scalar in (v.depends_on or ()) for v in comp.variables.values()
+               if v.causality == "output")
+
+
+def find_algebraic_loop(scenario: Scenario) -> list[str] | None:
+    """A cycle of direct feedthrough through the connections (as ``comp.var`` names), or None."""
+    succ: dict[str, list[str]] = {}
+    for c in scenario.connections:
+        for s, d in c.pairs:
+            succ.setdefault(f"{c.src}.{s}", []).append(f"{c.dst}.{d}")
+    for comp in scenario.components.values():
+        for name, v in comp.variables.items():
+            if v.causality == "output":
+                for inp in v.depends_on or ():
+                    succ.setdefault(f"{comp.name}.{inp}", []).append(f"{comp.name}.{name}")
+    color: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(n: str) -> list[str] | None:
+        color[n] = 1
+        stack.append(n)
+        for m in succ.get(n, ()):
+            if color.get(m) == 1:
+                return stack[stack.index(m):] + [m]
+            if color.get(m) is None:
+                found = visit(m)
+                if found:
+                    return found
+        stack.pop()
+        color[n] = 2
+        return None
+
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(limit, 10 * len(succ) + 100))
+    try:
+        for n in sorted(succ):
+            if color.get(n) is None:
+                found = visit(n)
+                if found:
+                    return found
+    finally:
+        sys.setrecursionlimit(limit)
+    return None
+
+
+def plan(scenario: Scenario) -> Plan:
+    """The Gauss–Seidel order of the components (ties: scenario order), cycles broken.
+
+    Raises
+    ------
+    ScenarioError
+        On an algebraic loop (a cycle of direct-feedthrough dependencies).
+    """
+    loop = find_algebraic_loop(scenario)
+    if loop:
+        where = f"{scenario.path}: " if scenario.path else ""
+        raise ScenarioError(f"{where}algebraic loop of direct feedthrough: " + " -> ".join(loop)
+                            + " (break it with a component that has no direct feedthrough)")
+    names = list(scenario.components)
+    rank = {n: i for i, n in enumerate(names)}
+    edges: dict[tuple[str, str], list[Any]] = {}
+    for c in scenario.connections:
+        edges.setdefault((c.src, c.dst), []).append(c)
+    active = set(edges)
+    result = Plan(order=[])
+    while True:
+        order = _kahn(names, active, rank)
+        if len(order) == len(names):
+            result.order = order
+            return result
+        rest = [n for n in names if n not in order]
+        cycle = _find_cycle(rest, active, rank)
+        # prefer an edge whose consumer inputs have no direct feedthrough (a true delay)
+        def cost(e: tuple[str, str]) -> tuple[int, int, int]:
+            ft = any(_feedthrough(scenario.components[e[1]], d) for c in edges[e] for _, d in c.pairs)
+            return (1 if ft else 0, rank[e[1]], rank[e[0]])
+        edge = min(cycle, key=cost)
+        active.discard(edge)
+        result.broken.append(edge)
+        result.broken_text += [str(c) for c in edges[edge]]
+
+
+def _kahn(names: list[str], edges: set[tuple[str, str]], rank: dict[str, int]) -> list[str]:
+    indeg = {n: 0 for n in names}
+    for (_, d) in edges:
+        indeg[d] += 1
+    ready = sorted((n for n in names if indeg[n] == 0), key=rank.get)
+    order: list[str] = []
+    while ready:
+        n = ready.pop(0)
+        order.append(n)
+        for (s, d) in sorted(edges):
+            if s == n:
+                indeg[d] -= 1
+                if indeg[d] == 0:
+                    ready.append(d)
+                    ready.sort(key=rank.get)
+    return order
+
+
+def _find_cycle(nodes: list[str], edges: set[tuple[str, str]], rank: dict[str, int]) -> list[tuple[str, str]]:
+    """Edges of one cycle among ``nodes`` (every node there is on or behind a cycle)."""
+    node_set = set(nodes)
+    succ = {n: sorted((d for (s, d) in edges if s == n and d in node_set), key=rank.get) for n in nodes}
+    # walk forward from the first node until a node repeats: the repeated part is a cycle
+    path = [nodes[0]]
+    seen = {nodes[0]: 0}
+    while True:
+        nxt = succ[path[-1]]
+        if not nxt:  # cannot happen: a node left by Kahn has a predecessor; walk backwards then
+            raise RuntimeError("internal error: no cycle found")
+        n = nxt[0]
+        if n in seen:
+            cyc = path[seen[n]:] + [n]
+            return list(zip(cyc[:-1], cyc[1:]))
+        seen[n] = len(path)
+        path.append(n)
+
+
+# ---------------------------------------------------------------------------------------------
+# instances
+# ---------------------------------------------------------------------------------------------
+_KEPT: list["_Instance"] = []   # terminated pythonfmu instances (see _Instance.close)
+_STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
+
+
+class _Instance:
+    """One FMU2Slave instance with its log, buffers and raw FMI function pointers."""
+
+    def __init__(self, comp: Component, unzip_dir: str) -> None:
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+        self.comp = comp
+        self.name = comp.name
+        self.pythonfmu = os.path.isfile(os.path.join(unzip_dir, "resources", "slavemodule.txt"))
+        self.log: list[str] = []
+
+        def logger(env: Any, instance: bytes, status: int, category: bytes, message: bytes) -> None:
+            text = message.decode(errors="replace") if message else ""
+            label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+            self.log.append(f"[{label}] {text}")
+
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(logger)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self._callbacks = cb
+        self._logger = logger
+        self.fmu = FMU2Slave(guid=comp.guid, unzipDirectory=unzip_dir,
+                             modelIdentifier=comp.model_identifier, instanceName=comp.name)
+        self.instantiated = False
+        self.initialized = False
+        self.fmu.instantiate(callbacks=cb, loggingOn=True)
+        self.instantiated = True
+        functions = getattr(self.fmu, "_functions", {})
+        # raw ctypes functions (status returned, not raised) when fmpy exposes them
+        self.c_set = functions.get("fmi2SetReal") or _status_of(self.fmu.fmi2SetReal)
+        self.c_get = functions.get("fmi2GetReal") or _status_of(self.fmu.fmi2GetReal)
+        self.c_step = functions.get("fmi2DoStep") or _status_of(self.fmu.fmi2DoStep)
+        self.handle = self.fmu.component
+
+    def log_text(self, last: int = 5) -> str:
+        """The FMU's last log messages on one line."""
+        lines = [" ".join(line.split()) for line in self.log if line.strip()]
+        if not lines:
+            return "(the FMU logged nothing)"
+        return " | ".join(lines[-last:])
+
+    def close(self) -> None:
+        try:
+            if self.instantiated:
+                try:
+                    if self.initialized:
+                        self.fmu.terminate()
+                except Exception:  # noqa: BLE001 - terminate after an error may fail too
+                    pass
+                # The library is never unloaded (pythonfmu's native library owns code of
+                # Python objects that outlive an instance). A pythonfmu 0.7.0 instance is not
+                # freed either: its fmi2FreeInstance leaves a dangling object that makes a later
+                # garbage collection crash the process (segmentation fault in about 3 of 4 test
+                # sessions; none without the free). It is terminated, and kept until exit.
+                # FLEXFUSION_FREE_PYTHONFMU=1 frees it (for a fixed pythonfmu build).
+                if not self.pythonfmu or os.environ.get("FLEXFUSION_FREE_PYTHONFMU") == "1":
+                    self.fmu.fmi2FreeInstance(self.fmu.component)
+                else:
+                    _KEPT.append(self)
+                self.instantiated = False
+        except Exception:  # noqa: BLE001
+            pass
+
+
+def _status_of(function: Callable[..., int]) -> Callable[..., int]:
+    from fmpy.fmi1 import FMICallException
+
+    def call(*args: Any) -> int:
+        try:
+            return function(*args)
+        except FMICallException as exc:
+            return exc.status
+    return call
+
+
+def _set_parameters(inst: _Instance) -> None:
+    by_type: dict[str, tuple[list[int], list[Any]]] = {}
+    for name, value in inst.comp.parameters.items():
+        info = inst.comp.variables[name]
+        vrs, vals = by_type.setdefault(info.type, ([], []))
+        vrs.append(info.value_reference)
+        vals.append(value)
+    for t, (vrs, vals) in by_type.items():
+        if t == "Real":
+            inst.fmu.setReal(vrs, vals)
+        elif t in ("Integer", "Enumeration"):
+            inst.fmu.setInteger(vrs, vals)
+        elif t == "Boolean":
+            inst.fmu.setBoolean(vrs, vals)
+        elif t == "String":
+            inst.fmu.setString(vrs, [str(v) for v in vals])
+
+
+# ---------------------------------------------------------------------------------------------
+# the run
+# ---------------------------------------------------------------------------------------------
+Sink = Callable[[float, np.ndarray], None]
+
+
+@dataclass
+class _Slot:
+    """Precomputed per-component data of the stepping loop."""
+    inst: _Instance
+    ratio: int
+    step: float
+    n_in: int
+    in_vr: Any
+    in_buf: Any
+    in_view: np.ndarray
+    in_idx: np.ndarray
+    n_out: int
+    out_vr: Any
+    out_ptr: Any
+    out_start: int
+    n_check: int             # the first n_check outputs are connected: checked for NaN
+    out_names: list[str]
+
+
+def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | None = None) -> list[str]:
+    """Run the scenario; ``sink(t, values)`` gets every recorded row (values in
+    ``scenario.record_columns()`` order, t = 0 first). Returns the coupling warnings given.
+
+    Raises
+    ------
+    ScenarioError
+        Algebraic loop.
+    RunError
+        An FMU failed (instantiate, initialise, doStep) or produced NaN on a connection.
+    """
+    from fmpy.fmi1 import FMICallException
+
+    p = plan(scenario)
+    notes = []
+    for text in p.broken_text:
+        msg = (f"{scenario.name}: connection '{text}' is in a cycle; it uses the previous step's "
+               "value (Jacobi)")
+        warnings.warn(msg, CouplingWarning, stacklevel=2)
+        notes.append(msg)
+
+    comps = scenario.components
+    # which scalars of each component are read: connected outputs first, then recorded ones
+    needed: dict[str, list[str]] = {n: [] for n in comps}
+    connected: dict[str, int] = {}
+    for c in scenario.connections:
+        for s, _ in c.pairs:
+            if s not in needed[c.src]:
+                needed[c.src].append(s)
+    for n in comps:
+        connected[n] = len(needed[n])
+    for col in scenario.record_columns():
+        cname, var = col.split(".", 1)
+        if var not in needed[cname]:
+            needed[cname].append(var)
+    # one shared buffer of every read value
+    offsets: dict[tuple[str, str], int] = {}
+    total = 0
+    starts = {}
+    for n in p.order:
+        starts[n] = total
+        for var in needed[n]:
+            offsets[(n, var)] = total
+            total += 1
+    values_c = (ctypes.c_double * (total + 1))()   # + 1: a component reading nothing points at the end
+    values = np.ctypeslib.as_array(values_c)
+    values[:] = 0.0
+    record_idx = np.array([offsets[tuple(col.split(".", 1))] for col in scenario.record_columns()],
+                          dtype=np.intp)
+    inputs: dict[str, list[tuple[str, str, str]]] = {n: [] for n in comps}   # (dst var, src comp, src var)
+    for c in scenario.connections:
+        for s, d in c.pairs:
+            inputs[c.dst].append((d, c.src, s))
+
+    instances: list[_Instance] = []
+    slots: list[_Slot] = []
+    h = scenario.base_step
+    t_now = 0.0
+    current: _Instance | None = None
+    try:
+        # ---- instantiate, parameters -----------------------------------------------------
+        for n in p.order:
+            comp = comps[n]
+            current = None
+            try:
+                inst = _Instance(comp, _extracted(comp))
+            except FMICallException as exc:
+                raise RunError(f"component '{n}' ({comp.fmu.name}): instantiate failed: {exc}",
+                               0.0, n) from None
+            except Exception as exc:  # noqa: BLE001 - a library that does not load
+                raise RunError(f"component '{n}' ({comp.fmu.name}): cannot load the FMU: "
+                               f"{type(exc).__name__}: {exc}", 0.0, n) from None
+            if inst.handle is None:
+                raise RunError(f"component '{n}' ({comp.fmu.name}): fmi2Instantiate failed; FMU log: "
+                               + inst.log_text(), 0.0, n)
+            instances.append(inst)
+            current = inst
+            inst.fmu.setupExperiment(startTime=0.0, stopTime=scenario.stop_time)
+            inst.fmu.enterInitializationMode()
+            inst.initialized = True
+            _set_parameters(inst)
+
+        by_name = {i.name: i for i in instances}
+        for n in p.order:
+            inst = by_name[n]
+            ins = inputs[n]
+            in_vr = (ctypes.c_uint * max(len(ins), 1))(*[comps[n].variables[d].value_reference for d, _, _ in ins])
+            in_buf = (ctypes.c_double * max(len(ins), 1))()
+            out_vr = (ctypes.c_uint * max(len(needed[n]), 1))(
+                *[comps[n].variables[v].value_reference for v in needed[n]])
+            out_ptr = (ctypes.c_double * max(len(needed[n]), 1)).from_buffer(values_c, 8 * starts[n])
+            slots.append(_Slot(inst, comps[n].ratio, comps[n].step, len(ins), in_vr, in_buf,
+                               np.ctypeslib.as_array(in_buf),
+                               np.array([offsets[(s, v)] for _, s, v in ins], dtype=np.intp),
+                               len(needed[n]), out_vr, out_ptr, starts[n], connected[n],
+                               needed[n]))
+
+        # ---- initialisation in dependency order ------------------------------------------
+        for s in slots:
+            current = s.inst
+            if s.n_in:
+                np.take(values, s.in_idx, out=s.in_view)
+                s.inst.fmu.fmi2SetReal(s.inst.handle, s.in_vr, s.n_in, s.in_buf)
+            s.inst.fmu.exitInitializationMode()
+            if s.n_out:
+                s.inst.fmu.fmi2GetReal(s.inst.handle, s.out_vr, s.n_out, s.out_ptr)
+                _check_nan(s, values, 0.0)
+        if p.broken:
+            # a consumer on a broken edge saw its producer's start value: one more Gauss–Seidel
+            # pass (step mode, before the first step) gives every input its initial value
+            for s in slots:
+                current = s.inst
+                if s.n_in:
+                    np.take(values, s.in_idx, out=s.in_view)
+                    s.inst.fmu.fmi2SetReal(s.inst.handle, s.in_vr, s.n_in, s.in_buf)
+                if s.n_out:
+                    s.inst.fmu.fmi2GetReal(s.inst.handle, s.out_vr, s.n_out, s.out_ptr)
+                    _check_nan(s, values, 0.0)
+        current = None
+        sink(0.0, values[record_idx])
+
+        # ---- stepping --------------------------------------------------------------------
+        n_steps = scenario.n_steps
+        every = scenario.record_every
+        tick = max(1, n_steps // 200)
+        for k in range(n_steps):
+            t_now = k * h
+            for s in slots:
+                if k % s.ratio:
+                    continue
+                inst = s.inst
+                if s.n_in:
+                    np.take(values, s.in_idx, out=s.in_view)
+                    st = s.inst.c_set(inst.handle, s.in_vr, s.n_in, s.in_buf)
+                    if st > 1:
+                        _fail(inst, "fmi2SetReal", st, t_now)
+                st = inst.c_step(inst.handle, t_now, s.step, 1)
+                if st > 1:
+                    _fail(inst, "fmi2DoStep", st, t_now)
+                if s.n_out:
+                    st = inst.c_get(inst.handle, s.out_vr, s.n_out, s.out_ptr)
+                    if st > 1:
+                        _fail(inst, "fmi2GetReal", st, t_now)
+                    if s.n_check:
+                        chk = values[s.out_start:s.out_start + s.n_check]
+                        if chk.sum() != chk.sum():
+                            _check_nan(s, values, (k + 1) * h)
+            if (k + 1) % every == 0:
+                sink(round((k + 1) * h, 12), values[record_idx])
+            if progress is not None and ((k + 1) % tick == 0 or k + 1 == n_steps):
+                progress(k + 1)
+        t_now = scenario.stop_time
+    except FMICallException as exc:
+        if current is not None:
+            raise RunError(f"component '{current.name}' failed at t = {t_now:.6g} s: {str(exc).rstrip('.')}; FMU log: "
+                           + current.log_text(), t_now, current.name) from None
+        raise RunError(f"FMI call failed at t = {t_now:.6g} s: {exc}", t_now) from None
+    finally:
+        for inst in reversed(instances):
+            inst.close()
+    return notes
+
+
+_EXTRACTED: dict[tuple[str, float], str] = {}
+_EXTRACT_ROOT: list[str] = []
+
+
+def _extracted(comp: Component) -> str:
+    """The folder an FMU is extracted to, once per process and FMU file version (its shared
+    library is loaded once and reused by every instance); removed at exit."""
+    from fmpy import extract
+    path = comp.fmu.resolve()
+    key = (str(path), path.stat().st_mtime)
+    if key not in _EXTRACTED:
+        if not _EXTRACT_ROOT:
+            _EXTRACT_ROOT.append(tempfile.mkdtemp(prefix="flexfusion_fmus_"))
+            atexit.register(shutil.rmtree, _EXTRACT_ROOT[0], True)
+        _EXTRACTED[key] = extract(str(path), unzipdir=tempfile.mkdtemp(dir=_EXTRACT_ROOT[0]))
+    return _EXTRACTED[key]
+
+
+def _fail(inst: _Instance, function: str, status: int, t: float) -> None:
+    label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+    raise RunError(f"component '{inst.name}' failed at t = {t:.6g} s: {function} returned "
+                   f"{label}; FMU log: {inst.log_text()}", t, inst.name)
+
+
+def _check_nan(s: _Slot, values: np.ndarray, t: float) -> None:
+    chk = values[s.out_start:s.out_start + s.n_check]
+    bad = [s.out_names[i] for i in np.flatnonzero(np.isnan(chk))]
+    if bad:
+        raise RunError(f"NaN on a connection: component '{s.inst.name}' output "
+                       f"'{bad[0]}' is NaN at t = {t:.6g} s"
+                       + (f" (also {', '.join(bad[1:])})" if len(bad) > 1 else ""), t, s.inst.name)
+
+
+# ---------------------------------------------------------------------------------------------
+# the public entry point
+# ---------------------------------------------------------------------------------------------
+def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[str] = (),
+        out_dir: str | Path | None = None, progress: bool = False) -> "Result":
+    """Run a scenario and write its results.
+
+    Parameters
+    ----------
+    scenario
+        A scenario file, a parsed TOML document, or a loaded :class:`Scenario`.
+    overrides
+        ``comp.param=value``, ``comp.param[i]=value``, ``scenario.seed=3`` ... strings.
+    out_dir
+        Folder for ``results.csv``, ``metrics.json``, ``run.json`` (created); default: a new
+        temporary folder.
+    progress
+        Show a tqdm progress bar on stderr.
+
+    Returns
+    -------
+    Result
+        Time, recorded variables (``result["plant.p_tool"]`` -> (n, 2)) and metrics.
+
+    Raises
+    ------
+    ScenarioError
+        The scenario is wrong (nothing is written).
+    RunError
+        The run failed; ``results.csv`` holds the rows up to the failure and ``run.json`` the
+        message (``error.out_dir`` is the folder).
+    """
+    from . import metrics as _metrics
+    from .results import CSV_NAME, METRICS_NAME, RUN_NAME, CsvWriter, Result, versions, write_json
+    from .scenario import load_scenario
+
+    overrides = tuple(overrides)
+    if isinstance(scenario, Scenario):
+        sc = load_scenario(scenario.path, scenario.overrides + overrides) if (overrides and scenario.path) else scenario
+        if overrides and not scenario.path:
+            raise ScenarioError("overrides need a scenario loaded from a file or a document")
+    else:
+        sc = load_scenario(scenario, overrides)
+    plan(sc)  # reject an algebraic loop before anything is written
+    out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix=f"flexfusion_{sc.name}_"))
+    out.mkdir(parents=True, exist_ok=True)
+    for stale in (METRICS_NAME, RUN_NAME):
+        (out / stale).unlink(missing_ok=True)
+    columns = sc.record_columns()
+    info: dict[str, Any] = {"scenario": sc.describe(), "overrides": list(overrides or sc.overrides),
+                            "versions": versions(), "status": "running", "error": None}
+    t0 = time.perf_counter()
+    bar = None
+    notes: list[str] = []
+    try:
+        if progress:
+            from tqdm import tqdm
+            bar = tqdm(total=sc.n_steps, unit="step", desc=sc.name, file=sys.stderr, leave=False)
+            last = [0]
+
+            def report(k: int) -> None:
+                bar.update(k - last[0])
+                last[0] = k
+        else:
+            report = None  # type: ignore[assignment]
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", CouplingWarning)
+            with CsvWriter(out / CSV_NAME, columns) as writer:
+                notes = simulate(sc, writer, report)
+        for w in caught:  # re-issue once, outside the recording context
+            warnings.warn(w.message, w.category, stacklevel=2)
+    except RunError as exc:
+        info.update(status="error", error=str(exc), wall_time_s=time.perf_counter() - t0,
+                    warnings=notes)
+        write_json(out / RUN_NAME, info)
+        exc.out_dir = out  # type: ignore[attr-defined]
+        raise
+    except BaseException as exc:
+        info.update(status="error", error=f"{type(exc).__name__}: {exc}",
+                    wall_time_s=time.perf_counter() - t0)
+        write_json(out / RUN_NAME, info)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    wall = time.perf_counter() - t0
+    result = Result.load(out)
+    values: dict[str, float] = {}
+    for spec in sc.metrics:
+        try:
+            values.update(_metrics.compute(spec, result.time, result[spec.estimate], result[spec.truth]))
+        except ValueError as exc:
+            raise ScenarioError(f"metric '{spec.name}': {exc}") from None
+    write_json(out / METRICS_NAME, values)
+    info.update(status="ok", wall_time_s=wall, real_time_factor=sc.stop_time / wall if wall > 0 else None,
+                warnings=notes)
+    write_json(out / RUN_NAME, info)
+    result.metrics = values
+    result.warnings = notes
+    return result
+
+
+__all__ = ["RunError", "CouplingWarning", "Plan", "plan", "find_algebraic_loop", "simulate", "run"]

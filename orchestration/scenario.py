@@ -1,0 +1,628 @@
+"""Scenario files (TOML): what FMUs to run, their parameters and steps, how they are connected,
+what to record and which metrics to compute.
+
+A scenario is loaded, resolved against each FMU's ``modelDescription.xml`` and validated in one
+go by :func:`load_scenario`; every problem a user can cause raises :class:`ScenarioError` with
+one message naming the file, the component and the variable.
+
+Format::
+
+    [scenario]
+    name = "flagship"          # default: the file's stem
+    description = "..."
+    stop_time = 10.0           # s
+    base_step = 0.001          # s; every communication step is an integer multiple of it
+    seed = 1                   # seeds every component that declares an Integer parameter `seed`
+    include = ["tuned.toml"]   # optional: [components.X.parameters] of these files are merged
+                               # in (relative to this file; an included value wins over this
+                               # file's, an override given on the command line wins over both)
+
+    [components.plant]
+    fmu = "FlexibleRobot2DOF"  # model identifier in dist/fmus (or $FLEXFUSION_FMU_DIR),
+                               # or a path to a .fmu relative to this file
+    step = 0.001               # communication step (default: base_step)
+    [components.plant.parameters]
+    k_hi = [4.0e5, 2.0e5]      # a list sets a vector parameter k_hi[1], k_hi[2]
+
+    connections = ["plant.q_m -> encoder.q_m"]   # (top level) whole vectors or scalars
+
+    [record]
+    variables = ["plant.p_tool"]   # default: every connected output (whole vectors)
+    interval = 0.001               # default: base_step
+
+    [[metrics]]
+    kind = "rmse"                  # rmse | bandpass | max
+    name = "rigid_position"
+    estimate = "rigid.p_tool_hat"
+    truth = "plant.p_tool"
+    after = 0.5                    # s: ignore the start (default 0)
+    # bandpass only: low = 3.0, high = 30.0, order = 4 (Hz, Hz, Butterworth order)
+
+Overrides (``--set``) are strings ``comp.param=value`` (value parsed as a TOML value, a vector as
+``[1, 2]``), ``comp.param[2]=value`` and ``scenario.<key>=value`` for ``seed``, ``stop_time``,
+``base_step``, ``name`` and ``description``.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import tomllib
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+REPO = Path(__file__).resolve().parent.parent
+DEFAULT_FMU_DIR = REPO / "dist" / "fmus"
+
+ParamValue = float | int | bool | str
+
+
+class ScenarioError(ValueError):
+    """A scenario file (or an override of it) is wrong; the message names file, component, variable."""
+
+
+@dataclass(frozen=True)
+class VariableInfo:
+    """One scalar FMI variable of a component (from its modelDescription)."""
+    name: str
+    value_reference: int
+    type: str            # Real | Integer | Boolean | String | Enumeration
+    causality: str       # input | output | parameter | calculatedParameter | local | independent
+    variability: str
+    unit: str | None
+    depends_on: tuple[str, ...] | None = None   # outputs: names of the inputs with direct feedthrough
+
+
+@dataclass
+class Component:
+    """One FMU instance of a scenario."""
+    name: str
+    fmu: Path
+    step: float
+    ratio: int                                   # step / base_step
+    parameters: dict[str, ParamValue]            # scalar variable name -> value (seed included)
+    model_identifier: str
+    guid: str
+    variables: dict[str, VariableInfo]
+
+    def group(self, name: str) -> list[str]:
+        """Scalar names of a whole variable: ``[name]`` for a scalar, ``name[1..n]`` for a vector."""
+        if name in self.variables:
+            return [name]
+        scalars = []
+        i = 1
+        while f"{name}[{i}]" in self.variables:
+            scalars.append(f"{name}[{i}]")
+            i += 1
+        return scalars
+
+    @property
+    def inputs(self) -> list[str]:
+        return [n for n, v in self.variables.items() if v.causality == "input"]
+
+    @property
+    def outputs(self) -> list[str]:
+        return [n for n, v in self.variables.items() if v.causality == "output"]
+
+
+@dataclass(frozen=True)
+class Connection:
+    """A connection of whole variables, with its scalar pairs."""
+    src: str            # producer component
+    src_var: str        # variable (group) name
+    dst: str
+    dst_var: str
+    pairs: tuple[tuple[str, str], ...]   # (producer scalar, consumer scalar)
+    text: str                            # as written in the scenario
+
+    def __str__(self) -> str:
+        return f"{self.src}.{self.src_var} -> {self.dst}.{self.dst_var}"
+
+
+@dataclass(frozen=True)
+class MetricSpec:
+    """One ``[[metrics]]`` entry."""
+    kind: str
+    name: str
+    estimate: str
+    truth: str
+    after: float = 0.0
+    low: float = 3.0
+    high: float = 30.0
+    order: int = 4
+
+
+@dataclass
+class Scenario:
+    """A loaded, resolved and validated scenario."""
+    path: Path | None
+    name: str
+    description: str
+    stop_time: float
+    base_step: float
+    seed: int
+    components: dict[str, Component]
+    connections: list[Connection]
+    record: list[str]                 # whole variables "comp.var"
+    record_interval: float
+    metrics: list[MetricSpec]
+    overrides: tuple[str, ...] = ()
+    source: dict[str, Any] = field(default_factory=dict)   # the merged TOML document
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.stop_time / self.base_step))
+
+    @property
+    def record_every(self) -> int:
+        return int(round(self.record_interval / self.base_step))
+
+    def record_columns(self) -> list[str]:
+        """Scalar column names ``comp.var[i]`` of the recorded variables, in order."""
+        cols = []
+        for rv in self.record:
+            comp, var = rv.split(".", 1)
+            cols += [f"{comp}.{s}" for s in self.components[comp].group(var)]
+        return cols
+
+    def describe(self) -> dict[str, Any]:
+        """A JSON-able summary (for ``run.json``)."""
+        return {
+            "name": self.name, "file": str(self.path) if self.path else None,
+            "description": self.description, "stop_time": self.stop_time,
+            "base_step": self.base_step, "seed": self.seed,
+            "components": {c.name: {"fmu": str(c.fmu), "model_identifier": c.model_identifier,
+                                    "step": c.step, "parameters": c.parameters}
+                           for c in self.components.values()},
+            "connections": [str(c) for c in self.connections],
+            "record": self.record, "record_interval": self.record_interval,
+            "metrics": [vars(m) for m in self.metrics], "overrides": list(self.overrides),
+        }
+
+
+# ---------------------------------------------------------------------------------------------
+# model descriptions
+# ---------------------------------------------------------------------------------------------
+_MD_CACHE: dict[tuple[str, float], tuple[str, str, dict[str, VariableInfo]]] = {}
+
+
+def read_variables(fmu: Path) -> tuple[str, str, dict[str, VariableInfo]]:
+    """Model identifier, GUID and the variables (with feedthrough dependencies) of an FMU."""
+    key = (str(fmu.resolve()), fmu.stat().st_mtime)
+    if key in _MD_CACHE:
+        return _MD_CACHE[key]
+    from fmpy import read_model_description
+    md = read_model_description(str(fmu), validate=False)
+    if md.coSimulation is None:
+        raise ScenarioError(f"{fmu}: not a co-simulation FMU")
+    deps: dict[str, tuple[str, ...]] = {}
+    for unknown in md.outputs:
+        if unknown.dependencies is None:       # not given: depends on every input (FMI 2 rule)
+            deps[unknown.variable.name] = None  # type: ignore[assignment]
+        else:
+            deps[unknown.variable.name] = tuple(d.name for d in unknown.dependencies)
+    all_inputs = tuple(v.name for v in md.modelVariables if v.causality == "input")
+    variables = {}
+    for v in md.modelVariables:
+        d = None
+        if v.causality == "output":
+            d = deps.get(v.name, all_inputs)
+            if d is None:
+                d = all_inputs
+        variables[v.name] = VariableInfo(v.name, int(v.valueReference), v.type, v.causality,
+                                         v.variability, getattr(v, "unit", None)
+                                         or (v.declaredType.unit if getattr(v, "declaredType", None)
+                                             is not None else None), d)
+    out = (md.coSimulation.modelIdentifier, md.guid, variables)
+    _MD_CACHE[key] = out
+    return out
+
+
+def fmu_dir() -> Path:
+    """Where model identifiers are looked up: ``$FLEXFUSION_FMU_DIR`` or ``dist/fmus``."""
+    env = os.environ.get("FLEXFUSION_FMU_DIR")
+    return Path(env) if env else DEFAULT_FMU_DIR
+
+
+def stable_seed(seed: int, component: str) -> int:
+    """The seed of a component: a stable hash (crc32) of the scenario seed and its name."""
+    return zlib.crc32(f"{int(seed)}:{component}".encode()) & 0x7FFFFFFF
+
+
+# ---------------------------------------------------------------------------------------------
+# overrides
+# ---------------------------------------------------------------------------------------------
+_OVERRIDE = re.compile(r"^\s*([A-Za-z_][\w]*)\.([^=\[\]]+?)(?:\[(\d+)\])?\s*=(.*)$", re.S)
+_SCENARIO_KEYS = {"name", "description", "stop_time", "base_step", "seed", "include"}
+
+
+def parse_value(text: str) -> Any:
+    """A TOML value (``2``, ``1.5``, ``true``, ``[1, 2]``, ``"x"``); a bare word is a string."""
+    try:
+        return tomllib.loads(f"v = {text.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        if re.fullmatch(r"[\w.\-+]+", text.strip()):
+            return text.strip()
+        raise ScenarioError(f"override value {text.strip()!r} is not a TOML value") from None
+
+
+def parse_override(text: str) -> tuple[str, str, int | None, Any]:
+    """``comp.param[2]=value`` -> ``("comp", "param", 2, value)``."""
+    m = _OVERRIDE.match(text)
+    if not m:
+        raise ScenarioError(f"override {text!r}: expected comp.param=value, comp.param[i]=value "
+                            "or scenario.key=value")
+    comp, name, index, value = m.group(1), m.group(2).strip(), m.group(3), m.group(4)
+    return comp, name, int(index) if index else None, parse_value(value)
+
+
+# ---------------------------------------------------------------------------------------------
+# loading
+# ---------------------------------------------------------------------------------------------
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ScenarioError(f"scenario file not found: {path}") from None
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: malformed TOML: {exc}") from None
+
+
+def _number(where: str, value: Any, *, positive: bool = True) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ScenarioError(f"{where} must be a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise ScenarioError(f"{where} must be > 0, got {value!r}")
+    return float(value)
+
+
+def _multiple(where: str, value: float, base: float) -> int:
+    ratio = value / base
+    k = int(round(ratio))
+    if k < 1 or abs(ratio - k) > 1e-9 * max(1.0, ratio):
+        raise ScenarioError(f"{where} = {value!r} is not an integer multiple of the base step {base!r}")
+    return k
+
+
+def _flatten_parameters(where: str, comp: Component, params: dict[str, Any]) -> dict[str, ParamValue]:
+    """Scenario parameters (vectors as lists) -> scalar variable name -> value, checked."""
+    out: dict[str, ParamValue] = {}
+    for name, value in params.items():
+        if isinstance(value, list):
+            group = comp.group(name)
+            if not group or group == [name]:
+                if name in comp.variables:
+                    raise ScenarioError(f"{where}: parameter '{name}' is a scalar, got the list {value!r}")
+                raise ScenarioError(f"{where}: component '{comp.name}' has no parameter '{name}'")
+            if len(group) != len(value):
+                raise ScenarioError(f"{where}: parameter '{name}' has {len(group)} elements, "
+                                    f"got {len(value)}: {value!r}")
+            pairs = list(zip(group, value))
+        else:
+            if name not in comp.variables and comp.group(name):
+                raise ScenarioError(f"{where}: parameter '{name}' is a vector of "
+                                    f"{len(comp.group(name))} elements, give a list")
+            pairs = [(name, value)]
+        for scalar, v in pairs:
+            info = comp.variables.get(scalar)
+            if info is None:
+                raise ScenarioError(f"{where}: component '{comp.name}' has no parameter '{scalar}'")
+            if info.causality != "parameter":
+                raise ScenarioError(f"{where}: '{comp.name}.{scalar}' is an {info.causality}, "
+                                    "not a parameter")
+            out[scalar] = _coerce(f"{where}: parameter '{scalar}'", info, v)
+    return out
+
+
+def _coerce(where: str, info: VariableInfo, v: Any) -> ParamValue:
+    t = info.type
+    if t == "Real":
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ScenarioError(f"{where} is Real, got {v!r}")
+        return float(v)
+    if t in ("Integer", "Enumeration"):
+        if isinstance(v, bool) or not isinstance(v, int):
+            if isinstance(v, float) and v.is_integer():
+                return int(v)
+            raise ScenarioError(f"{where} is Integer, got {v!r}")
+        return int(v)
+    if t == "Boolean":
+        if not isinstance(v, bool):
+            raise ScenarioError(f"{where} is Boolean, got {v!r}")
+        return v
+    if t == "String":
+        if not isinstance(v, str):
+            raise ScenarioError(f"{where} is String, got {v!r}")
+        return v
+    raise ScenarioError(f"{where} has the unsupported type {t}")
+
+
+def _resolve_fmu(where: str, spec: Any, base_dir: Path) -> Path:
+    if not isinstance(spec, str) or not spec:
+        raise ScenarioError(f"{where}: 'fmu' must be a model identifier or a path to a .fmu")
+    if spec.endswith(".fmu") or "/" in spec or os.sep in spec:
+        path = Path(spec)
+        if not path.is_absolute():
+            path = base_dir / path
+        if not path.is_file():
+            raise ScenarioError(f"{where}: FMU file not found: {path}")
+        return path
+    path = fmu_dir() / f"{spec}.fmu"
+    if not path.is_file():
+        raise ScenarioError(f"{where}: FMU file not found: {path} (model identifier '{spec}'; "
+                            "run `flexfusion build` or set FLEXFUSION_FMU_DIR)")
+    return path
+
+
+def _split_ref(where: str, ref: Any) -> tuple[str, str]:
+    if not isinstance(ref, str) or "." not in ref:
+        raise ScenarioError(f"{where}: {ref!r} is not of the form component.variable")
+    comp, var = ref.strip().split(".", 1)
+    return comp.strip(), var.strip()
+
+
+def _lookup(where: str, components: dict[str, Component], ref: str) -> tuple[Component, str, list[str]]:
+    comp_name, var = _split_ref(where, ref)
+    comp = components.get(comp_name)
+    if comp is None:
+        raise ScenarioError(f"{where}: unknown component '{comp_name}' (components: "
+                            f"{', '.join(components) or 'none'})")
+    group = comp.group(var)
+    if not group:
+        raise ScenarioError(f"{where}: component '{comp_name}' ({comp.model_identifier}) has no "
+                            f"variable '{var}'")
+    return comp, var, group
+
+
+def _check_keys(where: str, table: Any, allowed: Iterable[str]) -> None:
+    if not isinstance(table, dict):
+        raise ScenarioError(f"{where} must be a table")
+    unknown = sorted(set(table) - set(allowed))
+    if unknown:
+        raise ScenarioError(f"{where}: unknown key(s) {', '.join(unknown)} "
+                            f"(allowed: {', '.join(sorted(allowed))})")
+
+
+def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] = ()) -> Scenario:
+    """Load, resolve and validate a scenario.
+
+    Parameters
+    ----------
+    source
+        Path of a TOML file, or an already parsed document (paths then relative to the cwd).
+    overrides
+        ``comp.param=value`` / ``comp.param[i]=value`` / ``scenario.key=value`` strings.
+
+    Raises
+    ------
+    ScenarioError
+        One message naming the file, the component and the variable.
+    """
+    overrides = tuple(overrides)
+    if isinstance(source, dict):
+        path, doc, label, base_dir = None, _deepcopy(source), "<scenario>", Path.cwd()
+    else:
+        path = Path(source)
+        doc = _read_toml(path)
+        label, base_dir = str(path), path.resolve().parent
+    _check_keys(label, doc, {"scenario", "components", "connections", "record", "metrics"})
+    head = doc.get("scenario", {})
+    _check_keys(f"{label}: [scenario]", head, _SCENARIO_KEYS)
+    comps_doc = doc.get("components", {})
+    _check_keys(f"{label}: [components]", comps_doc, comps_doc.keys())
+    if not comps_doc:
+        raise ScenarioError(f"{label}: no [components.*] given")
+
+    # includes: their [components.X.parameters] are merged over this file's
+    includes = head.get("include", [])
+    if isinstance(includes, str):
+        includes = [includes]
+    for inc in includes:
+        inc_path = base_dir / inc
+        inc_doc = _read_toml(inc_path)
+        for cname, ctab in inc_doc.get("components", {}).items():
+            if cname not in comps_doc:
+                raise ScenarioError(f"{inc_path}: unknown component '{cname}' (not in {label})")
+            if not isinstance(ctab, dict):
+                raise ScenarioError(f"{inc_path}: [components.{cname}] must be a table")
+            _check_keys(f"{inc_path}: [components.{cname}]", ctab, {"parameters"})
+            comps_doc[cname].setdefault("parameters", {}).update(ctab.get("parameters", {}))
+
+    # overrides
+    for text in overrides:
+        cname, pname, index, value = parse_override(text)
+        where = f"override {text.strip()!r}"
+        if cname == "scenario":
+            if pname not in _SCENARIO_KEYS - {"include"} or index is not None:
+                raise ScenarioError(f"{where}: unknown scenario key '{pname}' (allowed: "
+                                    "seed, stop_time, base_step, name, description)")
+            head[pname] = value
+            continue
+        if cname not in comps_doc:
+            raise ScenarioError(f"{where}: unknown component '{cname}' (components: "
+                                f"{', '.join(comps_doc)})")
+        params = comps_doc[cname].setdefault("parameters", {})
+        if index is None:
+            params[pname] = value
+        else:
+            params[f"{pname}[{index}]"] = value
+
+    name = head.get("name", path.stem if path else "scenario")
+    if not isinstance(name, str):
+        raise ScenarioError(f"{label}: [scenario] name must be a string")
+    description = str(head.get("description", ""))
+    if "stop_time" not in head:
+        raise ScenarioError(f"{label}: [scenario] stop_time is missing")
+    if "base_step" not in head:
+        raise ScenarioError(f"{label}: [scenario] base_step is missing")
+    stop_time = _number(f"{label}: [scenario] stop_time", head["stop_time"])
+    base_step = _number(f"{label}: [scenario] base_step", head["base_step"])
+    _multiple(f"{label}: [scenario] stop_time", stop_time, base_step)
+    seed = head.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise ScenarioError(f"{label}: [scenario] seed must be an integer, got {seed!r}")
+
+    components: dict[str, Component] = {}
+    for cname, ctab in comps_doc.items():
+        where = f"{label}: component '{cname}'"
+        if "." in cname or "[" in cname:
+            raise ScenarioError(f"{where}: a component name must not contain '.' or '['")
+        if isinstance(ctab, dict) and "connections" in ctab:
+            raise ScenarioError(f"{where}: 'connections' ended up inside [components.{cname}]: "
+                                "put the top-level connections = [...] before the first [table]")
+        _check_keys(where, ctab, {"fmu", "step", "parameters"})
+        if "fmu" not in ctab:
+            raise ScenarioError(f"{where}: 'fmu' is missing")
+        fmu = _resolve_fmu(where, ctab["fmu"], base_dir)
+        step = _number(f"{where}: step", ctab.get("step", base_step))
+        ratio = _multiple(f"{where}: step", step, base_step)
+        try:
+            ident, guid, variables = read_variables(fmu)
+        except ScenarioError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a broken FMU file is a user error
+            raise ScenarioError(f"{where}: cannot read the modelDescription of {fmu}: {exc}") from None
+        comp = Component(cname, fmu, step, ratio, {}, ident, guid, variables)
+        params = ctab.get("parameters", {})
+        if not isinstance(params, dict):
+            raise ScenarioError(f"{where}: [parameters] must be a table")
+        comp.parameters = _flatten_parameters(where, comp, params)
+        seed_info = variables.get("seed")
+        if seed_info is not None and seed_info.causality == "parameter" and "seed" not in comp.parameters:
+            comp.parameters["seed"] = _coerce(f"{where}: parameter 'seed'", seed_info,
+                                              stable_seed(seed, cname))
+        components[cname] = comp
+
+    # connections
+    conn_doc = doc.get("connections", [])
+    if not isinstance(conn_doc, list):
+        raise ScenarioError(f"{label}: 'connections' must be a list of \"a.x -> b.y\" strings "
+                            "(put it before the first [table])")
+    connections: list[Connection] = []
+    driven: dict[tuple[str, str], str] = {}
+    for text in conn_doc:
+        where = f"{label}: connection {text!r}"
+        if not isinstance(text, str) or text.count("->") != 1:
+            raise ScenarioError(f"{where}: expected \"component.variable -> component.variable\"")
+        left, right = (s.strip() for s in text.split("->"))
+        sc, svar, sgroup = _lookup(where, components, left)
+        dc, dvar, dgroup = _lookup(where, components, right)
+        for comp, var, group, role, need in ((sc, svar, sgroup, "source", "output"),
+                                             (dc, dvar, dgroup, "target", "input")):
+            caus = comp.variables[group[0]].causality
+            if caus != need:
+                kind = ("input-to-input connection: " if role == "source" and caus == "input" else
+                        "output-to-output connection: " if role == "target" and caus == "output" else "")
+                raise ScenarioError(f"{where}: {kind}the {role} '{comp.name}.{var}' is "
+                                    f"{_article(caus)} {caus}, must be an {need}")
+            vtype = comp.variables[group[0]].type
+            if vtype != "Real":
+                raise ScenarioError(f"{where}: '{comp.name}.{var}' is {vtype}; only Real "
+                                    "variables can be connected")
+        if len(sgroup) != len(dgroup):
+            raise ScenarioError(f"{where}: size mismatch: '{sc.name}.{svar}' has {len(sgroup)} "
+                                f"element(s), '{dc.name}.{dvar}' has {len(dgroup)}")
+        su, du = sc.variables[sgroup[0]].unit, dc.variables[dgroup[0]].unit
+        if su and du and su != du:
+            raise ScenarioError(f"{where}: unit mismatch: '{sc.name}.{svar}' is in {su}, "
+                                f"'{dc.name}.{dvar}' in {du}")
+        if sc is dc:
+            pass  # a self-loop is allowed (the master breaks it like any other cycle)
+        for d in dgroup:
+            key = (dc.name, d)
+            if key in driven:
+                raise ScenarioError(f"{where}: input '{dc.name}.{d}' is already connected "
+                                    f"by {driven[key]!r}")
+            driven[key] = text
+        connections.append(Connection(sc.name, svar, dc.name, dvar,
+                                      tuple(zip(sgroup, dgroup)), text))
+
+    # record
+    rec = doc.get("record", {})
+    _check_keys(f"{label}: [record]", rec, {"variables", "interval"})
+    if "variables" in rec:
+        if not isinstance(rec["variables"], list):
+            raise ScenarioError(f"{label}: [record] variables must be a list of \"comp.var\"")
+        record = []
+        for ref in rec["variables"]:
+            comp, var, group = _lookup(f"{label}: [record] variable {ref!r}", components, ref)
+            if comp.variables[group[0]].type != "Real":
+                raise ScenarioError(f"{label}: [record] variable {ref!r} is not Real")
+            record.append(f"{comp.name}.{var}")
+    else:
+        record = []
+        for c in connections:
+            ref = f"{c.src}.{c.src_var}"
+            if ref not in record:
+                record.append(ref)
+    interval = _number(f"{label}: [record] interval", rec.get("interval", base_step))
+    _multiple(f"{label}: [record] interval", interval, base_step)
+
+    # metrics
+    metrics_doc = doc.get("metrics", [])
+    if not isinstance(metrics_doc, list):
+        raise ScenarioError(f"{label}: metrics must be given as [[metrics]] tables")
+    metrics: list[MetricSpec] = []
+    for i, m in enumerate(metrics_doc):
+        where = f"{label}: [[metrics]] #{i + 1}"
+        _check_keys(where, m, {"kind", "name", "estimate", "truth", "after", "low", "high", "order"})
+        for key in ("kind", "estimate", "truth"):
+            if key not in m:
+                raise ScenarioError(f"{where}: '{key}' is missing")
+        if m["kind"] not in ("rmse", "bandpass", "max"):
+            raise ScenarioError(f"{where}: unknown kind {m['kind']!r} (rmse, bandpass, max)")
+        mname = m.get("name", f"{m['kind']}_{m['estimate']}")
+        where = f"{label}: metric '{mname}'"
+        sizes = []
+        for key in ("estimate", "truth"):
+            comp, var, group = _lookup(f"{where}: {key}", components, m[key])
+            sizes.append(len(group))
+            ref = f"{comp.name}.{var}"
+            if ref not in record:
+                record.append(ref)
+        if sizes[0] != sizes[1]:
+            raise ScenarioError(f"{where}: size mismatch: estimate {m['estimate']!r} has {sizes[0]} "
+                                f"element(s), truth {m['truth']!r} has {sizes[1]}")
+        after = _number(f"{where}: after", m.get("after", 0.0), positive=False)
+        low = _number(f"{where}: low", m.get("low", 3.0))
+        high = _number(f"{where}: high", m.get("high", 30.0))
+        order = m.get("order", 4)
+        if m["kind"] == "bandpass":
+            nyq = 0.5 / interval
+            if not low < high < nyq:
+                raise ScenarioError(f"{where}: need low < high < Nyquist frequency {nyq:g} Hz "
+                                    f"of the record interval, got low={low:g}, high={high:g}")
+        if isinstance(order, bool) or not isinstance(order, int) or order < 1:
+            raise ScenarioError(f"{where}: order must be a positive integer")
+        metrics.append(MetricSpec(m["kind"], mname, m["estimate"], m["truth"], after, low, high, order))
+    names = [m.name for m in metrics]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise ScenarioError(f"{label}: duplicate metric name(s) {', '.join(sorted(dup))}")
+
+    return Scenario(path=path, name=name, description=description, stop_time=stop_time,
+                    base_step=base_step, seed=int(seed), components=components,
+                    connections=connections, record=record, record_interval=interval,
+                    metrics=metrics, overrides=overrides, source=doc)
+
+
+def _article(word: str) -> str:
+    return "an" if word[0] in "aeiou" else "a"
+
+
+def _deepcopy(doc: Any) -> Any:
+    if isinstance(doc, dict):
+        return {k: _deepcopy(v) for k, v in doc.items()}
+    if isinstance(doc, list):
+        return [_deepcopy(v) for v in doc]
+    return doc
+
+
+__all__ = ["ScenarioError", "Scenario", "Component", "Connection", "MetricSpec", "VariableInfo",
+           "load_scenario", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables"]

@@ -1,0 +1,180 @@
+"""The flexfusion CLI: run, plot, export-ssp; every user error is one line and exit status 2."""
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from orchestration.build import build_all
+from orchestration.cli import main
+from orchestration.results import CsvWriter
+
+TOYS = Path(__file__).parent / "fmus"
+
+
+@pytest.fixture(scope="session")
+def toy_dir(tmp_path_factory) -> Path:
+    dest = tmp_path_factory.mktemp("toy_fmus")
+    build_all(dest, quiet=True, scripts=sorted(TOYS.glob("*_fmu.py")))
+    return dest
+
+
+@pytest.fixture(autouse=True)
+def _fmu_dir(toy_dir, monkeypatch):
+    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(toy_dir))
+
+
+GOOD = """
+connections = ["src.ys -> g.uv", "src.y -> g.u"]
+[scenario]
+name = "toy"
+stop_time = 0.2
+base_step = 0.001
+seed = 4
+[components.src]
+fmu = "Source"
+[components.g]
+fmu = "Gain"
+parameters = { gain = 1.0 }
+[record]
+variables = ["src.ys", "g.yv", "src.noise"]
+[[metrics]]
+kind = "max"
+name = "gain_error"
+estimate = "g.yv"
+truth = "src.ys"
+"""
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "s.toml"
+    p.write_text(text)
+    return p
+
+
+def test_run_writes_results_and_prints_metrics(tmp_path, capsys):
+    path = write(tmp_path, GOOD)
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-progress", "--set", "g.gain=2"]) == 0
+    out = capsys.readouterr().out
+    assert "toy: 201 rows" in out and "gain_error" in out
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["gain_error"] == pytest.approx(np.hypot(0.2, 0.4))     # |2 ys - ys| at t = 0.2
+    info = json.loads((tmp_path / "o" / "run.json").read_text())
+    assert info["overrides"] == ["g.gain=2"] and info["status"] == "ok"
+
+
+def test_run_with_progress_bar(tmp_path, capsys):
+    assert main(["run", str(write(tmp_path, GOOD)), "--out", str(tmp_path / "o")]) == 0
+    assert "step" in capsys.readouterr().err
+
+
+def test_cycle_warning_is_one_line(tmp_path, capsys):
+    text = GOOD.replace('connections = ["src.ys -> g.uv", "src.y -> g.u"]',
+                        'connections = ["a.x -> b.x_other", "b.x -> a.x_other"]')
+    text = text.replace("[record]", '[components.a]\nfmu = "MassSpring"\n[components.b]\nfmu = "MassSpring"\n[record]')
+    assert main(["run", str(write(tmp_path, text)), "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("warning: toy: connection 'b.x -> a.x_other' is in a cycle")
+
+
+BAD = [
+    (('"src.y -> g.u"', '"src.y -> nope.u"'), "unknown component 'nope'"),
+    (('"src.y -> g.u"', '"src.y -> g.v"'), "component 'g' (Gain) has no variable 'v'"),
+    (('"src.y -> g.u"', '"src.y -> g.y"'), "output-to-output connection"),
+    (('"src.y -> g.u"', '"g.u -> g.u"'), "input-to-input connection"),
+    (('"src.y -> g.u"', '"src.t_s -> g.u"'), "unit mismatch: 'src.t_s' is in s, 'g.u' in 1"),
+    (('fmu = "Gain"', 'fmu = "NoSuchFmu"'), "FMU file not found"),
+    (("seed = 4", "seed = 4\n[components.src]\nstep = 0.0015"), "malformed TOML"),
+    (('fmu = "Source"', 'fmu = "Source"\nstep = 0.0015'), "not an integer multiple of the base step"),
+    (("stop_time = 0.2", "stop_time = = 0.2"), "line 5"),
+]
+
+
+@pytest.mark.parametrize("change, message", BAD)
+def test_user_errors_exit_2_with_one_line(tmp_path, capsys, change, message):
+    path = write(tmp_path, GOOD.replace(*change, 1))
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1, err
+    assert message in err and "Traceback" not in err
+    assert str(path) in err
+
+
+FAILING = """
+connections = ["bad.y -> g.u"]
+[scenario]
+stop_time = 0.1
+base_step = 0.001
+[components.bad]
+fmu = "Failing"
+parameters = {{ fail_at = 0.05, mode = "{mode}" }}
+[components.g]
+fmu = "Gain"
+"""
+
+
+@pytest.mark.parametrize("mode, message", [
+    ("error", "component 'bad' failed at t = 0.05 s: fmi2DoStep returned discard; FMU log: "
+              "[error] bad: step at t = 0.05 s: toy failure"),
+    ("nan", "NaN on a connection: component 'bad' output 'y' is NaN at t = 0.051 s"),
+])
+def test_run_failures_exit_2_keep_results(tmp_path, capsys, mode, message):
+    path = write(tmp_path, FAILING.format(mode=mode))
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err
+    assert message in err and str(tmp_path / "o") in err
+    rows = (tmp_path / "o" / "results.csv").read_text().splitlines()
+    assert rows[0] == '"time","bad.y"' and rows[-1].startswith("0.05,")
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "missing.toml", "--no-progress"], "scenario file not found"),
+    (["run", "{s}", "--set", "g.gain", "--no-progress"], "expected comp.param=value"),
+    (["run", "{s}", "--set", "nope.gain=1", "--no-progress"], "unknown component 'nope'"),
+    (["plot", "{tmp}/nothing"], "no such run folder"),
+    (["plot", "{tmp}"], "not a run folder"),
+    (["export-ssp", "missing.toml", "-o", "{tmp}/x.ssp"], "scenario file not found"),
+])
+def test_other_user_errors(tmp_path, capsys, argv, message):
+    s = write(tmp_path, GOOD)
+    argv = [a.format(s=s, tmp=tmp_path) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err
+
+
+def test_plot_writes_pngs(tmp_path, capsys):
+    path = write(tmp_path, GOOD)
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    assert main(["plot", str(tmp_path / "o")]) == 0
+    png = tmp_path / "o" / "variables.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not (tmp_path / "o" / "tool_path.png").exists()
+
+
+def test_plot_tool_path_when_truth_and_estimates_are_recorded(tmp_path):
+    cols = ["plant.p_tool[1]", "plant.p_tool[2]", "rigid.p_tool_hat[1]", "rigid.p_tool_hat[2]",
+            "ekf.p_tool_hat[1]", "ekf.p_tool_hat[2]"]
+    with CsvWriter(tmp_path / "results.csv", cols) as w:
+        for t in np.arange(0, 1, 0.01):
+            p = np.array([1.2 + 0.1 * np.cos(t), 0.9 + 0.1 * np.sin(t)])
+            w(t, np.r_[p, p + 1e-3, p - 1e-4])
+    assert main(["plot", str(tmp_path)]) == 0
+    assert (tmp_path / "tool_path.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_export_ssp(tmp_path, capsys, toy_dir):
+    path = write(tmp_path, GOOD)
+    out = tmp_path / "toy.ssp"
+    assert main(["export-ssp", str(path), "-o", str(out), "--set", "g.gain=3"]) == 0
+    with zipfile.ZipFile(out) as z:
+        names = set(z.namelist())
+        ssd = z.read("SystemStructure.ssd").decode()
+    assert names == {"SystemStructure.ssd", "resources/Source.fmu", "resources/Gain.fmu"}
+    assert 'startElement="src" startConnector="ys[2]" endElement="g" endConnector="uv[2]"' in ssd
+    assert 'name="gain"' in ssd and 'value="3.0"' in ssd
+    assert 'baseStepSize="0.001"' in ssd

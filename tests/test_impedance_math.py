@@ -1,0 +1,142 @@
+"""LQR impedance design and the closed loop on a one-axis mass/wall model."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from fmus.force_observer import impedance_math as imp
+
+
+@pytest.mark.parametrize("q1,q2,r", [(1.0, 0.0, 1.0), (4.0, 2.0, 0.5), (1e6, 1e2, 4e4)])
+def test_lqr_matches_analytic_double_integrator(q1, q2, r):
+    """x'' = u, Q = diag(q1, q2), R = r: L = (sqrt(q1/r), sqrt(q2/r + 2 sqrt(q1/r)))."""
+    A = np.array([[0.0, 1.0], [0.0, 0.0]])
+    B = np.array([[0.0], [1.0]])
+    L = imp.lqr_gain(A, B, np.diag([q1, q2]), np.array([[r]]))
+    l1 = np.sqrt(q1 / r)
+    assert_allclose(L[0], [l1, np.sqrt(q2 / r + 2 * l1)], rtol=1e-9)
+
+
+def test_lqr_matches_analytic_first_order():
+    """x' = a x + b u, q, r: L = (a + sqrt(a^2 + b^2 q / r)) / b."""
+    a, b, q, r = 0.5, 2.0, 3.0, 0.7
+    L = imp.lqr_gain(np.array([[a]]), np.array([[b]]), np.array([[q]]), np.array([[r]]))
+    assert_allclose(L[0, 0], (a + np.sqrt(a * a + b * b * q / r)) / b, rtol=1e-10)
+
+
+def test_design_stable_from_free_space_to_stiff_contact():
+    d = imp.ImpedanceDesign()
+    L = imp.design_gains(d)
+    assert L.shape == (3,)
+    for ke in (0.0, 1000.0, 5000.0, 20000.0):
+        assert np.all(np.real(imp.closed_loop_poles(d, L, ke)) < 0), ke
+
+
+def test_design_model_equilibrium_is_the_impedance_relation():
+    """At an equilibrium of the design model with integral action, z = 0."""
+    d = imp.ImpedanceDesign()
+    A, B = imp.design_model(d)
+    # zeta' = (K_z + k_env) e + D_z e' : the third row of A
+    assert_allclose(A[2], [d.K_z + d.k_env, d.D_z, 0.0])
+    assert_allclose(B[:, 0], [0.0, d.k_r / d.m_r, 0.0])
+    assert_allclose(d.k_r, d.m_r * d.w_r ** 2)
+
+
+def test_stationary_contact_formula():
+    K, kw, xr, xw, Fd = 2000.0, 5000.0, 0.02, 0.0, 3.0
+    xs, Fs = imp.stationary_contact(K, kw, xr, xw, Fd)
+    # both relations hold: the target impedance and the wall
+    assert_allclose(Fs - Fd, K * (xr - xs), rtol=1e-12)
+    assert_allclose(Fs, kw * (xs - xw), rtol=1e-12)
+    # no contact when the reference (plus bias) stays before the wall
+    assert imp.stationary_contact(K, kw, -0.01, 0.0, 0.0) == (-0.01, 0.0)
+
+
+@pytest.mark.parametrize("use_raw,observer", [(False, "static"), (False, "lowpass"), (True, "static")])
+def test_closed_loop_steady_state_matches_impedance_relation(use_raw, observer):
+    d = imp.ImpedanceDesign()
+    plant = imp.OneAxisPlant()
+    xr = imp.smooth_ramp(-0.05, 0.02, 0.1, 1.0)
+    # low-pass observer with well-damped gains (1 Hz, zeta 0.7); the paper's settle in ~15 s
+    cfg = imp.fom.ObserverConfig(kind=observer, m=plant.m_t, k11=8.8, k21=39.5)
+    out = imp.simulate_1dof(plant, d, xr, 3.0, obs_cfg=cfg, use_raw=use_raw, F_d=4.0)
+    xs, Fs = imp.stationary_contact(d.K_z, plant.k_w, 0.02, plant.x_w, 4.0)
+    assert_allclose(out["F"][-1], Fs, rtol=0.01)
+    assert_allclose(out["x"][-1], xs, rtol=0.01)
+    assert_allclose(out["F_hat"][-1], out["F"][-1], rtol=0.01)
+
+
+def test_integral_action_enforces_impedance_despite_model_errors():
+    """A plant unlike the design model (mass, bandwidth, wall): same stationary impedance."""
+    d = imp.ImpedanceDesign()
+    plant = imp.OneAxisPlant(m_r=100.0, w_r=2 * np.pi * 4.0, k_w=9000.0, x_w=0.01)
+    xr = imp.smooth_ramp(-0.05, 0.03, 0.1, 1.0)
+    out = imp.simulate_1dof(plant, d, xr, 3.0, observer="static")
+    xs, Fs = imp.stationary_contact(d.K_z, plant.k_w, 0.03, plant.x_w)
+    assert_allclose(out["F"][-1], Fs, rtol=0.01)
+    # without the integral (q_int = 0 gives L[2] = 0) the stationary force is off
+    d0 = imp.ImpedanceDesign(q_int=0.0)
+    out0 = imp.simulate_1dof(plant, d0, xr, 3.0, observer="static")
+    assert abs(out0["F"][-1] - Fs) > 0.05 * Fs
+
+
+def test_free_space_tracks_reference():
+    d = imp.ImpedanceDesign()
+    plant = imp.OneAxisPlant(x_w=1.0)          # wall far away
+    xr = imp.smooth_ramp(-0.05, 0.02, 0.1, 1.0)
+    out = imp.simulate_1dof(plant, d, xr, 2.5, observer="static")
+    assert np.all(out["F"] == 0.0)
+    assert abs(out["x"][-1] - 0.02) < 1e-4
+
+
+def test_anti_windup_stops_integration_at_the_limit():
+    law = imp.ImpedanceLaw(np.array([1.0, 0.0, 0.01]), K_z=1000.0, D_z=0.0, delta_max=0.001)
+    h = 0.004
+    for k in range(500):       # a large force error pushes Delta into its limit
+        law.output(500.0, 0.0, 0.0, 0.0, h if k else 0.0)
+        law.advance(500.0, 0.0, 0.0, 0.0, h if k else 0.0, h)
+    assert law.saturated
+    assert abs(law.output(500.0, 0.0, 0.0, 0.0, h)) == pytest.approx(0.001)
+    # the first step (h z = 2 N.s) reached the limit; integration stopped there (not 500 * 2 N.s)
+    assert law.zeta == pytest.approx(2.0)
+    # a force error of the other sign integrates again
+    law.advance(-500.0, 0.0, 0.0, 0.0, h, h)
+    assert law.zeta == pytest.approx(0.0, abs=1e-12)
+
+
+def test_compliant_tool_keeps_eq1_identity():
+    """Mass on spring-damper (the paper's Optidrive): the sensor still reads F + m_t a_tool."""
+    d = imp.ImpedanceDesign(tool_m=12.0, tool_k=3e4, tool_d=360.0)     # tool in the LQR model
+    plant = imp.OneAxisPlant(compliant=True, k_c=3e4, d_c=360.0)
+    xr = imp.smooth_ramp(-0.05, 0.02, 0.1, 1.5)
+    out = imp.simulate_1dof(plant, d, xr, 4.0, observer="static")
+    assert_allclose(out["u"], out["F"] + plant.m_t * out["a"], atol=1e-9)
+    assert_allclose(out["F_hat"], out["F"], atol=1e-9)
+    xs, Fs = imp.stationary_contact(d.K_z, plant.k_w, 0.02, plant.x_w)
+    assert_allclose(out["F"][-1], Fs, rtol=0.01)
+
+
+def test_compliant_tool_design_is_stable_and_needs_the_flange():
+    d = imp.ImpedanceDesign(tool_m=12.0, tool_k=3e4, tool_d=360.0)
+    assert d.compliant
+    L = imp.design_gains(d)
+    assert L.shape == (5,)
+    for ke in (0.0, 5000.0, 20000.0):
+        assert np.all(np.real(imp.closed_loop_poles(d, L, ke)) < 0), ke
+    law = imp.ImpedanceLaw(L, d.K_z, d.D_z)
+    with pytest.raises(ValueError, match="flange"):
+        law.output(0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="compliant-tool plant"):
+        imp.simulate_1dof(imp.OneAxisPlant(), d, imp.smooth_ramp(0, 0, 0, 1), 0.1)
+
+
+def test_compliant_design_model_matches_rigid_limit():
+    """A very stiff tool spring: the 5-state model's slow poles approach the rigid model's."""
+    d_rigid = imp.ImpedanceDesign()
+    d_stiff = imp.replace_design(d_rigid, tool_m=12.0, tool_k=1e9, tool_d=1e3)
+    A3, _ = imp.design_model(d_rigid)
+    A5, _ = imp.design_model(d_stiff)
+    slow5 = np.sort_complex(np.linalg.eigvals(A5))
+    slow5 = slow5[np.abs(slow5) < 1e3]
+    assert_allclose(np.sort_complex(slow5), np.sort_complex(np.linalg.eigvals(A3)), rtol=1e-2, atol=1e-6)

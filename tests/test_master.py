@@ -1,0 +1,305 @@
+"""The co-simulation master on toy FMUs (tests/fmus): accuracy against an analytic solution,
+Gauss–Seidel order, multi-rate, cycles, reproducibility, failures."""
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy.util import read_csv
+from numpy.testing import assert_allclose, assert_array_equal
+from scipy.linalg import expm
+
+from orchestration import CouplingWarning, Result, RunError, ScenarioError, run
+from orchestration.build import build_all
+from orchestration.master import plan
+from orchestration.scenario import load_scenario
+
+TOYS = Path(__file__).parent / "fmus"
+
+
+@pytest.fixture(scope="session")
+def toy_dir(tmp_path_factory) -> Path:
+    dest = tmp_path_factory.mktemp("toy_fmus")
+    build_all(dest, quiet=True, scripts=sorted(TOYS.glob("*_fmu.py")))
+    return dest
+
+
+@pytest.fixture(autouse=True)
+def _fmu_dir(toy_dir, monkeypatch):
+    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(toy_dir))
+
+
+def write(tmp_path: Path, text: str, name: str = "s.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+# ---- two coupled mass-springs against the analytic solution ---------------------------------
+KA, KB, KC, MA, MB = 4.0, 1.0, 2.0, 1.0, 2.0
+MASS_SPRING = f"""
+connections = ["a.x -> b.x_other", "b.x -> a.x_other"]
+[scenario]
+stop_time = 2.0
+base_step = 0.01
+[components.a]
+fmu = "MassSpring"
+parameters = {{ m = {MA}, k = {KA}, kc = {KC}, x0 = 1.0 }}
+[components.b]
+fmu = "MassSpring"
+parameters = {{ m = {MB}, k = {KB}, kc = {KC}, v0 = 0.5 }}
+[record]
+variables = ["a.x", "b.x"]
+"""
+
+
+def analytic(t: np.ndarray) -> np.ndarray:
+    """Positions of the two coupled masses: x'' = -M^-1 K x, exact (matrix exponential)."""
+    K = np.array([[KA + KC, -KC], [-KC, KB + KC]])
+    A = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.diag([1 / MA, 1 / MB]) @ K, np.zeros((2, 2))]])
+    z0 = np.array([1.0, 0.0, 0.0, 0.5])
+    return np.array([(expm(A * ti) @ z0)[:2] for ti in t])
+
+
+def coupled_error(tmp_path: Path, h: float) -> float:
+    path = write(tmp_path, MASS_SPRING)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CouplingWarning)
+        r = run(path, [f"scenario.base_step={h}"], out_dir=tmp_path / f"out_{h}")
+    x = np.c_[r["a.x"], r["b.x"]]
+    return float(np.max(np.abs(x - analytic(r.time))))
+
+
+def test_coupled_mass_springs_converge_first_order(tmp_path):
+    steps = [0.01, 0.005, 0.0025]
+    errors = [coupled_error(tmp_path, h) for h in steps]
+    # close to the analytic answer, and Gauss–Seidel coupling is first order: halving the
+    # communication step halves the error
+    assert errors[-1] < 2e-3
+    ratios = np.array(errors[:-1]) / np.array(errors[1:])
+    assert_allclose(ratios, 2.0, rtol=0.05)
+
+
+def test_cycle_is_broken_with_one_warning_naming_the_edge(tmp_path):
+    path = write(tmp_path, MASS_SPRING)
+    with pytest.warns(CouplingWarning) as record:
+        run(path, ["scenario.stop_time=0.05"], out_dir=tmp_path / "o")
+    msgs = [str(w.message) for w in record if issubclass(w.category, CouplingWarning)]
+    assert len(msgs) == 1
+    assert "b.x -> a.x_other" in msgs[0] and "previous" in msgs[0]
+    p = plan(load_scenario(path))
+    assert p.order == ["a", "b"] and p.broken == [("b", "a")]
+
+
+# ---- multi-rate -----------------------------------------------------------------------------
+def test_multirate_steps_every_k_base_steps_and_holds_outputs(tmp_path):
+    path = write(tmp_path, """
+connections = ["slow.y -> g.u"]
+[scenario]
+stop_time = 0.02
+base_step = 0.001
+[components.slow]
+fmu = "Source"
+step = 0.004
+[components.fast]
+fmu = "Source"
+[components.g]
+fmu = "Gain"
+step = 0.002
+[record]
+variables = ["slow.n", "slow.t_s", "fast.n", "g.y"]
+""")
+    r = run(path, out_dir=tmp_path / "o")
+    k = np.round(r.time / 0.001).astype(int)
+    # slow is stepped at base steps 0, 4, 8, ... with its own step 0.004: after base step k-1
+    # it has taken ceil(k / 4) steps and reached time 0.004 * ceil(k / 4)
+    assert_array_equal(r["slow.n"], np.ceil(k / 4))
+    assert_allclose(r["slow.t_s"], 0.004 * np.ceil(k / 4), rtol=0, atol=1e-15)
+    assert_array_equal(r["fast.n"], k)
+    # g (step 0.002) samples slow.y when it is stepped (base steps 0, 2, 4, ...) and holds it
+    expected = np.where(k == 0, 0.0, 0.004 * np.ceil((2 * np.floor((k - 1) / 2) + 1) / 4))
+    assert_allclose(r["g.y"], expected, rtol=0, atol=1e-15)
+
+
+def test_multirate_coupled_mass_springs_stay_accurate(tmp_path):
+    """b stepped every 2 base steps with its own (double) step: still close to the analytic
+    answer; stepping it with the wrong size or every base step would be far off."""
+    path = write(tmp_path, MASS_SPRING.replace('fmu = "MassSpring"\nparameters = { m = 2.0',
+                                               'fmu = "MassSpring"\nstep = 0.002\nparameters = { m = 2.0'))
+    assert "step = 0.002" in path.read_text()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CouplingWarning)
+        r = run(path, ["scenario.base_step=0.001"], out_dir=tmp_path / "o")
+    err = np.max(np.abs(np.c_[r["a.x"], r["b.x"]] - analytic(r.time)))
+    assert err < 2e-3
+
+
+# ---- Gauss–Seidel order ---------------------------------------------------------------------
+CHAIN = """
+connections = ["g1.y -> g2.u", "src.y -> g1.u"]
+[scenario]
+stop_time = 0.01
+base_step = 0.001
+# listed against the data flow: the master must order src, g1, g2
+[components.g2]
+fmu = "Gain"
+parameters = { gain = 2.0 }
+[components.g1]
+fmu = "Gain"
+parameters = { offset = 1.0 }
+[components.src]
+fmu = "Source"
+parameters = { slope = 3.0 }
+[record]
+variables = ["src.y", "g1.y", "g2.y"]
+"""
+
+
+def test_gauss_seidel_order_gives_same_step_values_through_a_feedthrough_chain(tmp_path):
+    path = write(tmp_path, CHAIN)
+    assert plan(load_scenario(path)).order == ["src", "g1", "g2"]
+    r = run(path, out_dir=tmp_path / "o")
+    assert_allclose(r["src.y"], 3.0 * r.time, rtol=0, atol=1e-14)
+    # the same step's value all along the chain (a wrong order would lag by one or two steps),
+    # also at t = 0 (initialisation in dependency order)
+    assert_allclose(r["g1.y"], r["src.y"] + 1.0, rtol=0, atol=1e-14)
+    assert_allclose(r["g2.y"], 2.0 * (r["src.y"] + 1.0), rtol=0, atol=1e-14)
+
+
+def test_vector_connection(tmp_path):
+    path = write(tmp_path, """
+connections = ["src.ys -> g.uv"]
+[scenario]
+stop_time = 0.005
+base_step = 0.001
+[components.src]
+fmu = "Source"
+parameters = { offset = [1.0, -1.0] }
+[components.g]
+fmu = "Gain"
+parameters = { gain = -1.0 }
+[record]
+variables = ["src.ys", "g.yv"]
+""")
+    r = run(path, out_dir=tmp_path / "o")
+    assert r["src.ys"].shape == (6, 2)
+    assert_allclose(r["src.ys"][1:], np.c_[r.time + 1, 2 * r.time - 1][1:], atol=1e-14)
+    assert_allclose(r["g.yv"], -r["src.ys"], atol=1e-14)
+
+
+def test_algebraic_loop_is_rejected(tmp_path):
+    path = write(tmp_path, """
+connections = ["g1.y -> g2.u", "g2.y -> g1.u"]
+[scenario]
+stop_time = 0.01
+base_step = 0.001
+[components.g1]
+fmu = "Gain"
+[components.g2]
+fmu = "Gain"
+""")
+    with pytest.raises(ScenarioError, match=r"s\.toml: algebraic loop of direct feedthrough: g1\.u -> g1\.y -> g2\.u -> g2\.y -> g1\.u"):
+        run(path, out_dir=tmp_path / "o")
+    assert not (tmp_path / "o").exists()
+
+
+# ---- reproducibility ------------------------------------------------------------------------
+NOISE = """
+[scenario]
+stop_time = 0.05
+base_step = 0.001
+seed = 1
+[components.src]
+fmu = "Source"
+[components.other]
+fmu = "Source"
+[record]
+variables = ["src.noise", "other.noise"]
+"""
+
+
+def test_same_seed_gives_byte_identical_results_other_seed_differs(tmp_path):
+    path = write(tmp_path, NOISE)
+    run(path, out_dir=tmp_path / "a")
+    run(path, out_dir=tmp_path / "b")
+    run(path, ["scenario.seed=2"], out_dir=tmp_path / "c")
+    a = (tmp_path / "a" / "results.csv").read_bytes()
+    assert a == (tmp_path / "b" / "results.csv").read_bytes()
+    assert a != (tmp_path / "c" / "results.csv").read_bytes()
+    ra, rc = Result.load(tmp_path / "a"), Result.load(tmp_path / "c")
+    assert not np.allclose(ra["src.noise"][1:], rc["src.noise"][1:])
+    # two components with the same FMU get different seeds (name in the hash)
+    assert not np.allclose(ra["src.noise"][1:], ra["other.noise"][1:])
+
+
+def test_results_csv_is_read_by_fmpy(tmp_path):
+    path = write(tmp_path, CHAIN)
+    r = run(path, out_dir=tmp_path / "o")
+    traj = read_csv(tmp_path / "o" / "results.csv")
+    assert traj.dtype.names == ("time", "src.y", "g1.y", "g2.y")
+    assert_array_equal(traj["time"], r.time)
+    assert_array_equal(traj["g2.y"], r["g2.y"])
+    info = json.loads((tmp_path / "o" / "run.json").read_text())
+    assert info["status"] == "ok" and info["error"] is None
+    assert info["scenario"]["components"]["g2"]["parameters"] == {"gain": 2.0}
+    assert "fmpy" in info["versions"]
+
+
+# ---- failures -------------------------------------------------------------------------------
+FAILING = """
+connections = ["bad.y -> g.u"]
+[scenario]
+stop_time = 0.1
+base_step = 0.001
+[components.bad]
+fmu = "Failing"
+parameters = {{ fail_at = 0.05, mode = "{mode}" }}
+[components.g]
+fmu = "Gain"
+"""
+
+
+def test_fmu_error_in_do_step_stops_with_log_and_keeps_rows(tmp_path):
+    path = write(tmp_path, FAILING.format(mode="error"))
+    with pytest.raises(RunError) as info:
+        run(path, out_dir=tmp_path / "o")
+    msg = str(info.value)
+    assert "component 'bad'" in msg and "t = 0.05 s" in msg
+    assert "toy failure: the solver diverged at t = 0.051 s" in msg   # the FMU's own log
+    assert "\n" not in msg
+    assert info.value.time == pytest.approx(0.05) and info.value.component == "bad"
+    r = Result.load(tmp_path / "o")
+    assert_allclose(r.time, np.arange(51) * 0.001, atol=1e-12)        # rows 0 .. 0.05 s
+    assert_allclose(r["bad.y"], r.time, atol=1e-12)
+    run_info = json.loads((tmp_path / "o" / "run.json").read_text())
+    assert run_info["status"] == "error" and "toy failure" in run_info["error"]
+
+
+def test_nan_on_a_connection_names_producer_variable_and_time(tmp_path):
+    path = write(tmp_path, FAILING.format(mode="nan"))
+    with pytest.raises(RunError, match=r"NaN on a connection: component 'bad' output 'y' is NaN "
+                                       r"at t = 0\.051 s"):
+        run(path, out_dir=tmp_path / "o")
+    r = Result.load(tmp_path / "o")
+    assert r.time[-1] == pytest.approx(0.05)
+    assert np.all(np.isfinite(r["bad.y"]))
+
+
+def test_bad_parameter_value_fails_at_initialisation_with_the_fmu_message(tmp_path):
+    path = write(tmp_path, FAILING.format(mode="oops"))
+    with pytest.raises(RunError, match=r"component 'bad'.*mode"):
+        run(path, out_dir=tmp_path / "o")
+
+
+def test_result_access(tmp_path):
+    path = write(tmp_path, NOISE.replace('variables = ["src.noise", "other.noise"]',
+                                         'variables = ["src.ys", "src.y"]'))
+    r = run(path, out_dir=tmp_path / "o")
+    assert r["src.ys"].shape == (51, 2) and r["src.y"].shape == (51,)
+    assert_array_equal(r["src.ys[2]"], r["src.ys"][:, 1])
+    assert r.variables() == ["src.ys", "src.y"]
+    with pytest.raises(KeyError, match="not recorded"):
+        r["src.noise"]

@@ -1,0 +1,176 @@
+"""Scenario loading: format, includes, seeds, overrides and every validation error."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from orchestration.build import build_all
+from orchestration.scenario import (ScenarioError, load_scenario, parse_override, parse_value,
+                                    stable_seed)
+
+TOYS = Path(__file__).parent / "fmus"
+
+
+@pytest.fixture(scope="session")
+def toy_dir(tmp_path_factory) -> Path:
+    dest = tmp_path_factory.mktemp("toy_fmus")
+    build_all(dest, quiet=True, scripts=sorted(TOYS.glob("*_fmu.py")))
+    return dest
+
+
+@pytest.fixture(autouse=True)
+def _fmu_dir(toy_dir, monkeypatch):
+    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(toy_dir))
+
+
+BASE = """
+connections = ["src.y -> g.u", "src.ys -> g.uv"]
+[scenario]
+name = "toy"
+description = "a toy"
+stop_time = 0.1
+base_step = 0.001
+seed = 7
+[components.src]
+fmu = "Source"
+step = 0.002
+[components.src.parameters]
+slope = 2.0
+offset = [1.0, 2.0]
+enabled = false
+label = "hello"
+[components.g]
+fmu = "Gain"
+parameters = { gain = 3 }
+[record]
+interval = 0.002
+[[metrics]]
+kind = "rmse"
+name = "e"
+estimate = "g.yv"
+truth = "src.ys"
+after = 0.01
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "s.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_load_resolves_components_parameters_connections(tmp_path, toy_dir):
+    sc = load_scenario(write(tmp_path, BASE))
+    assert (sc.name, sc.description, sc.stop_time, sc.base_step, sc.seed) == ("toy", "a toy", 0.1, 0.001, 7)
+    assert sc.n_steps == 100 and sc.record_every == 2
+    src, g = sc.components["src"], sc.components["g"]
+    assert src.fmu == toy_dir / "Source.fmu" and src.ratio == 2 and g.ratio == 1
+    assert src.parameters == {"slope": 2.0, "offset[1]": 1.0, "offset[2]": 2.0, "enabled": False,
+                              "label": "hello", "seed": stable_seed(7, "src")}
+    assert g.parameters == {"gain": 3.0} and isinstance(g.parameters["gain"], float)
+    assert [str(c) for c in sc.connections] == ["src.y -> g.u", "src.ys -> g.uv"]
+    assert sc.connections[1].pairs == (("ys[1]", "uv[1]"), ("ys[2]", "uv[2]"))
+    # default record: every connected output, plus what the metrics need
+    assert sc.record == ["src.y", "src.ys", "g.yv"]
+    assert sc.record_columns() == ["src.y", "src.ys[1]", "src.ys[2]", "g.yv[1]", "g.yv[2]"]
+    assert sc.metrics[0].after == 0.01
+
+
+def test_seed_is_stable_per_component_and_given_seed_wins(tmp_path):
+    assert stable_seed(7, "src") == stable_seed(7, "src")
+    assert len({stable_seed(7, "src"), stable_seed(8, "src"), stable_seed(7, "other")}) == 3
+    sc = load_scenario(write(tmp_path, BASE.replace("slope = 2.0", "slope = 2.0\nseed = 42")))
+    assert sc.components["src"].parameters["seed"] == 42
+
+
+def test_overrides(tmp_path):
+    path = write(tmp_path, BASE)
+    sc = load_scenario(path, ["src.slope=5", "src.offset=[3, 4]", "g.gain=0.5", "scenario.seed=3",
+                              "scenario.stop_time=2", "src.label=world"])
+    p = sc.components["src"].parameters
+    assert (p["slope"], p["offset[1]"], p["offset[2]"], p["label"]) == (5.0, 3.0, 4.0, "world")
+    assert p["seed"] == stable_seed(3, "src")
+    assert sc.components["g"].parameters["gain"] == 0.5
+    assert (sc.seed, sc.stop_time) == (3, 2.0)
+    sc = load_scenario(path, ["src.offset[2]=9.5"])
+    assert sc.components["src"].parameters["offset[2]"] == 9.5
+    assert sc.components["src"].parameters["offset[1]"] == 1.0
+    assert parse_override(" a.b[2] = [1, 2] ") == ("a", "b", 2, [1, 2])
+    assert parse_value('"x"') == "x" and parse_value("true") is True
+
+
+def test_include_merges_parameters(tmp_path):
+    (tmp_path / "tuned").mkdir()
+    write(tmp_path / "tuned", '[components.g.parameters]\ngain = 7.0\noffset = 1.5\n', "t.toml")
+    text = BASE.replace('seed = 7', 'seed = 7\ninclude = ["tuned/t.toml"]')
+    sc = load_scenario(write(tmp_path, text))
+    assert sc.components["g"].parameters == {"gain": 7.0, "offset": 1.5}
+    sc = load_scenario(tmp_path / "s.toml", ["g.gain=1"])       # an override wins over the include
+    assert sc.components["g"].parameters["gain"] == 1.0
+    write(tmp_path / "tuned", '[components.nope.parameters]\ngain = 7.0\n', "t.toml")
+    with pytest.raises(ScenarioError, match=r"t\.toml: unknown component 'nope'"):
+        load_scenario(tmp_path / "s.toml")
+
+
+def test_fmu_given_as_path_relative_to_the_scenario(tmp_path, toy_dir):
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "mine.fmu").write_bytes((toy_dir / "Gain.fmu").read_bytes())
+    sc = load_scenario(write(tmp_path, BASE.replace('fmu = "Gain"', 'fmu = "sub/mine.fmu"')))
+    assert sc.components["g"].fmu == tmp_path / "sub" / "mine.fmu"
+
+
+@pytest.mark.parametrize("change, message", [
+    (('"src.y -> g.u"', '"srx.y -> g.u"'), r"s\.toml: connection 'srx\.y -> g\.u': unknown component 'srx'"),
+    (('"src.y -> g.u"', '"src.z -> g.u"'), r"connection 'src\.z -> g\.u': component 'src' \(Source\) has no variable 'z'"),
+    (('"src.y -> g.u"', '"src.y -> g.y"'), r"output-to-output connection: the target 'g\.y' is an output"),
+    (('"src.y -> g.u"', '"g.u -> g.u"'), r"input-to-input connection: the source 'g\.u' is an input"),
+    (('"src.y -> g.u"', '"src.y -> g.gain"'), r"connection 'src\.y -> g\.gain': the target 'g\.gain' is a parameter, must be an input"),
+    (('"src.ys -> g.uv"', '"src.ys -> g.u"'), r"size mismatch: 'src\.ys' has 2 element\(s\), 'g\.u' has 1"),
+    (('"src.y -> g.u"', '"src.t_s -> g.u"'), r"connection 'src\.t_s -> g\.u': unit mismatch: 'src\.t_s' is in s, 'g\.u' in 1"),
+    (('fmu = "Gain"', 'fmu = "Nope"'), r"component 'g': FMU file not found: .*Nope\.fmu"),
+    (('fmu = "Gain"', 'fmu = "x/missing.fmu"'), r"component 'g': FMU file not found: .*x/missing\.fmu"),
+    (("step = 0.002", "step = 0.0025"), r"component 'src': step = 0\.0025 is not an integer multiple of the base step 0\.001"),
+    (('"src.ys -> g.uv"]', '"src.ys -> g.uv", "src.n -> g.u"]'), r"input 'g\.u' is already connected by 'src\.y -> g\.u'"),
+    (("slope = 2.0", "slop = 2.0"), r"component 'src': component 'src' has no parameter 'slop'"),
+    (("slope = 2.0", "slope = [2.0]"), r"parameter 'slope' is a scalar"),
+    (("offset = [1.0, 2.0]", "offset = [1.0]"), r"parameter 'offset' has 2 elements, got 1"),
+    (("slope = 2.0", 'slope = "fast"'), r"parameter 'slope' is Real, got 'fast'"),
+    (("interval = 0.002", "interval = 0.0015"), r"\[record\] interval = 0\.0015 is not an integer multiple"),
+    (('estimate = "g.yv"', 'estimate = "g.y"'), r"metric 'e': size mismatch"),
+    (('kind = "rmse"', 'kind = "median"'), r"unknown kind 'median'"),
+    (("stop_time = 0.1", "stop_time = -1"), r"stop_time must be > 0"),
+    (("[record]", "[recrod]"), r"s\.toml: unknown key\(s\) recrod"),
+])
+def test_validation_errors_name_file_component_variable(tmp_path, change, message):
+    old, new = change
+    assert old in BASE
+    path = write(tmp_path, BASE.replace(old, new, 1))
+    with pytest.raises(ScenarioError, match=message) as info:
+        load_scenario(path)
+    assert str(path) in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_malformed_toml_names_file_and_line(tmp_path):
+    path = write(tmp_path, BASE.replace("slope = 2.0", "slope = = 2.0"))
+    with pytest.raises(ScenarioError, match=r"s\.toml: malformed TOML: .*line 13, column 9"):
+        load_scenario(path)
+
+
+def test_missing_scenario_file(tmp_path):
+    with pytest.raises(ScenarioError, match=r"scenario file not found: .*nope\.toml"):
+        load_scenario(tmp_path / "nope.toml")
+
+
+@pytest.mark.parametrize("override, message", [
+    ("nope.x=1", r"unknown component 'nope'"),
+    ("src.nope=1", r"has no parameter 'nope'"),
+    ("scenario.colour=1", r"unknown scenario key 'colour'"),
+    ("src.slope", r"expected comp\.param=value"),
+    ("src.slope=[1,", r"not a TOML value"),
+    ("scenario.base_step=0.0008", r"component 'src': step = 0\.002 is not an integer multiple of the base step 0\.0008"),
+])
+def test_bad_overrides(tmp_path, override, message):
+    with pytest.raises(ScenarioError, match=message):
+        load_scenario(write(tmp_path, BASE), [override])

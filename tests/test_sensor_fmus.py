@@ -1,0 +1,236 @@
+"""Encoder, Imu, ForceTorqueSensor and ContactEnvironment built and exercised through fmpy."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description, simulate_fmu
+from fmpy.fmi2 import FMU2Slave
+from numpy.testing import assert_allclose, assert_array_equal
+
+from orchestration.build import build_all, validate_fmu
+
+G = 9.81
+NAMES = ["Encoder", "Imu", "ForceTorqueSensor", "ContactEnvironment"]
+STOP, DT = 0.05, 1e-3
+N_ROWS = int(round(STOP / DT)) + 1
+
+
+@pytest.fixture(scope="session")
+def fmu_dir(tmp_path_factory) -> Path:
+    dest = tmp_path_factory.mktemp("sensor_fmus")
+    build_all(dest, only=NAMES, quiet=True)          # raises BuildError if fmpy validate complains
+    return dest
+
+
+def sim(fmu_dir: Path, name: str, logger=None, **start_values) -> np.ndarray:
+    return simulate_fmu(str(fmu_dir / f"{name}.fmu"), stop_time=STOP, output_interval=DT,
+                        start_values=start_values, logger=logger, debug_logging=logger is not None)
+
+
+def columns(result: np.ndarray, prefix: str) -> np.ndarray:
+    """The columns ``prefix[1..n]`` of a result as an array (rows = time)."""
+    names = [n for n in result.dtype.names if n.startswith(prefix + "[")]
+    return np.column_stack([result[n] for n in names])
+
+
+class Log:
+    """An fmpy logger callback that keeps the FMU's messages."""
+
+    def __init__(self) -> None:
+        self.messages: list[str] = []
+
+    def __call__(self, env, instance, status, category, message) -> None:
+        self.messages.append(message.decode(errors="replace"))
+
+    def has(self, *words: str) -> bool:
+        return any(all(w in m for w in words) for m in self.messages)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_validates_and_declares_units_and_descriptions(fmu_dir, name):
+    assert validate_fmu(fmu_dir / f"{name}.fmu") == []
+    md = read_model_description(str(fmu_dir / f"{name}.fmu"))
+    for v in md.modelVariables:
+        assert v.description, f"{name}.{v.name} has no description"
+        if v.type == "Real":
+            assert v.unit, f"{name}.{v.name} has no unit"
+    assert any(v.name == "seed" for v in md.modelVariables) or name == "ContactEnvironment"
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_runs_standalone_with_default_inputs(fmu_dir, name):
+    r = sim(fmu_dir, name)
+    assert len(r) == N_ROWS
+    for col in r.dtype.names:
+        assert np.all(np.isfinite(r[col])), f"{name}.{col} not finite"
+
+
+def test_default_readings_at_rest(fmu_dir):
+    imu = sim(fmu_dir, "Imu")
+    acc, gyro = columns(imu, "acc_s"), columns(imu, "gyro_s")
+    assert_array_equal(acc[0], [0.0, 0.0, G])                    # valid right after initialisation
+    # white noise 0.02 m/s2 plus a 200 Hz filter: 6 sigma of the unfiltered noise bounds it
+    assert np.max(np.abs(acc - [0.0, 0.0, G])) < 6 * 0.02
+    assert np.max(np.abs(gyro)) < 6 * 0.005
+    ft = sim(fmu_dir, "ForceTorqueSensor")
+    f = columns(ft, "f_s")
+    res = 2 * 660.0 / 2 ** 16
+    assert_allclose(f[0], [0.0, 0.0, 12.0 * G], atol=res / 2)
+    assert np.max(np.abs(f - [0.0, 0.0, 12.0 * G])) < 6 * 0.5 + res
+    assert np.all(ft["saturated"] == 0.0)
+    enc = columns(sim(fmu_dir, "Encoder"), "q_m_meas")
+    lsb = 2 * math.pi / 2 ** 16
+    assert_allclose(enc / lsb, np.round(enc / lsb), atol=1e-9)   # whole counts
+    env = sim(fmu_dir, "ContactEnvironment")
+    assert np.all(columns(env, "f_ext") == 0.0) and np.all(env["penetration"] == 0.0)
+
+
+def test_imu_rotated_mount_noise_free(fmu_dir):
+    quiet = dict(acc_noise=0.0, acc_bias_rw=0.0, gyro_noise=0.0, gyro_bias_rw=0.0)
+    r = sim(fmu_dir, "Imu", **quiet, **{"mount_rpy[1]": math.pi / 2})
+    assert_allclose(columns(r, "acc_s"), np.tile([0.0, G, 0.0], (N_ROWS, 1)), atol=1e-12)
+
+
+@pytest.mark.parametrize("name, extra", [("Encoder", {"noise": 1e-3}), ("Imu", {}),
+                                         ("ForceTorqueSensor", {})])
+def test_seed_reproducible_and_distinct(fmu_dir, name, extra):
+    a = sim(fmu_dir, name, seed=11, **extra)
+    b = sim(fmu_dir, name, seed=11, **extra)
+    c = sim(fmu_dir, name, seed=12, **extra)
+    out = [n for n in a.dtype.names if n not in ("time", "saturated")]
+    A, B, C = (np.column_stack([x[n] for n in out]) for x in (a, b, c))
+    assert_array_equal(A, B)
+    assert np.mean(A[1:] != C[1:]) > 0.5
+
+
+@pytest.mark.parametrize("name, bad, word", [
+    ("Encoder", {"noise": -1e-5}, "noise"),
+    ("Imu", {"acc_noise": -0.01}, "acc_noise"),
+    ("Imu", {"gyro_range": 0.0}, "gyro_range"),
+    ("ForceTorqueSensor", {"m_tool": 0.0}, "m_tool"),
+    ("ForceTorqueSensor", {"m_tool": -3.0}, "m_tool"),
+    ("ContactEnvironment", {"stiffness": 0.0}, "stiffness"),
+    ("ContactEnvironment", {"wall_normal[1]": 0.0, "wall_normal[2]": 0.0}, "wall_normal"),
+])
+def test_bad_parameter_rejected_at_initialisation(fmu_dir, name, bad, word):
+    s = Slave(fmu_dir / f"{name}.fmu", init=False, **bad)
+    try:
+        with pytest.raises(Exception, match="ExitInitializationMode"):
+            s.fmu.exitInitializationMode()
+        assert s.log.has("initialisation", f"'{word}"), s.log.messages
+    finally:
+        s.close()
+
+
+@pytest.mark.parametrize("name", ["Encoder", "Imu", "ForceTorqueSensor"])
+def test_sample_rate_not_dividing_the_step_fails(fmu_dir, name):
+    s = Slave(fmu_dir / f"{name}.fmu", sample_rate=300.0)   # period 3.33 ms vs step 1 ms
+    try:
+        with pytest.raises(Exception, match="DoStep"):
+            s.fmu.doStep(0.0, DT)
+        assert s.log.has("'sample_rate'", "not an integer multiple"), s.log.messages
+    finally:
+        s.close()
+
+
+def test_sample_rate_holds_between_samples(fmu_dir):
+    # 250 Hz at a 1 ms step: a new noisy reading every 4 steps, held in between
+    r = sim(fmu_dir, "ForceTorqueSensor", sample_rate=250.0)
+    f = columns(r, "f_s")[1:]
+    assert_array_equal(f[0::4][:12], f[1::4][:12])
+    assert_array_equal(f[0::4][:12], f[3::4][:12])
+    assert np.all(f[0::4][:11] != f[4::4][:11])
+
+
+def test_hammer_pulse_through_fmu(fmu_dir):
+    r = sim(fmu_dir, "ContactEnvironment", enabled=False, **{"hammer_times[1]": 0.01})
+    t, f = r["time"], columns(r, "f_ext")
+    expected = np.where((t >= 0.01) & (t < 0.015), 300.0 * np.sin(np.pi * (t - 0.01) / 0.005), 0.0)
+    assert_allclose(f[:, 0], expected, atol=1e-9)
+    assert_allclose(f[:, 1], 0.0)
+    assert f[:, 0].max() > 250.0
+
+
+_KEEP_ALIVE: list = []
+
+
+class Slave:
+    """A bare fmpy co-simulation slave that records the FMU's log and is always freed."""
+
+    def __init__(self, path: Path, init: bool = True, **params: float) -> None:
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+
+        self.md = read_model_description(str(path))
+        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
+        self.log = Log()
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(self.log)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self._cb = cb                                   # keep the callbacks alive
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=extract(str(path)),
+                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="t")
+        self.fmu.instantiate(callbacks=cb, loggingOn=True)
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+        for k, v in params.items():
+            self.fmu.setReal([self.vr[k]], [float(v)])
+        if init:
+            self.fmu.exitInitializationMode()
+
+    def set(self, name: str, values) -> None:
+        self.fmu.setReal([self.vr[f"{name}[{i + 1}]"] for i in range(len(values))], list(values))
+
+    def get(self, name: str, size: int | None = None):
+        if size is None:
+            return self.fmu.getReal([self.vr[name]])[0]
+        return np.array(self.fmu.getReal([self.vr[f"{name}[{i + 1}]"] for i in range(size)]))
+
+    def close(self) -> None:
+        """Keep the instance and its callbacks alive instead of ``freeInstance``: freeing a
+        pythonfmu instance in the host's interpreter leaves objects that crash a later garbage
+        collection (see orchestration/fmpy_compat.py)."""
+        _KEEP_ALIVE.append(self)
+
+
+def test_contact_environment_feedthrough(fmu_dir):
+    s = Slave(fmu_dir / "ContactEnvironment.fmu", damping=100.0)
+    try:
+        assert_allclose(s.get("f_ext", 2), 0.0)
+        s.set("p_tool", [1.302, 0.4])                           # 2 mm into the default wall
+        assert_allclose(s.get("f_ext", 2), [-5000.0 * 0.002, 0.0], rtol=1e-12)
+        assert s.get("penetration") == pytest.approx(0.002, rel=1e-12)
+        s.set("v_tool", [0.05, 0.0])                            # moving in: damping adds
+        assert_allclose(s.get("f_ext", 2), [-(10.0 + 5.0), 0.0], rtol=1e-12)
+        s.set("v_tool", [-0.5, 0.0])                            # retracting fast: never pulls
+        assert_allclose(s.get("f_ext", 2), 0.0)
+        s.fmu.doStep(0.0, DT)
+        s.set("p_tool", [1.2, 0.0])
+        assert_allclose(s.get("f_ext", 2), 0.0)
+        assert s.get("penetration") == 0.0
+    finally:
+        s.close()
+
+
+def test_model_structure_dependencies(fmu_dir):
+    md = read_model_description(str(fmu_dir / "ContactEnvironment.fmu"))
+    deps = {u.variable.name: sorted(d.name for d in u.dependencies) for u in md.outputs}
+    assert deps["f_ext[1]"] == ["p_tool[1]", "p_tool[2]", "v_tool[1]", "v_tool[2]"]
+    for name in ["Encoder", "Imu", "ForceTorqueSensor"]:           # sampled: no feedthrough
+        md = read_model_description(str(fmu_dir / f"{name}.fmu"))
+        assert all(u.dependencies == [] for u in md.outputs), name
+
+
+def test_force_sensor_saturation_flag(fmu_dir):
+    # the 12 kg tool weighs 117.7 N: a 50 N range saturates sensor z and sets the flag
+    r = sim(fmu_dir, "ForceTorqueSensor", f_range=50.0, noise=0.0, bias_rw=0.0)
+    f = columns(r, "f_s")
+    res = 2 * 660.0 / 2 ** 16
+    assert np.all(r["saturated"] == 1.0)
+    assert np.all(f[:, 2] <= 50.0) and np.all(f[:, 2] > 50.0 - res)
+    assert_allclose(f[:, :2], 0.0)

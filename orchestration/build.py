@@ -9,6 +9,7 @@ the third-party packages the importer's Python must have.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import re
 import shutil
 import sys
@@ -22,6 +23,9 @@ DEFAULT_DEST = REPO / "dist" / "fmus"
 # What the FMUs import besides the standard library and the bundled `fmus` package.
 FMU_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11"]
 
+
+# Hash of the bundled package, in every FMU: FMUs with different ones must not run together.
+BUNDLE_ID_FILE = "BUNDLE_ID"
 
 _CLASS = re.compile(r"^class (\w+)\(", re.M)
 
@@ -39,6 +43,10 @@ def _stage_package(stage: Path) -> Path:
     target = stage / "fmus"
     shutil.copytree(FMU_SOURCES, target,
                     ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*_fmu.py"))
+    digest = hashlib.sha256()
+    for f in sorted(target.rglob("*.py")):
+        digest.update(f.relative_to(target).as_posix().encode() + b"\0" + f.read_bytes())
+    (target / BUNDLE_ID_FILE).write_text(digest.hexdigest() + "\n")
     (stage / "requirements.txt").write_text("\n".join(FMU_REQUIREMENTS) + "\n")
     return target
 

@@ -1,0 +1,46 @@
+"""RigidKinematics: the motor-angle baseline, as math and through its FMU."""
+from __future__ import annotations
+
+import fmpy
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from fmus.common import dynamics, kinematics
+from fmus.common.robot_params import RobotParameters
+from fmus.estimators import rigid_kinematics_model as rk
+from orchestration.build import build_all
+
+
+def test_gravity_compensation_inverts_the_static_deflection() -> None:
+    """At rest in static equilibrium the compensated kinematics give the true tool position."""
+    p = RobotParameters()
+    for q in ([0.0, 0.0], [0.3, -0.2], [-0.4, 0.6]):
+        x = dynamics.static_equilibrium(q, p)
+        assert_allclose(rk.arm_angles(x[2:4], p), q, atol=1e-12)
+        assert_allclose(rk.tool_position(x[2:4], p), kinematics.tool_position(q, p), atol=1e-12)
+        # without compensation the tool sags by millimetres under gravity
+        sag = np.hypot(*(rk.tool_position(x[2:4], p, False) - kinematics.tool_position(q, p)))
+        assert sag > 1e-3
+
+
+@pytest.fixture(scope="module")
+def fmu(tmp_path_factory):
+    dest = tmp_path_factory.mktemp("rigid")
+    build_all(dest, only=["RigidKinematics"], quiet=True)
+    return dest / "RigidKinematics.fmu"
+
+
+def test_fmu_matches_the_model(fmu) -> None:
+    p = RobotParameters()
+    q_m = dynamics.static_equilibrium([0.2, 0.1], p)[2:4]
+    res = fmpy.simulate_fmu(str(fmu), stop_time=0.01, step_size=1e-3,
+                            start_values={"q_m_meas[1]": q_m[0], "q_m_meas[2]": q_m[1]},
+                            output=["p_tool_hat[1]", "p_tool_hat[2]", "q_a_hat[1]"])
+    assert_allclose([res["p_tool_hat[1]"][-1], res["p_tool_hat[2]"][-1]], rk.tool_position(q_m, p),
+                    atol=1e-12)
+    md = fmpy.read_model_description(str(fmu))
+    for v in md.modelVariables:
+        assert v.description, v.name
+        if v.type == "Real" and v.causality in ("input", "output"):
+            assert v.unit, v.name

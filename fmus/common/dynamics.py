@@ -96,66 +96,76 @@ def _constants(p: RobotParameters) -> _Constants:
     return k
 
 
-# ---- the terms of eq. 11, vector API ---------------------------------------------------------
+# ---- the terms of eq. 11; vectorised over leading axes: q[..., 2] ---------------------------
+def _arr(v) -> np.ndarray:
+    return np.asarray(v, dtype=float)
+
+
 def mass_matrix(q, p: RobotParameters) -> np.ndarray:
-    """Arm inertia matrix ``M(q_a)`` of eq. 11."""
+    """Arm inertia matrix ``M(q_a)`` of eq. 11 (shape (..., 2, 2))."""
     k = _constants(p)
-    b = -k.e * math.sin(float(q[1]))
-    return np.array([[k.a + 2 * b, k.c + b], [k.c + b, k.c]])
+    b = -k.e * np.sin(_arr(q)[..., 1])
+    m12 = k.c + b
+    return np.stack([np.stack([k.a + 2 * b, m12], -1), np.stack([m12, np.full_like(b, k.c)], -1)], -2)
 
 
 def coriolis(q, dq, p: RobotParameters) -> np.ndarray:
     """Coriolis and centrifugal torques ``C(q_a, dq_a) dq_a`` of eq. 11 (Christoffel symbols of M)."""
     k = _constants(p)
-    bd = -k.e * math.cos(float(q[1]))
-    dq1, dq2 = float(dq[0]), float(dq[1])
-    return np.array([bd * (2 * dq1 * dq2 + dq2 * dq2), -bd * dq1 * dq1])
+    bd = -k.e * np.cos(_arr(q)[..., 1])
+    dq = _arr(dq)
+    dq1, dq2 = dq[..., 0], dq[..., 1]
+    return np.stack([bd * (2 * dq1 * dq2 + dq2 * dq2), -bd * dq1 * dq1], -1)
 
 
 def gravity_torque(q, p: RobotParameters) -> np.ndarray:
     """Gravity torques ``G(q_a) = dV/dq_a`` of eq. 11 (``V``: potential energy of the links)."""
     k = _constants(p)
-    cp = math.cos(float(q[0]) + float(q[1]))
-    return np.array([-k.g1 * math.sin(float(q[0])) - k.g2 * cp, -k.g2 * cp])
+    q = _arr(q)
+    cp = np.cos(q[..., 0] + q[..., 1])
+    return np.stack([-k.g1 * np.sin(q[..., 0]) - k.g2 * cp, -k.g2 * cp], -1)
 
 
 def inverse_dynamics_rigid(q, dq, ddq, p: RobotParameters) -> np.ndarray:
     """Arm-side torque ``M ddq + C dq + G`` the gearboxes must deliver (eq. 11, left side)."""
-    return mass_matrix(q, p) @ np.asarray(ddq, float) + coriolis(q, dq, p) + gravity_torque(q, p)
+    return (np.einsum("...ij,...j->...i", mass_matrix(q, p), _arr(ddq)) + coriolis(q, dq, p)
+            + gravity_torque(q, p))
 
 
 def spring_torque(q_a, q_m, p: RobotParameters) -> np.ndarray:
     """Gearbox spring torque ``tau_s(D)``, ``D = q_m / r - q_a`` (arm side, without damping)."""
     k = _constants(p)
-    return np.array([k.spring(i, float(q_m[i]) / k.r[i] - float(q_a[i])) for i in range(2)])
+    D = _arr(q_m) / np.array(k.r) - _arr(q_a)
+    delta = np.array(k.delta)
+    return np.array(k.k_hi) * D - np.array(k.k_soft) * delta * np.tanh(D / delta)
 
 
 def spring_stiffness(D, p: RobotParameters) -> np.ndarray:
     """``d tau_s / dD`` at the deflection ``D``: ``k_lo`` at zero, ``k_hi`` for ``|D| >> delta``."""
     k = _constants(p)
-    return np.array([k.k_hi[i] - k.k_soft[i] / math.cosh(float(D[i]) / k.delta[i]) ** 2 for i in range(2)])
+    return np.array(k.k_hi) - np.array(k.k_soft) / np.cosh(_arr(D) / np.array(k.delta)) ** 2
 
 
 def spring_deflection(tau, p: RobotParameters) -> np.ndarray:
     """The deflection ``D`` with ``tau_s(D) = tau`` (Newton's method; ``tau_s`` is monotonic)."""
     k = _constants(p)
-    out = np.empty(2)
-    for i in range(2):
-        t = float(tau[i])
-        D = t / k.k_hi[i] + math.copysign(k.k_soft[i] * k.delta[i] / k.k_hi[i], t) * math.tanh(abs(t) / (k.k_hi[i] * k.delta[i]))
-        for _ in range(50):
-            f = k.spring(i, D) - t
-            D -= f / (k.k_hi[i] - k.k_soft[i] / math.cosh(D / k.delta[i]) ** 2)
-            if abs(f) <= 1e-12 * max(1.0, abs(t)):
-                break
-        out[i] = D
-    return out
+    tau = _arr(tau)
+    k_hi, k_soft, delta = np.array(k.k_hi), np.array(k.k_soft), np.array(k.delta)
+    # start on the high-stiffness asymptote, shifted by the soft zone: within a few Newton steps
+    D = (tau + np.sign(tau) * k_soft * delta * np.tanh(np.abs(tau) / (k_hi * delta))) / k_hi
+    for _ in range(50):
+        f = k_hi * D - k_soft * delta * np.tanh(D / delta) - tau
+        D = D - f / (k_hi - k_soft / np.cosh(D / delta) ** 2)
+        if np.all(np.abs(f) <= 1e-12 * np.maximum(1.0, np.abs(tau))):
+            break
+    return D
 
 
 def motor_friction(dq_m, p: RobotParameters) -> np.ndarray:
     """Motor friction ``f_v w + f_c tanh(w / w_c)`` (motor side; smooth Coulomb friction)."""
     k = _constants(p)
-    return np.array([k.f_v[i] * float(dq_m[i]) + k.f_c[i] * math.tanh(float(dq_m[i]) / k.w_c[i]) for i in range(2)])
+    w = _arr(dq_m)
+    return np.array(k.f_v) * w + np.array(k.f_c) * np.tanh(w / np.array(k.w_c))
 
 
 def derivatives(x, tau_m, f_ext, p: RobotParameters) -> np.ndarray:

@@ -4,6 +4,11 @@ The package holds ``SystemStructure.ssd`` and every FMU under ``resources/``. Pa
 bound inline (``ssv:ParameterSet``), each component's communication step is given as the Open
 Simulation Platform's ``osp:StepSizeHint`` and the base step as ``osp:FixedStepAlgorithm``
 (libcosim reads both; other engines ignore unknown annotations, as SSP allows).
+
+Another engine's master need not be ours: libcosim's fixed-step master is Jacobi (every
+component reads the outputs of the previous communication step), ours Gauss–Seidel, so a
+consumer with direct feedthrough lags one step there, and coupled components differ by the
+first-order coupling error (``tests/test_ssp.py`` measures both).
 """
 from __future__ import annotations
 

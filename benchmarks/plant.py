@@ -1,0 +1,149 @@
+"""Flexible robot plant: lowest locked-motor resonance, per-step cost, real-time factor.
+
+Prints
+
+* the locked-motor resonances at a few working poses (the start points of the controller's
+  paths and the home pose), from the finite-difference linearisation of
+  ``dynamics.derivatives`` at static equilibrium with the motor states removed (motors locked):
+  natural frequency and damping ratio of each mode, and the undamped frequency of
+  ``dynamics.locked_motor_frequencies`` as a cross-check;
+* the per-step cost of the plant model called directly (``FlexibleRobotModel.step`` at 1 ms with
+  the plant FMU's default RK4 substeps) and through its FMU with fmpy's FMU2Slave (one setReal of
+  tau_m and f_ext, doStep, one getReal of every output), their ratio, and the FMU's real-time
+  factor at a 1 kHz communication step (goal: at least 20).
+
+Run: ``.venv/bin/python benchmarks/plant.py``.
+"""
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from fmus.common import dynamics, kinematics  # noqa: E402
+from fmus.common.parameters import as_array  # noqa: E402
+from fmus.robot_plant.plant_model import PlantParameters  # noqa: E402
+from orchestration import fmpy_compat  # noqa: E402
+
+DT = 1e-3
+POSES = {"home q=(0,0)": None, "P1 start (1.10, 0.80)": (1.10, 0.80), "P2 start (1.45, 0.55)": (1.45, 0.55),
+         "(1.00, 0.60)": (1.00, 0.60), "far (1.60, 0.20)": (1.60, 0.20)}
+#: the ISO 9283 path starts at (1.20, 0.90), which is the home pose q = (0, 0)
+
+
+def locked_motor_modes(q_a, p) -> tuple[np.ndarray, np.ndarray]:
+    """Natural frequencies [Hz] and damping ratios of the arm with the motors locked, from the
+    finite-difference linearisation of ``dynamics.derivatives`` at static equilibrium."""
+    x0 = dynamics.static_equilibrium(q_a, p)
+    arm = [0, 1, 4, 5]
+    A = np.empty((4, 4))
+    zero = np.zeros(2)
+    for j, i in enumerate(arm):
+        h = 1e-7
+        e = np.zeros(8)
+        e[i] = h
+        A[:, j] = ((dynamics.derivatives(x0 + e, zero, zero, p) - dynamics.derivatives(x0 - e, zero, zero, p))
+                   / (2 * h))[arm]
+    lam = np.linalg.eigvals(A)
+    lam = lam[lam.imag > 0] if np.count_nonzero(lam.imag > 0) == 2 else lam[:2]
+    wn = np.abs(lam)
+    order = np.argsort(wn)
+    return wn[order] / (2 * np.pi), (-lam.real / wn)[order]
+
+
+def direct_cost(p: PlantParameters, n: int) -> float:
+    robot = p.robot()
+    q0 = p.initial_angles()
+    model = dynamics.FlexibleRobotModel(robot, q0, substeps=p.substeps)
+    tau = dynamics.gravity_torque(q0, robot) / as_array(p.gear_ratio)
+    f = np.zeros(2)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        model.step(tau, f, DT)
+    return (time.perf_counter() - t0) / n
+
+
+def fmu_cost(fmu: Path, p: PlantParameters, n: int, substeps: int | None = None) -> tuple[float, ...]:
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    s = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu)),
+                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName="plant")
+    s.instantiate()
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    if substeps is not None:
+        s.setInteger([vr["substeps"]], [substeps])
+    s.exitInitializationMode()
+    robot = p.robot()
+    q0 = p.initial_angles()
+    u = list(map(float, dynamics.gravity_torque(q0, robot) / as_array(p.gear_ratio))) + [0.0, 0.0]
+    ins = [vr[f"{name}[{i}]"] for name in ("tau_m", "f_ext") for i in (1, 2)]
+    outs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    clock = time.perf_counter
+    t_set = t_step = t_get = 0.0
+    t0 = clock()
+    for k in range(n):
+        a = clock()
+        s.setReal(ins, u)
+        b = clock()
+        s.doStep(currentCommunicationPoint=k * DT, communicationStepSize=DT)
+        c = clock()
+        s.getReal(outs)
+        t_set, t_step, t_get = t_set + b - a, t_step + c - b, t_get + clock() - c
+    cost = (clock() - t0) / n
+    s.terminate()
+    s.freeInstance()   # a no-op: see orchestration.fmpy_compat
+    return cost, t_set / n, t_step / n, t_get / n
+
+
+def main() -> None:
+    p = PlantParameters()
+    robot = p.robot()
+    print("Lowest locked-motor resonances (linearised at static equilibrium, motors locked):")
+    print(f"  {'pose':<24} {'q_a [rad]':>16}  {'f1 [Hz]':>7} {'zeta1':>6}  {'f2 [Hz]':>7} {'zeta2':>6}"
+          f"  {'undamped f1, f2 [Hz]':>20}")
+    for name, target in POSES.items():
+        q = np.zeros(2) if target is None else kinematics.inverse_kinematics(target, robot)
+        f, z = locked_motor_modes(q, robot)
+        fu = dynamics.locked_motor_frequencies(q, robot)
+        print(f"  {name:<24} ({q[0]:6.3f}, {q[1]:6.3f})  {f[0]:7.2f} {z[0]:6.3f}  {f[1]:7.2f} {z[1]:6.3f}"
+              f"  {fu[0]:9.2f} {fu[1]:9.2f}")
+
+    n = 5000
+    direct_cost(p, 500)   # warm-up
+    t_direct = direct_cost(p, n)
+    dist = REPO / "dist" / "fmus" / "FlexibleRobot2DOF.fmu"
+    with tempfile.TemporaryDirectory() as tmp:
+        fmu = dist
+        if not dist.exists():
+            from orchestration.build import build_all
+            build_all(Path(tmp), only=["FlexibleRobot2DOF"], quiet=True)
+            fmu = Path(tmp) / "FlexibleRobot2DOF.fmu"
+        fmu_cost(fmu, p, 500)   # warm-up
+        t_fmu, t_set, t_step, t_get = fmu_cost(fmu, p, n)
+        t_fmu1 = fmu_cost(fmu, p, n, substeps=1)[0]
+    print(f"\nPer-step cost at dt = {DT * 1e3:g} ms, RK4 with {p.substeps} substeps ({n} steps, {fmu.name}):")
+    print(f"  plant model called directly (FlexibleRobotModel.step): {t_direct * 1e6:8.1f} us")
+    print(f"  through the FMU (setReal tau_m+f_ext, doStep, getReal of all outputs): {t_fmu * 1e6:8.1f} us")
+    print(f"    of which setReal {t_set * 1e6:.1f} us, doStep {t_step * 1e6:.1f} us (model step, NaN check and "
+          f"update_outputs), getReal {t_get * 1e6:.1f} us")
+    print(f"  ratio FMU / direct: {t_fmu / t_direct:.1f}")
+    rtf = DT / t_fmu
+    print(f"  FMU real-time factor at a 1 kHz communication step: {rtf:.1f}x faster than real time "
+          f"(goal >= 20x: {'met' if rtf >= 20 else 'NOT met'})")
+    print(f"  for comparison, the FMU with substeps = 1: {t_fmu1 * 1e6:.1f} us per step, "
+          f"real-time factor {DT / t_fmu1:.1f}")
+
+
+if __name__ == "__main__":
+    main()
+    fmpy_compat.exit_without_finalizers(0)

@@ -249,6 +249,21 @@ class FlexibleRobotModel:
     def x(self, value) -> None:
         self._s = tuple(float(v) for v in value)
 
+    @property
+    def state(self) -> tuple:
+        """The state as a tuple of floats (no copy: the hot path's view of :attr:`x`)."""
+        return self._s
+
+    def arm_acceleration(self, fx: float, fz: float) -> tuple[float, float]:
+        """Arm angular acceleration now, with the tool force ``(fx, fz)`` (eq. 11)."""
+        d = self._k.derivatives(self._s, 0.0, 0.0, fx, fz)
+        return d[4], d[5]
+
+    def spring_torques(self) -> tuple[float, float]:
+        """Gearbox spring torques (arm side, without damping) now."""
+        k, s = self._k, self._s
+        return k.spring(0, s[2] / k.r[0] - s[0]), k.spring(1, s[3] / k.r[1] - s[1])
+
     def step(self, tau_m, f_ext, dt: float) -> None:
         """Advance by ``dt`` with the inputs held constant (zero-order hold)."""
         f = self._k.derivatives

@@ -19,6 +19,8 @@ directly on an input, :meth:`FlexFusionSlave.update_outputs`.
 """
 from __future__ import annotations
 
+import math
+from functools import partial
 import traceback
 from typing import Any, Iterable, Sequence
 from xml.etree.ElementTree import Element, SubElement
@@ -96,6 +98,8 @@ class FlexFusionSlave(Fmi2Slave):
         self._inputs: list[str] = []          # attribute names of the inputs, in order
         self._depends: dict[str, tuple[str, ...]] = {}   # output variable name -> input attrs
         self._inputs_dirty = False
+        self._real_getters: dict | None = None   # value reference -> getter, built on first use
+        self._real_setters: dict | None = None
         self._ready = False
         self._time = 0.0
         self.params: Any = None
@@ -127,12 +131,12 @@ class FlexFusionSlave(Fmi2Slave):
             return
         values = np.broadcast_to(np.asarray(start, dtype=float), (size,)).copy()
         setattr(self, attr, values)
+        # getters and setters bind the array itself (fast): assign vectors in place, never rebind
         for i in range(size):
-            def getter(i: int = i, attr: str = attr) -> float:
-                return getattr(self, attr)[i]
+            getter = partial(values.item, i)
 
-            def setter(v: float, i: int = i, attr: str = attr) -> None:
-                getattr(self, attr)[i] = v
+            def setter(v: float, i: int = i) -> None:
+                values[i] = v
                 if on_set:
                     on_set()
             self._register(Real(f"{attr}[{i + 1}]", causality=causality,
@@ -231,7 +235,9 @@ class FlexFusionSlave(Fmi2Slave):
     def _check_inputs(self, t: float) -> None:
         for name in self._inputs:
             v = getattr(self, name)
-            if not np.all(np.isfinite(v)):
+            # fast path: a sum of finite numbers is finite (but for overflow, checked below)
+            if not math.isfinite(float(v) if isinstance(v, float) else float(v.sum())) \
+                    and not np.all(np.isfinite(v)):
                 raise FloatingPointError(f"input '{name}' is not finite ({v}) at t = {t:.6g} s")
 
     def do_step(self, current_time: float, step_size: float) -> bool:
@@ -254,7 +260,25 @@ class FlexFusionSlave(Fmi2Slave):
             except Exception as exc:  # noqa: BLE001
                 self._fail(f"output update at t = {self._time:.6g} s", exc)
                 raise
-        return super().get_real(vrs)
+        getters = self._real_getters
+        if getters is None:
+            getters = self._real_getters = {vr: var.getter for vr, var in self.vars.items()
+                                            if isinstance(var, Real)}
+        try:
+            return [getters[vr]() for vr in vrs]    # floats or numpy float64 (a float)
+        except KeyError:
+            return super().get_real(vrs)     # pythonfmu's message for a non-Real reference
+
+    def set_real(self, vrs: list[int], values: list[float]) -> None:
+        setters = self._real_setters
+        if setters is None:
+            setters = self._real_setters = {vr: var.setter for vr, var in self.vars.items()
+                                            if isinstance(var, Real) and var.setter is not None}
+        try:
+            for vr, v in zip(vrs, values):
+                setters[vr](v)
+        except KeyError:
+            super().set_real(vrs, values)
 
     # ---- modelDescription ----------------------------------------------------------------
     def to_xml(self, model_options: dict[str, str] = dict()) -> Element:  # noqa: B006 - pythonfmu's signature

@@ -90,6 +90,28 @@ def jacobian_dot(q, dq, p, point: str = "tool") -> np.ndarray:
     return np.array([[v1z, v2z], [-v1x, -v2x]])
 
 
+def point_motion(q, dq, ddq, p, point: str = "tool") -> tuple[float, float, float, float, float, float]:
+    """Position, velocity and acceleration ``(x, z, vx, vz, ax, az)`` of ``point``, in plain floats.
+
+    ``v = J dq``, ``a = J ddq + J_dot dq`` (2012 paper, eq. 18), with ``J`` and ``J_dot`` written
+    out (the plant evaluates this every step: no numpy arrays on the hot path).
+    """
+    rx, rz, r2x, r2z = _geometry(q, p, point)
+    w1, w2 = float(dq[0]), float(dq[1])
+    a1, a2 = float(ddq[0]), float(ddq[1])
+    if point == "elbow":
+        r2x = r2z = 0.0
+        w2 = a2 = 0.0
+    w12 = w1 + w2
+    ex, ez = rx - r2x, rz - r2z
+    v2x, v2z = w12 * r2z, -w12 * r2x                # forearm lever turning at w1 + w2
+    vx, vz = w1 * ez + v2x, -w1 * ex + v2z          # the point
+    # J ddq + J_dot dq, J = [[rz, r2z], [-rx, -r2x]], J_dot = [[vz, v2z], [-vx, -v2x]]
+    ax = rz * a1 + r2z * a2 + vz * w1 + v2z * w2
+    az = -rx * a1 - r2x * a2 - vx * w1 - v2x * w2
+    return rx, rz, vx, vz, ax, az
+
+
 def velocity(q, dq, p, point: str = "tool") -> np.ndarray:
     """World velocity ``J(q) dq`` of ``point``."""
     return jacobian(q, p, point) @ np.asarray(dq, float)
@@ -97,8 +119,7 @@ def velocity(q, dq, p, point: str = "tool") -> np.ndarray:
 
 def point_acceleration(q, dq, ddq, p, point: str = "tool") -> np.ndarray:
     """World acceleration ``J(q) ddq + J_dot(q, dq) dq`` of ``point`` (2012 paper, eq. 18)."""
-    dq = np.asarray(dq, float)
-    return jacobian(q, p, point) @ np.asarray(ddq, float) + jacobian_dot(q, dq, p, point) @ dq
+    return np.array(point_motion(q, dq, ddq, p, point)[4:6])
 
 
 def specific_force(q, dq, ddq, p) -> np.ndarray:

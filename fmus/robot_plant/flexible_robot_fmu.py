@@ -1,8 +1,6 @@
 """FMU adapter of the flexible two-axis robot (2012 paper eqs. 10-11, 2009 paper eq. 2)."""
 from __future__ import annotations
 
-import numpy as np
-
 from fmus.common import dynamics, kinematics
 from fmus.common.fmi import FlexFusionSlave
 from fmus.robot_plant.plant_model import PlantParameters
@@ -50,20 +48,20 @@ class FlexibleRobot2DOF(FlexFusionSlave):
         self.update_outputs()
 
     def update_outputs(self) -> None:
+        # plain floats throughout: this runs every step
         p = self.robot
-        x = self.model.x
-        q, qm, dq, dqm = x[0:2], x[2:4], x[4:6], x[6:8]
-        ddq = dynamics.arm_acceleration(x, self.f_ext, p)
-        self.q_a[:] = q
-        self.dq_a[:] = dq
-        self.ddq_a[:] = ddq
-        self.q_m[:] = qm
-        self.dq_m[:] = dqm
-        self.p_tool[:] = kinematics.tool_position(q, p)
-        self.v_tool[:] = kinematics.jacobian(q, p, "tool") @ dq
-        self.a_tool[:] = kinematics.point_acceleration(q, dq, ddq, p, "tool")
-        self.phi_tool = float(q[0] + q[1])
-        self.omega_tool = float(dq[0] + dq[1])
-        self.p_sensor[:] = kinematics.sensor_position(q, p)
-        self.a_sensor[:] = kinematics.point_acceleration(q, dq, ddq, p, "sensor")
-        self.tau_s[:] = dynamics.spring_torque(q, qm, p)
+        s = self.model.state
+        q, qm, dq, dqm = s[0:2], s[2:4], s[4:6], s[6:8]
+        ddq = self.model.arm_acceleration(float(self.f_ext[0]), float(self.f_ext[1]))
+        for out, values in ((self.q_a, q), (self.dq_a, dq), (self.ddq_a, ddq), (self.q_m, qm),
+                            (self.dq_m, dqm), (self.tau_s, self.model.spring_torques())):
+            out[0], out[1] = values
+        x, z, vx, vz, ax, az = kinematics.point_motion(q, dq, ddq, p, "tool")
+        self.p_tool[0], self.p_tool[1] = x, z
+        self.v_tool[0], self.v_tool[1] = vx, vz
+        self.a_tool[0], self.a_tool[1] = ax, az
+        x, z, _, _, ax, az = kinematics.point_motion(q, dq, ddq, p, "sensor")
+        self.p_sensor[0], self.p_sensor[1] = x, z
+        self.a_sensor[0], self.a_sensor[1] = ax, az
+        self.phi_tool = q[0] + q[1]
+        self.omega_tool = dq[0] + dq[1]

@@ -1,0 +1,87 @@
+"""FMU adapter of the accelerometer EKF (Axelsson, Karlsson, Norrlöf 2012, eqs. 3, 12-19, 26).
+
+The math is in :mod:`fmus.estimators.ekf_accelerometer_model`. The filter runs once per
+communication step, whose length is the sample period ``T`` of eqs. 13-14 (the paper: 100 Hz).
+
+Timing: the outputs at time ``t`` are the filtered estimate ``x_{t|t}`` from the measurements
+set at ``t`` (direct feedthrough from ``q_m_meas`` and ``acc_s``); ``do_step(t, T)`` commits that
+measurement update and predicts to ``t + T`` with the jerk reference ``dddq_a_ref`` set at ``t``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fmus.common.fmi import FlexFusionSlave
+from fmus.common.robot_params import G
+from fmus.estimators import ekf_accelerometer_model as em
+
+
+class EkfAccelerometer(FlexFusionSlave):
+    """Arm angles, velocities and accelerations from motor angles and a tool accelerometer (EKF).
+
+    Divergence (a non-finite state or a covariance that is not positive definite) ends the step
+    with an FMI error status and a message naming the cause, and so does every later step; the
+    outputs keep the last good estimate (never NaN) and stay readable.
+    """
+
+    parameters_class = em.EkfAccelerometerParameters
+    description = "EKF of arm angles from motor angles and a tool accelerometer (Axelsson et al. 2012)"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("q_m_meas", 2, unit="rad", description="measured motor angles, motor side")
+        self.input("acc_s", 3, unit="m/s2", description="accelerometer specific force, sensor frame",
+                   start=(0.0, 0.0, G))
+        self.input("dddq_a_ref", 2, unit="rad/s3", description="arm jerk reference (the model's input u)")
+        deps = ("q_m_meas", "acc_s")
+        self.output("q_a_hat", 2, unit="rad", depends_on=deps, description="estimated arm angles")
+        self.output("dq_a_hat", 2, unit="rad/s", depends_on=deps, description="estimated arm angular velocities")
+        self.output("ddq_a_hat", 2, unit="rad/s2", depends_on=deps,
+                    description="estimated arm angular accelerations")
+        self.output("p_tool_hat", 2, unit="m", depends_on=deps,
+                    description="tool position from the estimated arm angles (eq. 29), world x and z")
+        self.output("trace_P_q", unit="rad2", depends_on=deps,
+                    description="trace of the filtered covariance of the arm angles")
+        self.output("innovation_norm", unit="1", depends_on=deps,
+                    description="normalised innovation norm sqrt(nu^T S^-1 nu) of the last update")
+
+    def setup(self, params: em.EkfAccelerometerParameters) -> None:
+        self.ekf = em.EkfAccelerometerModel(params)
+        self._ix, self._iz = params.index_x - 1, params.index_z - 1
+        self._pending: tuple | None = None
+        self._diverged = ""
+        self.update_outputs()
+
+    def _y(self) -> np.ndarray:
+        return self.ekf.measurement_vector(self.q_m_meas, (self.acc_s[self._ix], self.acc_s[self._iz]))
+
+    def update_outputs(self) -> None:
+        if self._diverged:
+            return                                      # hold the last good estimate
+        try:
+            xf, Pf, nu = self.ekf.filtered(self._y())
+        except em.FilterDivergence as exc:
+            self._diverged = f"{exc} (measurements at t = {self._time:.6g} s)"
+            self._pending = None
+            return
+        self._pending = (xf, Pf, nu)
+        self.q_a_hat[:] = xf[0:2]
+        self.dq_a_hat[:] = xf[2:4]
+        self.ddq_a_hat[:] = xf[4:6]
+        self.p_tool_hat[:] = self.ekf.tool_position(xf)
+        self.trace_P_q = float(Pf[0, 0] + Pf[1, 1])
+        self.innovation_norm = nu
+
+    def step(self, t: float, dt: float) -> None:
+        if self._inputs_dirty or self._pending is None:
+            self.update_outputs()
+        if self._diverged:
+            raise em.FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate")
+        self.ekf.x, self.ekf.P, self.ekf.innovation_norm = self._pending
+        self._pending = None
+        try:
+            self.ekf.predict(self.dddq_a_ref, dt)
+        except em.FilterDivergence as exc:
+            self._diverged = f"{exc} (at t = {t:.6g} s)"
+            raise
+        self.update_outputs()      # provisional: recomputed when the next measurements are set

@@ -23,7 +23,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fmus.common.parameters import ParameterError, param
+import numpy as np
+
+from fmus.common.parameters import ParameterError, fields, param
 
 G = 9.81  #: standard gravity [m/s^2]
 
@@ -77,9 +79,36 @@ class RobotParameters:
                                  source="accelerometer on the wrist flange, as in the 2012 paper")
     g: float = param(G, "m/s2", "gravity", low=0.0)
 
+    def robot(self) -> "RobotParameters":
+        """The robot part of a component's parameters (which extend these)."""
+        return RobotParameters(**{f.name: getattr(self, f.name) for f in fields(RobotParameters)})
+
     def check(self) -> None:
         if self.c1 > self.l1:
             raise ParameterError(f"parameter 'c1' = {self.c1} must not exceed 'l1' = {self.l1}")
         for i, (lo, hi) in enumerate(zip(self.k_lo, self.k_hi), start=1):
             if lo > hi:
                 raise ParameterError(f"parameter 'k_lo[{i}]' = {lo} must not exceed 'k_hi[{i}]' = {hi}")
+
+
+@dataclass(frozen=True)
+class RobotAtInitialPose(RobotParameters):
+    """Robot parameters plus an initial pose at rest, as arm angles or as a tool position."""
+
+    q_a0: tuple = param((0.0, 0.0), "rad", "initial arm angles (at rest); ignored when p_tool0 is given")
+    p_tool0: tuple = param((0.0, 0.0), "m", "initial tool position (x, z), through the inverse "
+                           "kinematics; (0, 0) - the axis of joint 2, never reachable - uses q_a0")
+
+    def initial_angles(self) -> np.ndarray:
+        """Arm angles at t = 0."""
+        from fmus.common import kinematics
+        if tuple(self.p_tool0) == (0.0, 0.0):
+            return np.asarray(self.q_a0, float)
+        try:
+            return kinematics.inverse_kinematics(self.p_tool0, self)
+        except ValueError as exc:
+            raise ParameterError(f"parameter 'p_tool0' = {tuple(self.p_tool0)}: {exc}") from None
+
+    def check(self) -> None:
+        super().check()
+        self.initial_angles()

@@ -59,8 +59,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from fmus.common import dynamics, kinematics
-from fmus.common.parameters import ParameterError, fields, param
-from fmus.common.robot_params import RobotParameters
+from fmus.common.parameters import ParameterError, param
+from fmus.common.robot_params import RobotAtInitialPose, RobotParameters
 
 PAPER = "Axelsson, Karlsson, Norrlöf 2012"
 
@@ -78,14 +78,10 @@ class FilterDivergence(FloatingPointError):
 
 
 @dataclass(frozen=True)
-class EkfAccelerometerParameters(RobotParameters):
+class EkfAccelerometerParameters(RobotAtInitialPose):
     """Parameters of the EKF: its robot model (inherited; differing from the plant's values is
     a model error), initial estimate, noise covariances and switches."""
 
-    q_a0: tuple = param((0.0, 0.0), "rad", "initial estimate of the arm angles (at rest); ignored "
-                        "when p_tool0 is given")
-    p_tool0: tuple = param((0.0, 0.0), "m", "initial tool position (x, z) of the estimate, through the "
-                           "inverse kinematics; (0, 0) uses q_a0")
     use_accelerometer: bool = param(True, "1", "fuse the accelerometer (eqs. 17-19); off: motor angles only")
     use_bias: bool = param(False, "1", "bias states for the motor angles and the accelerometer "
                            "(eq. 12); off as in the paper's simulation (section 4.3)")
@@ -112,19 +108,6 @@ class EkfAccelerometerParameters(RobotParameters):
                                low=0.0, low_inclusive=False)
     index_x: int = param(1, "1", "index (1-based) of the sensor-frame x component in acc_s", low=1, high=3)
     index_z: int = param(3, "1", "index (1-based) of the sensor-frame z component in acc_s", low=1, high=3)
-
-    def robot(self) -> RobotParameters:
-        """The robot-model part of these parameters."""
-        return RobotParameters(**{f.name: getattr(self, f.name) for f in fields(RobotParameters)})
-
-    def initial_angles(self) -> np.ndarray:
-        """Initial estimate of the arm angles."""
-        if tuple(self.p_tool0) == (0.0, 0.0):
-            return np.asarray(self.q_a0, float)
-        try:
-            return kinematics.inverse_kinematics(self.p_tool0, self)
-        except ValueError as exc:
-            raise ParameterError(f"parameter 'p_tool0' = {tuple(self.p_tool0)}: {exc}") from None
 
     def check(self) -> None:
         super().check()

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fmus.common import dynamics, kinematics
-from fmus.common.parameters import as_array, fields, param
+from fmus.common.parameters import as_array, param
 from fmus.common.robot_params import RobotParameters
 
 
@@ -23,9 +23,6 @@ class RigidKinematicsParameters(RobotParameters):
     gravity_compensation: bool = param(True, "1", "subtract the static gearbox deflection under "
                                        "gravity from q_m / r (as an industrial controller does)")
 
-    def robot(self) -> RobotParameters:
-        """The robot-model part of these parameters."""
-        return RobotParameters(**{f.name: getattr(self, f.name) for f in fields(RobotParameters)})
 
 
 def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = True,

@@ -46,7 +46,7 @@ from typing import Sequence
 import numpy as np
 
 from fmus.common import dynamics
-from fmus.common.parameters import ParameterError, as_array, fields, param
+from fmus.common.parameters import ParameterError, as_array, param
 from fmus.common.robot_params import RobotParameters
 from fmus.robot_plant.trajectory import PATHS, Trajectory, make_path
 
@@ -498,9 +498,6 @@ class MotionControllerParameters(RobotParameters):
     tau_max: tuple = param((60.0, 60.0), "N.m", "motor torque limit, motor side", low=0.0,
                            low_inclusive=False)
 
-    def robot(self) -> RobotParameters:
-        """The robot-model part of these parameters."""
-        return RobotParameters(**{f.name: getattr(self, f.name) for f in fields(RobotParameters)})
 
     def check(self) -> None:
         super().check()

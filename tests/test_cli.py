@@ -3,28 +3,16 @@ from __future__ import annotations
 
 import json
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from orchestration.build import build_all
 from orchestration.cli import main
 from orchestration.results import CsvWriter
-
-TOYS = Path(__file__).parent / "fmus"
-
-
-@pytest.fixture(scope="session")
-def toy_dir(tmp_path_factory) -> Path:
-    dest = tmp_path_factory.mktemp("toy_fmus")
-    build_all(dest, quiet=True, scripts=sorted(TOYS.glob("*_fmu.py")))
-    return dest
+from toys import write
 
 
-@pytest.fixture(autouse=True)
-def _fmu_dir(toy_dir, monkeypatch):
-    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(toy_dir))
+pytestmark = pytest.mark.usefixtures("toy_fmus")
 
 
 GOOD = """
@@ -47,12 +35,6 @@ name = "gain_error"
 estimate = "g.yv"
 truth = "src.ys"
 """
-
-
-def write(tmp_path: Path, text: str) -> Path:
-    p = tmp_path / "s.toml"
-    p.write_text(text)
-    return p
 
 
 def test_run_writes_results_and_prints_metrics(tmp_path, capsys):

@@ -1,19 +1,17 @@
 """The EkfAccelerometer FMU built, validated and exercised through fmpy, against the plain model."""
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import fmpy
 import numpy as np
 import pytest
-from fmpy import extract, read_model_description
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+from fmpy import read_model_description
 from numpy.testing import assert_allclose
 
 from fmus.common import kinematics
 from fmus.estimators import ekf_accelerometer_model as em
+from fmu_host import Slave
 from orchestration.build import build_all
 
 T = 0.01
@@ -25,68 +23,6 @@ def fmu(tmp_path_factory) -> Path:
     (path,) = build_all(dest, only=["EkfAccelerometer"], quiet=True)   # build_all validates
     return path
 
-
-class Slave:
-    """fmpy FMU2Slave with the FMU's log recorded."""
-
-    def __init__(self, path: Path, params: dict | None = None) -> None:
-        from fmpy import calloc, free
-
-        self.md = read_model_description(str(path))
-        self.unzip = extract(str(path))
-        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.types = {v.name: v.type for v in self.md.modelVariables}
-        self.log: list[str] = []
-
-        def logger(env, name, status, category, message):
-            self.log.append(f"{status}:{message.decode(errors='replace')}")
-
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(logger)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self._cb = cb
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzip,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="ekf")
-        self.fmu.instantiate(callbacks=cb, loggingOn=True)
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
-        for k, v in (params or {}).items():
-            if isinstance(v, (tuple, list)):
-                self.set(**{k: v})
-            elif self.types[k] == "Boolean":
-                self.fmu.setBoolean([self.vr[k]], [bool(v)])
-            elif self.types[k] == "Integer":
-                self.fmu.setInteger([self.vr[k]], [int(v)])
-            else:
-                self.fmu.setReal([self.vr[k]], [float(v)])
-        self.t = 0.0
-
-    def init(self) -> None:
-        self.fmu.exitInitializationMode()
-
-    def set(self, **values) -> None:
-        refs, vals = [], []
-        for k, v in values.items():
-            v = np.atleast_1d(np.asarray(v, float))
-            names = [k] if v.size == 1 and k in self.vr else [f"{k}[{i + 1}]" for i in range(v.size)]
-            refs += [self.vr[n] for n in names]
-            vals += list(v)
-        self.fmu.setReal(refs, vals)
-
-    def get(self, name: str, size: int | None = None):
-        if size is None:
-            return self.fmu.getReal([self.vr[name]])[0]
-        return np.array(self.fmu.getReal([self.vr[f"{name}[{i + 1}]"] for i in range(size)]))
-
-    def step(self, h: float = T) -> None:
-        self.fmu.doStep(currentCommunicationPoint=self.t, communicationStepSize=h)
-        self.t += h
-
-    def close(self) -> None:
-        self.fmu.terminate()
-        self.fmu.freeInstance()
-        shutil.rmtree(self.unzip, ignore_errors=True)
 
 
 def _signals(n: int, p: em.EkfAccelerometerParameters, seed: int = 0):
@@ -156,7 +92,7 @@ def test_fmu_matches_the_plain_model(fmu: Path, params: dict) -> None:
         assert_allclose(s.get("trace_P_q"), ekf.P[0, 0] + ekf.P[1, 1], rtol=1e-12)
         assert_allclose(s.get("innovation_norm"), ekf.innovation_norm, rtol=1e-10)
         ekf.predict(u[k], T)
-        s.step()
+        s.step(T)
     s.close()
     # and it estimates the motion (the filtered estimate at the last sample)
     assert np.abs(xf[0:2] - x[-1, 0:2]).max() < 2e-4
@@ -166,15 +102,15 @@ def test_divergence_is_an_fmi_error_not_nan(fmu: Path) -> None:
     s = Slave(fmu)
     s.init()
     s.set(q_m_meas=(0.0, 0.0), acc_s=(0.0, 0.0, 9.81))
-    s.step()
+    s.step(T)
     s.set(acc_s=(1e200, 0.0, 9.81))      # an absurd (finite) reading throws the filter out
     with pytest.raises(Exception):
         for _ in range(3):
-            s.step()
+            s.step(T)
     assert any("EKF diverged" in line for line in s.log), s.log
     n_log = len(s.log)
     with pytest.raises(Exception):       # and it stays stopped, saying why
-        s.step()
+        s.step(T)
     assert len(s.log) > n_log and "EKF diverged" in s.log[-1]
     for name in ("q_a_hat", "dq_a_hat", "ddq_a_hat", "p_tool_hat"):
         assert np.all(np.isfinite(s.get(name, 2))), name
@@ -185,7 +121,7 @@ def test_nan_input_and_bad_parameter_are_named(fmu: Path) -> None:
     s.init()
     s.set(acc_s=(np.nan, 0.0, 9.81))
     with pytest.raises(Exception):
-        s.step()
+        s.step(T)
     assert any("acc_s" in line for line in s.log), s.log
     bad = Slave(fmu, dict(index_x=3, index_z=3))
     with pytest.raises(Exception):

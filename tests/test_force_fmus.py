@@ -1,18 +1,15 @@
 """ForceObserver and ImpedanceController built and exercised through fmpy."""
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
-from fmpy import extract, read_model_description
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 from numpy.testing import assert_allclose
 
 from fmus.force_observer import force_observer_math as fom
 from fmus.force_observer import impedance_math as imp
+from fmu_host import Slave
 from orchestration.build import build_all
 
 M = 12.0
@@ -25,67 +22,6 @@ def fmu_dir(tmp_path_factory) -> Path:
     build_all(dest, only=["ForceObserver", "ImpedanceController"], quiet=True)
     return dest
 
-
-class Slave:
-    """A small fmpy co-simulation wrapper that records the FMU's log."""
-
-    def __init__(self, path: Path, params: dict | None = None) -> None:
-        import ctypes
-        from fmpy import calloc, free
-
-        self.md = read_model_description(str(path))
-        self.unzip = extract(str(path))
-        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.types = {v.name: v.type for v in self.md.modelVariables}
-        self.log: list[str] = []
-
-        def logger(env, name, status, category, message):
-            self.log.append(f"{status}:{message.decode(errors='replace')}")
-
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(logger)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self._cb = cb
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzip,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="t")
-        self.fmu.instantiate(callbacks=cb, loggingOn=True)
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
-        for k, v in (params or {}).items():
-            if self.types[k] == "String":
-                self.fmu.setString([self.vr[k]], [v])
-            elif self.types[k] == "Integer":
-                self.fmu.setInteger([self.vr[k]], [int(v)])
-            else:
-                self.fmu.setReal([self.vr[k]], [float(v)])
-        self.t = 0.0
-
-    def init(self) -> None:
-        self.fmu.exitInitializationMode()
-
-    def set(self, **values) -> None:
-        refs, vals = [], []
-        for k, v in values.items():
-            v = np.atleast_1d(np.asarray(v, float))
-            names = [k] if v.size == 1 and k in self.vr else [f"{k}[{i + 1}]" for i in range(v.size)]
-            refs += [self.vr[n] for n in names]
-            vals += list(v)
-        self.fmu.setReal(refs, vals)
-
-    def get(self, name: str, size: int | None = None) -> np.ndarray | float:
-        if size is None:
-            return self.fmu.getReal([self.vr[name]])[0]
-        return np.array(self.fmu.getReal([self.vr[f"{name}[{i + 1}]"] for i in range(size)]))
-
-    def step(self, h: float = H) -> None:
-        self.fmu.doStep(currentCommunicationPoint=self.t, communicationStepSize=h)
-        self.t += h
-
-    def close(self) -> None:
-        self.fmu.terminate()
-        self.fmu.freeInstance()
-        shutil.rmtree(self.unzip, ignore_errors=True)
 
 
 def sensor_signals(n: int, phi: float = 0.3):
@@ -118,7 +54,7 @@ def test_observer_fmu_matches_math_and_recovers_force(fmu_dir, kind):
         assert_allclose(s.get("f_raw", 2), u, atol=1e-9)
         assert_allclose(out[k], core.output(u, a, x[k]), atol=1e-9)
         core.advance(u, a, x[k], H)
-        s.step()
+        s.step(H)
     assert s.get("fault") == 0.0 and s.get("n_faults") == 0.0
     s.close()
     if kind != "lowpass":
@@ -134,21 +70,21 @@ def test_observer_fmu_flags_nan_and_saturation(fmu_dir):
     s.set(f_s=good_f, acc_s=good_a, p_tool=[1.2, 0.9], phi_tool=0.0)
     est = s.get("f_contact_hat", 2)
     assert_allclose(est, [10.0, 0.0], atol=1e-9)
-    s.step()
+    s.step(H)
     s.set(f_s=[np.nan, 0.0, 117.72])
     assert s.get("fault") == 2.0
     assert_allclose(s.get("f_contact_hat", 2), est)            # held, finite
-    s.step()
-    s.step()
+    s.step(H)
+    s.step(H)
     assert s.get("n_faults") == 2.0
     assert sum("not finite" in m for m in s.log) == 1            # one warning per episode
     s.set(f_s=[250.0, 0.0, 117.72])                              # beyond the 200 N range
     assert s.get("fault") == 1.0
     assert np.all(np.isfinite(s.get("f_contact_hat", 2)))
-    s.step()
+    s.step(H)
     assert any("saturated" in m for m in s.log)
     s.set(f_s=good_f)
-    s.step()
+    s.step(H)
     assert s.get("fault") == 0.0 and s.get("n_faults") == 3.0
     s.close()
 
@@ -181,7 +117,7 @@ def test_impedance_fmu_matches_math(fmu_dir):
         assert_allclose(dp, [ref, 0.0], atol=1e-12)
         law.advance(F[0], p[0], pr[0], 5.0, h_prev, H)
         h_prev = H
-        s.step()
+        s.step(H)
     s.close()
 
 
@@ -190,21 +126,21 @@ def test_impedance_fmu_holds_on_bad_input(fmu_dir):
     s.init()
     for _ in range(20):
         s.set(f_contact_hat=[0.0, 10.0], p_tool=[1.2, 0.9], p_ref=[1.2, 0.89])
-        s.step()
+        s.step(H)
     dp = s.get("dp_ref", 2)
     assert dp[0] == 0.0 and dp[1] != 0.0                       # along the (normalised) normal only
     assert_allclose(s.get("f_normal"), -10.0)
     s.set(f_contact_hat=[np.nan, 10.0])
     assert s.get("fault") == 1.0
     assert_allclose(s.get("dp_ref", 2), dp)
-    s.step()
-    s.step()
+    s.step(H)
+    s.step(H)
     assert_allclose(s.get("dp_ref", 2), dp)
     assert sum("holding dp_ref" in m for m in s.log) == 1
     s.set(f_contact_hat=[0.0, 10.0], force_fault=1.0)
     assert s.get("fault") == 1.0
     s.set(force_fault=0.0)
-    s.step()
+    s.step(H)
     assert s.get("fault") == 0.0 and np.all(np.isfinite(s.get("dp_ref", 2)))
     s.close()
 
@@ -228,8 +164,8 @@ def test_fmus_close_the_impedance_loop_like_the_math(fmu_dir, use_raw):
         ctl.set(f_contact_hat=f_fb, p_tool=[x, 0.9], p_ref=[xr, 0.9], f_desired=0.0,
                 force_fault=obs.get("fault"))
         dp = ctl.get("dp_ref", 2)
-        obs.step()
-        ctl.step()
+        obs.step(H)
+        ctl.step(H)
         return float(f_hat[0]), float(dp[0])
 
     via_fmu = imp.simulate_1dof(plant, d, ref, 2.0, x0=1.25, observer="lowpass", use_raw=use_raw,

@@ -10,58 +10,17 @@ import numpy as np
 import pytest
 from fmpy.util import read_csv
 from numpy.testing import assert_allclose, assert_array_equal
-from scipy.linalg import expm
 
 from orchestration import CouplingWarning, Result, RunError, ScenarioError, run
-from orchestration.build import build_all
 from orchestration.master import plan
 from orchestration.scenario import load_scenario
-
-TOYS = Path(__file__).parent / "fmus"
-
-
-@pytest.fixture(scope="session")
-def toy_dir(tmp_path_factory) -> Path:
-    dest = tmp_path_factory.mktemp("toy_fmus")
-    build_all(dest, quiet=True, scripts=sorted(TOYS.glob("*_fmu.py")))
-    return dest
+from toys import MASS_SPRING, analytic, write
 
 
-@pytest.fixture(autouse=True)
-def _fmu_dir(toy_dir, monkeypatch):
-    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(toy_dir))
-
-
-def write(tmp_path: Path, text: str, name: str = "s.toml") -> Path:
-    p = tmp_path / name
-    p.write_text(text)
-    return p
+pytestmark = pytest.mark.usefixtures("toy_fmus")
 
 
 # ---- two coupled mass-springs against the analytic solution ---------------------------------
-KA, KB, KC, MA, MB = 4.0, 1.0, 2.0, 1.0, 2.0
-MASS_SPRING = f"""
-connections = ["a.x -> b.x_other", "b.x -> a.x_other"]
-[scenario]
-stop_time = 2.0
-base_step = 0.01
-[components.a]
-fmu = "MassSpring"
-parameters = {{ m = {MA}, k = {KA}, kc = {KC}, x0 = 1.0 }}
-[components.b]
-fmu = "MassSpring"
-parameters = {{ m = {MB}, k = {KB}, kc = {KC}, v0 = 0.5 }}
-[record]
-variables = ["a.x", "b.x"]
-"""
-
-
-def analytic(t: np.ndarray) -> np.ndarray:
-    """Positions of the two coupled masses: x'' = -M^-1 K x, exact (matrix exponential)."""
-    K = np.array([[KA + KC, -KC], [-KC, KB + KC]])
-    A = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.diag([1 / MA, 1 / MB]) @ K, np.zeros((2, 2))]])
-    z0 = np.array([1.0, 0.0, 0.0, 0.5])
-    return np.array([(expm(A * ti) @ z0)[:2] for ti in t])
 
 
 def coupled_error(tmp_path: Path, h: float) -> float:

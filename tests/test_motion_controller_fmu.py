@@ -6,12 +6,11 @@ from pathlib import Path
 import fmpy
 import numpy as np
 import pytest
-from fmpy import calloc, extract, free, read_model_description
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+from fmpy import read_model_description
 from numpy.testing import assert_allclose
 
 from fmus.robot_plant import motion_control_model as mcm
+from fmu_host import Slave
 from orchestration.build import build_all, validate_fmu
 
 REPO = Path(__file__).resolve().parent.parent
@@ -24,47 +23,6 @@ def fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
     build_all(dest, only=["MotionController"], quiet=True)
     return dest / "MotionController.fmu"
 
-
-class Slave:
-    """fmpy FMU2Slave with the FMU's log recorded."""
-
-    def __init__(self, path: Path, params: dict | None = None) -> None:
-        self.md = read_model_description(str(path))
-        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.types = {v.name: v.type for v in self.md.modelVariables}
-        self.log: list[str] = []
-
-        def logger(env, name, status, category, message):  # noqa: ANN001 - C callback
-            self.log.append(message.decode(errors="replace"))
-
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(logger)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self._cb = cb
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=extract(str(path)),
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="mc")
-        self.fmu.instantiate(callbacks=cb, loggingOn=True)
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
-        for k, v in (params or {}).items():
-            if self.types[k] == "String":
-                self.fmu.setString([self.vr[k]], [v])
-            else:
-                self.fmu.setReal([self.vr[k]], [float(v)])
-
-    def vec(self, name: str) -> list[int]:
-        return [self.vr[f"{name}[1]"], self.vr[f"{name}[2]"]]
-
-    def get(self, name: str) -> np.ndarray:
-        return np.array(self.fmu.getReal(self.vec(name)))
-
-    def set(self, name: str, value: np.ndarray) -> None:
-        self.fmu.setReal(self.vec(name), list(map(float, value)))
-
-    def close(self) -> None:
-        self.fmu.terminate()
-        self.fmu.freeInstance()
 
 
 def test_fmu_validates_and_declares_the_contract(fmu: Path) -> None:
@@ -100,7 +58,7 @@ def test_fmu_runs_standalone_under_simulate_fmu(fmu: Path) -> None:
 
 def test_fmu_matches_the_model_in_a_loop(fmu: Path) -> None:
     """Torque with direct feedthrough from the measurement, and the integral, as in the model."""
-    s = Slave(fmu, {"path": "square"})
+    s = Slave(fmu, {"path": "square"}, instance_name="mc")
     s.fmu.exitInitializationMode()
     ctrl = mcm.build_controller(mcm.MotionControllerParameters(path="square"))
     dt = 1e-3
@@ -111,14 +69,14 @@ def test_fmu_matches_the_model_in_a_loop(fmu: Path) -> None:
         qm = row[mcm.COLUMNS["q_m_ref"]] + rng.normal(0, 1e-3, 2)
         dqm = row[mcm.COLUMNS["dq_m_ref"]] + rng.normal(0, 1e-2, 2)
         dp = np.array([1e-3, -5e-4]) if k > 150 else np.zeros(2)
-        s.set("q_m", qm)
-        s.set("dq_m", dqm)
-        s.set("dp_ref", dp)
-        tau = s.get("tau_m")
+        s.set(q_m=qm)
+        s.set(dq_m=dqm)
+        s.set(dp_ref=dp)
+        tau = s.get("tau_m", 2)
         expected = ctrl.evaluate(t, qm, dqm, dp)
         assert_allclose(tau, expected, rtol=1e-12, atol=1e-12)
-        assert_allclose(s.get("q_a_ref"), ctrl.q_a_ref, atol=1e-14)
-        assert_allclose(s.get("p_ref"), ctrl.p_ref, atol=1e-14)
+        assert_allclose(s.get("q_a_ref", 2), ctrl.q_a_ref, atol=1e-14)
+        assert_allclose(s.get("p_ref", 2), ctrl.p_ref, atol=1e-14)
         s.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=dt)
         ctrl.advance(dt)
         t = (k + 1) * dt
@@ -141,7 +99,7 @@ def test_fmu_csv_path(fmu: Path) -> None:
     ({"speed_scale": 0.0}, "parameter 'speed_scale'"),
 ])
 def test_bad_parameters_rejected_naming_the_parameter(fmu: Path, params: dict, fragment: str) -> None:
-    s = Slave(fmu, params)
+    s = Slave(fmu, params, instance_name="mc")
     with pytest.raises(Exception):
         s.fmu.exitInitializationMode()
     assert any(fragment in m for m in s.log), s.log
@@ -151,7 +109,7 @@ def test_bad_parameters_rejected_naming_the_parameter(fmu: Path, params: dict, f
 def test_bad_csv_row_is_named(fmu: Path, tmp_path: Path) -> None:
     bad = tmp_path / "bad.csv"
     bad.write_text("x,z,speed\n1.2,0.9,\n1.3,0.9,fast\n")
-    s = Slave(fmu, {"path": "csv", "csv_file": str(bad)})
+    s = Slave(fmu, {"path": "csv", "csv_file": str(bad)}, instance_name="mc")
     with pytest.raises(Exception):
         s.fmu.exitInitializationMode()
     assert any(f"{bad}, line 3: column 'speed' = 'fast' is not a number" in m for m in s.log), s.log

@@ -6,14 +6,13 @@ from pathlib import Path
 import fmpy
 import numpy as np
 import pytest
-from fmpy import calloc, extract, free, read_model_description
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+from fmpy import extract, read_model_description
 from numpy.testing import assert_allclose
 
 from fmus.common import dynamics, kinematics
 from fmus.common.parameters import as_array
 from fmus.robot_plant.plant_model import PlantParameters
+from fmu_host import Slave
 from orchestration.build import build_all, validate_fmu
 
 OUTPUTS = ("q_a", "dq_a", "ddq_a", "q_m", "dq_m", "p_tool", "v_tool", "a_tool", "p_sensor", "a_sensor", "tau_s")
@@ -31,47 +30,6 @@ def fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def unzipped(fmu: Path) -> str:
     return extract(str(fmu))
 
-
-class Slave:
-    """fmpy FMU2Slave with the FMU's log recorded (as in test_motion_controller_fmu)."""
-
-    def __init__(self, path: Path, unzip_dir: str, params: dict | None = None) -> None:
-        self.md = read_model_description(str(path))
-        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.types = {v.name: v.type for v in self.md.modelVariables}
-        self.log: list[str] = []
-
-        def logger(env, name, status, category, message):  # noqa: ANN001 - C callback
-            self.log.append(message.decode(errors="replace"))
-
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(logger)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self._cb = cb
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzip_dir,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="plant")
-        self.fmu.instantiate(callbacks=cb, loggingOn=True)
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
-        for k, v in (params or {}).items():
-            if self.types[k] == "Integer":
-                self.fmu.setInteger([self.vr[k]], [int(v)])
-            else:
-                self.fmu.setReal([self.vr[k]], [float(v)])
-
-    def vec(self, name: str) -> list[int]:
-        return [self.vr[f"{name}[1]"], self.vr[f"{name}[2]"]]
-
-    def get(self, name: str) -> np.ndarray:
-        return np.array(self.fmu.getReal(self.vec(name)))
-
-    def set(self, name: str, value) -> None:
-        self.fmu.setReal(self.vec(name), list(map(float, value)))
-
-    def close(self) -> None:
-        self.fmu.terminate()
-        self.fmu.freeInstance()
 
 
 def test_fmu_validates(fmu: Path) -> None:
@@ -112,26 +70,26 @@ def test_fmu_runs_standalone_and_the_arm_falls(fmu: Path) -> None:
 def test_gravity_holding_torque_keeps_it_at_rest(fmu: Path, unzipped: str) -> None:
     p = PlantParameters()
     q = np.array([0.5, 0.3])
-    s = Slave(fmu, unzipped, {"q_a0[1]": q[0], "q_a0[2]": q[1]})
+    s = Slave(fmu, {"q_a0[1]": q[0], "q_a0[2]": q[1]}, unzip_dir=unzipped, instance_name="plant")
     s.fmu.exitInitializationMode()
     tau = dynamics.gravity_torque(q, p) / as_array(p.gear_ratio)
     x_eq = dynamics.static_equilibrium(q, p)
-    s.set("tau_m", tau)
+    s.set(tau_m=tau)
     for k in range(500):
         s.fmu.doStep(currentCommunicationPoint=k * DT, communicationStepSize=DT)
-    assert_allclose(s.get("q_a"), q, atol=1e-12)
-    assert_allclose(s.get("q_m"), x_eq[2:4], atol=1e-9)
-    assert_allclose(s.get("dq_a"), 0.0, atol=1e-10)
-    assert_allclose(s.get("dq_m"), 0.0, atol=1e-8)
-    assert_allclose(s.get("tau_s"), dynamics.gravity_torque(q, p), rtol=1e-10)
-    assert_allclose(s.get("p_tool"), kinematics.tool_position(q, p), atol=1e-12)
+    assert_allclose(s.get("q_a", 2), q, atol=1e-12)
+    assert_allclose(s.get("q_m", 2), x_eq[2:4], atol=1e-9)
+    assert_allclose(s.get("dq_a", 2), 0.0, atol=1e-10)
+    assert_allclose(s.get("dq_m", 2), 0.0, atol=1e-8)
+    assert_allclose(s.get("tau_s", 2), dynamics.gravity_torque(q, p), rtol=1e-10)
+    assert_allclose(s.get("p_tool", 2), kinematics.tool_position(q, p), atol=1e-12)
     s.close()
 
 
 def test_fmu_outputs_equal_the_plain_model(fmu: Path, unzipped: str) -> None:
     p = PlantParameters(p_tool0=(1.2, 0.9))
     q0 = p.initial_angles()
-    s = Slave(fmu, unzipped, {"p_tool0[1]": 1.2, "p_tool0[2]": 0.9})
+    s = Slave(fmu, {"p_tool0[1]": 1.2, "p_tool0[2]": 0.9}, unzip_dir=unzipped, instance_name="plant")
     s.fmu.exitInitializationMode()
     robot = p.robot()
     model = dynamics.FlexibleRobotModel(robot, q0, substeps=p.substeps)
@@ -160,15 +118,15 @@ def test_fmu_outputs_equal_the_plain_model(fmu: Path, unzipped: str) -> None:
 
 def test_accelerations_follow_f_ext_directly(fmu: Path, unzipped: str) -> None:
     """Direct feedthrough: a new f_ext changes ddq_a without a step."""
-    s = Slave(fmu, unzipped)
+    s = Slave(fmu, unzip_dir=unzipped, instance_name="plant")
     s.fmu.exitInitializationMode()
     robot = PlantParameters().robot()
     x = dynamics.static_equilibrium((0.0, 0.0), robot)
-    a0 = s.get("ddq_a")
+    a0 = s.get("ddq_a", 2)
     f = np.array([200.0, -100.0])
-    s.set("f_ext", f)
-    assert_allclose(s.get("ddq_a"), dynamics.arm_acceleration(x, f, robot), rtol=1e-12, atol=1e-12)
-    assert np.abs(s.get("ddq_a") - a0).max() > 1e-3
+    s.set(f_ext=f)
+    assert_allclose(s.get("ddq_a", 2), dynamics.arm_acceleration(x, f, robot), rtol=1e-12, atol=1e-12)
+    assert np.abs(s.get("ddq_a", 2) - a0).max() > 1e-3
     s.close()
 
 
@@ -180,7 +138,7 @@ def test_accelerations_follow_f_ext_directly(fmu: Path, unzipped: str) -> None:
     ({"substeps": 0}, "parameter 'substeps'"),
 ])
 def test_bad_parameters_rejected_naming_the_parameter(fmu: Path, unzipped: str, params: dict, fragment: str) -> None:
-    s = Slave(fmu, unzipped, params)
+    s = Slave(fmu, params, unzip_dir=unzipped, instance_name="plant")
     with pytest.raises(Exception):
         s.fmu.exitInitializationMode()
     assert any(fragment in m for m in s.log), s.log

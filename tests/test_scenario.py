@@ -1,27 +1,15 @@
 """Scenario loading: format, includes, seeds, overrides and every validation error."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import pytest
 
-from orchestration.build import build_all
 from orchestration.scenario import (ScenarioError, load_scenario, parse_override, parse_value,
                                     stable_seed)
-
-TOYS = Path(__file__).parent / "fmus"
-
-
-@pytest.fixture(scope="session")
-def toy_dir(tmp_path_factory) -> Path:
-    dest = tmp_path_factory.mktemp("toy_fmus")
-    build_all(dest, quiet=True, scripts=sorted(TOYS.glob("*_fmu.py")))
-    return dest
+from toys import write
 
 
-@pytest.fixture(autouse=True)
-def _fmu_dir(toy_dir, monkeypatch):
-    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(toy_dir))
+pytestmark = pytest.mark.usefixtures("toy_fmus")
 
 
 BASE = """
@@ -52,12 +40,6 @@ estimate = "g.yv"
 truth = "src.ys"
 after = 0.01
 """
-
-
-def write(tmp_path: Path, text: str, name: str = "s.toml") -> Path:
-    p = tmp_path / name
-    p.write_text(text)
-    return p
 
 
 def test_load_resolves_components_parameters_connections(tmp_path, toy_dir):

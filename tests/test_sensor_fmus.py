@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fmpy import extract, read_model_description, simulate_fmu
-from fmpy.fmi2 import FMU2Slave
+from fmpy import read_model_description, simulate_fmu
 from numpy.testing import assert_allclose, assert_array_equal
 
+from fmu_host import Slave
 from orchestration.build import build_all, validate_fmu
 
 G = 9.81
@@ -34,19 +34,6 @@ def columns(result: np.ndarray, prefix: str) -> np.ndarray:
     """The columns ``prefix[1..n]`` of a result as an array (rows = time)."""
     names = [n for n in result.dtype.names if n.startswith(prefix + "[")]
     return np.column_stack([result[n] for n in names])
-
-
-class Log:
-    """An fmpy logger callback that keeps the FMU's messages."""
-
-    def __init__(self) -> None:
-        self.messages: list[str] = []
-
-    def __call__(self, env, instance, status, category, message) -> None:
-        self.messages.append(message.decode(errors="replace"))
-
-    def has(self, *words: str) -> bool:
-        return any(all(w in m for w in words) for m in self.messages)
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -116,7 +103,7 @@ def test_seed_reproducible_and_distinct(fmu_dir, name, extra):
     ("ContactEnvironment", {"wall_normal[1]": 0.0, "wall_normal[2]": 0.0}, "wall_normal"),
 ])
 def test_bad_parameter_rejected_at_initialisation(fmu_dir, name, bad, word):
-    s = Slave(fmu_dir / f"{name}.fmu", init=False, **bad)
+    s = Slave(fmu_dir / f"{name}.fmu", bad)
     try:
         with pytest.raises(Exception, match="ExitInitializationMode"):
             s.fmu.exitInitializationMode()
@@ -127,7 +114,7 @@ def test_bad_parameter_rejected_at_initialisation(fmu_dir, name, bad, word):
 
 @pytest.mark.parametrize("name", ["Encoder", "Imu", "ForceTorqueSensor"])
 def test_sample_rate_not_dividing_the_step_fails(fmu_dir, name):
-    s = Slave(fmu_dir / f"{name}.fmu", sample_rate=300.0)   # period 3.33 ms vs step 1 ms
+    s = Slave(fmu_dir / f"{name}.fmu", {"sample_rate": 300.0}, init=True)   # period 3.33 ms vs step 1 ms
     try:
         with pytest.raises(Exception, match="DoStep"):
             s.fmu.doStep(0.0, DT)
@@ -154,63 +141,22 @@ def test_hammer_pulse_through_fmu(fmu_dir):
     assert f[:, 0].max() > 250.0
 
 
-_KEEP_ALIVE: list = []
 
-
-class Slave:
-    """A bare fmpy co-simulation slave that records the FMU's log and is always freed."""
-
-    def __init__(self, path: Path, init: bool = True, **params: float) -> None:
-        from fmpy import calloc, free
-        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-
-        self.md = read_model_description(str(path))
-        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.log = Log()
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(self.log)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self._cb = cb                                   # keep the callbacks alive
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=extract(str(path)),
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="t")
-        self.fmu.instantiate(callbacks=cb, loggingOn=True)
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
-        for k, v in params.items():
-            self.fmu.setReal([self.vr[k]], [float(v)])
-        if init:
-            self.fmu.exitInitializationMode()
-
-    def set(self, name: str, values) -> None:
-        self.fmu.setReal([self.vr[f"{name}[{i + 1}]"] for i in range(len(values))], list(values))
-
-    def get(self, name: str, size: int | None = None):
-        if size is None:
-            return self.fmu.getReal([self.vr[name]])[0]
-        return np.array(self.fmu.getReal([self.vr[f"{name}[{i + 1}]"] for i in range(size)]))
-
-    def close(self) -> None:
-        """Keep the instance and its callbacks alive instead of ``freeInstance``: freeing a
-        pythonfmu instance in the host's interpreter leaves objects that crash a later garbage
-        collection (see orchestration/fmpy_compat.py)."""
-        _KEEP_ALIVE.append(self)
 
 
 def test_contact_environment_feedthrough(fmu_dir):
-    s = Slave(fmu_dir / "ContactEnvironment.fmu", damping=100.0)
+    s = Slave(fmu_dir / "ContactEnvironment.fmu", {"damping": 100.0}, init=True)
     try:
         assert_allclose(s.get("f_ext", 2), 0.0)
-        s.set("p_tool", [1.302, 0.4])                           # 2 mm into the default wall
+        s.set(p_tool=[1.302, 0.4])                           # 2 mm into the default wall
         assert_allclose(s.get("f_ext", 2), [-5000.0 * 0.002, 0.0], rtol=1e-12)
         assert s.get("penetration") == pytest.approx(0.002, rel=1e-12)
-        s.set("v_tool", [0.05, 0.0])                            # moving in: damping adds
+        s.set(v_tool=[0.05, 0.0])                            # moving in: damping adds
         assert_allclose(s.get("f_ext", 2), [-(10.0 + 5.0), 0.0], rtol=1e-12)
-        s.set("v_tool", [-0.5, 0.0])                            # retracting fast: never pulls
+        s.set(v_tool=[-0.5, 0.0])                            # retracting fast: never pulls
         assert_allclose(s.get("f_ext", 2), 0.0)
         s.fmu.doStep(0.0, DT)
-        s.set("p_tool", [1.2, 0.0])
+        s.set(p_tool=[1.2, 0.0])
         assert_allclose(s.get("f_ext", 2), 0.0)
         assert s.get("penetration") == 0.0
     finally:

@@ -1,0 +1,43 @@
+"""The toy FMUs of tests/fmus, and the scenarios several test modules run on them."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy.linalg import expm
+
+TOYS = Path(__file__).parent / "fmus"
+
+
+def write(tmp_path: Path, text: str, name: str = "s.toml") -> Path:
+    """A scenario file with ``text`` in ``tmp_path``."""
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+# two coupled mass-springs, with an analytic solution
+KA, KB, KC, MA, MB = 4.0, 1.0, 2.0, 1.0, 2.0
+MASS_SPRING = f"""
+connections = ["a.x -> b.x_other", "b.x -> a.x_other"]
+[scenario]
+name = "coupled"
+stop_time = 2.0
+base_step = 0.01
+[components.a]
+fmu = "MassSpring"
+parameters = {{ m = {MA}, k = {KA}, kc = {KC}, x0 = 1.0 }}
+[components.b]
+fmu = "MassSpring"
+parameters = {{ m = {MB}, k = {KB}, kc = {KC}, v0 = 0.5 }}
+[record]
+variables = ["a.x", "b.x"]
+"""
+
+
+def analytic(t: np.ndarray) -> np.ndarray:
+    """Positions of the two coupled masses: x'' = -M^-1 K x, exact (matrix exponential)."""
+    K = np.array([[KA + KC, -KC], [-KC, KB + KC]])
+    A = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.diag([1 / MA, 1 / MB]) @ K, np.zeros((2, 2))]])
+    z0 = np.array([1.0, 0.0, 0.0, 0.5])
+    return np.array([(expm(A * ti) @ z0)[:2] for ti in t])

@@ -23,6 +23,7 @@ sys.path.insert(0, str(REPO))
 
 from fmus.force_observer import force_observer_math as fom  # noqa: E402
 from fmus.force_observer import impedance_math as imp  # noqa: E402
+import orchestration.fmpy_compat  # noqa: E402,F401 - keep pythonfmu instances (see that module)
 
 
 def _fmu(path: Path, params: dict):

@@ -21,7 +21,6 @@
 from __future__ import annotations
 
 import atexit
-import os
 import ctypes
 import shutil
 import sys
@@ -34,6 +33,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 import numpy as np
 
+from . import fmpy_compat
 from .scenario import Component, Scenario, ScenarioError
 
 if TYPE_CHECKING:
@@ -187,7 +187,6 @@ def _find_cycle(nodes: list[str], edges: set[tuple[str, str]], rank: dict[str, i
 # ---------------------------------------------------------------------------------------------
 # instances
 # ---------------------------------------------------------------------------------------------
-_KEPT: list["_Instance"] = []   # terminated pythonfmu instances (see _Instance.close)
 _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 
 
@@ -200,7 +199,6 @@ class _Instance:
                                fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
         self.comp = comp
         self.name = comp.name
-        self.pythonfmu = os.path.isfile(os.path.join(unzip_dir, "resources", "slavemodule.txt"))
         self.log: list[str] = []
 
         def logger(env: Any, instance: bytes, status: int, category: bytes, message: bytes) -> None:
@@ -242,16 +240,8 @@ class _Instance:
                         self.fmu.terminate()
                 except Exception:  # noqa: BLE001 - terminate after an error may fail too
                     pass
-                # The library is never unloaded (pythonfmu's native library owns code of
-                # Python objects that outlive an instance). A pythonfmu 0.7.0 instance is not
-                # freed either: its fmi2FreeInstance leaves a dangling object that makes a later
-                # garbage collection crash the process (segmentation fault in about 3 of 4 test
-                # sessions; none without the free). It is terminated, and kept until exit.
-                # FLEXFUSION_FREE_PYTHONFMU=1 frees it (for a fixed pythonfmu build).
-                if not self.pythonfmu or os.environ.get("FLEXFUSION_FREE_PYTHONFMU") == "1":
-                    self.fmu.fmi2FreeInstance(self.fmu.component)
-                else:
-                    _KEPT.append(self)
+                # a pythonfmu instance is kept, not freed (see orchestration/fmpy_compat.py)
+                fmpy_compat.free_instance(self.fmu, owner=self)
                 self.instantiated = False
         except Exception:  # noqa: BLE001
             pass

@@ -1,8 +1,7 @@
 """One FMU under test, driven through fmpy's FMU2Slave with its log recorded.
 
-Shared by the FMU test modules. Instances are not freed: freeing a pythonfmu 0.7 instance in
-the host's interpreter corrupts it (see orchestration/fmpy_compat.py, which the test conftest
-loads and which makes ``freeInstance`` a no-op).
+Shared by the FMU test modules. pythonfmu instances are kept, not freed: freeing one in the
+host's interpreter corrupts it (see orchestration/fmpy_compat.py).
 """
 from __future__ import annotations
 
@@ -13,6 +12,8 @@ import numpy as np
 from fmpy import calloc, extract, free, read_model_description
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+
+from orchestration import fmpy_compat
 
 
 class FmuLog(list):
@@ -99,6 +100,6 @@ class Slave:
 
     def close(self) -> None:
         self.fmu.terminate()
-        self.fmu.freeInstance()
+        fmpy_compat.free_instance(self.fmu, owner=self)
         if self._own_unzip:
             shutil.rmtree(self.unzip, ignore_errors=True)

@@ -9,7 +9,7 @@ import pytest
 
 from orchestration.cli import main
 from orchestration.results import CsvWriter
-from toys import write
+from toys import FAILING, write
 
 
 pytestmark = pytest.mark.usefixtures("toy_fmus")
@@ -83,19 +83,6 @@ def test_user_errors_exit_2_with_one_line(tmp_path, capsys, change, message):
     assert err.startswith("error: ") and err.count("\n") == 1, err
     assert message in err and "Traceback" not in err
     assert str(path) in err
-
-
-FAILING = """
-connections = ["bad.y -> g.u"]
-[scenario]
-stop_time = 0.1
-base_step = 0.001
-[components.bad]
-fmu = "Failing"
-parameters = {{ fail_at = 0.05, mode = "{mode}" }}
-[components.g]
-fmu = "Gain"
-"""
 
 
 @pytest.mark.parametrize("mode, message", [

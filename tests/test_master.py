@@ -14,7 +14,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 from orchestration import CouplingWarning, Result, RunError, ScenarioError, run
 from orchestration.master import plan
 from orchestration.scenario import load_scenario
-from toys import MASS_SPRING, analytic, write
+from toys import FAILING, MASS_SPRING, analytic, write
 
 
 pytestmark = pytest.mark.usefixtures("toy_fmus")
@@ -208,18 +208,6 @@ def test_results_csv_is_read_by_fmpy(tmp_path):
 
 
 # ---- failures -------------------------------------------------------------------------------
-FAILING = """
-connections = ["bad.y -> g.u"]
-[scenario]
-stop_time = 0.1
-base_step = 0.001
-[components.bad]
-fmu = "Failing"
-parameters = {{ fail_at = 0.05, mode = "{mode}" }}
-[components.g]
-fmu = "Gain"
-"""
-
 
 def test_fmu_error_in_do_step_stops_with_log_and_keeps_rows(tmp_path):
     path = write(tmp_path, FAILING.format(mode="error"))

@@ -41,3 +41,17 @@ def analytic(t: np.ndarray) -> np.ndarray:
     A = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.diag([1 / MA, 1 / MB]) @ K, np.zeros((2, 2))]])
     z0 = np.array([1.0, 0.0, 0.0, 0.5])
     return np.array([(expm(A * ti) @ z0)[:2] for ti in t])
+
+
+# a Failing component (its `mode` filled in by the test) at t = 0.05 s, feeding a gain
+FAILING = """
+connections = ["bad.y -> g.u"]
+[scenario]
+stop_time = 0.1
+base_step = 0.001
+[components.bad]
+fmu = "Failing"
+parameters = {{ fail_at = 0.05, mode = "{mode}" }}
+[components.g]
+fmu = "Gain"
+"""

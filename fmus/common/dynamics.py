@@ -86,12 +86,16 @@ class _Constants:
 
 
 _CACHE: dict[int, _Constants] = {}
+_CACHE_SIZE = 128      # a tuning study makes thousands of parameter sets: keep the cache bounded
 
 
 def _constants(p: RobotParameters) -> _Constants:
-    """Constants of ``p``, cached by identity (parameter sets are frozen)."""
+    """Constants of ``p``, cached by identity (parameter sets are frozen; an entry keeps its ``p``
+    alive, so an id is not reused while cached)."""
     k = _CACHE.get(id(p))
-    if k is None or k.p is not p:
+    if k is None:
+        if len(_CACHE) >= _CACHE_SIZE:
+            _CACHE.clear()
         k = _CACHE[id(p)] = _Constants(p)
     return k
 

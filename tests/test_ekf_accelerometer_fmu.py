@@ -98,6 +98,27 @@ def test_fmu_matches_the_plain_model(fmu: Path, params: dict) -> None:
     assert np.abs(xf[0:2] - x[-1, 0:2]).max() < 2e-4
 
 
+def test_gauss_seidel_inputs_are_fused_after_the_prediction(fmu: Path) -> None:
+    """Our master sets the measurements of t + T before doStep(t, T) and reads after it: the FMU
+    must predict to t + T first and then fuse them (else the estimate runs one step ahead)."""
+    n = 40
+    p = em.EkfAccelerometerParameters(q_a0=(0.2, -0.1))
+    qm, acc, f, u, x = _signals(n, p)
+    s = Slave(fmu, dict(q_a0=(0.2, -0.1)))
+    s.set(q_m_meas=qm[0], acc_s=acc[0], dddq_a_ref=u[0])
+    s.init()
+    ekf = em.EkfAccelerometerModel(p)
+    ekf.update(ekf.measurement_vector(qm[0], f[0]))
+    for k in range(n - 1):
+        s.set(q_m_meas=qm[k + 1], acc_s=acc[k + 1], dddq_a_ref=u[k])
+        s.step(T)
+        ekf.predict(u[k], T)
+        xf = ekf.update(ekf.measurement_vector(qm[k + 1], f[k + 1]))
+        assert_allclose(s.get("q_a_hat", 2), xf[0:2], rtol=1e-12, atol=1e-15)
+        assert_allclose(s.get("dq_a_hat", 2), xf[2:4], rtol=1e-12, atol=1e-14)
+    s.close()
+
+
 def test_divergence_is_an_fmi_error_not_nan(fmu: Path) -> None:
     s = Slave(fmu)
     s.init()

@@ -4,8 +4,11 @@ The math is in :mod:`fmus.estimators.ekf_accelerometer_model`. The filter runs o
 communication step, whose length is the sample period ``T`` of eqs. 13-14 (the paper: 100 Hz).
 
 Timing: the outputs at time ``t`` are the filtered estimate ``x_{t|t}`` from the measurements
-set at ``t`` (direct feedthrough from ``q_m_meas`` and ``acc_s``); ``do_step(t, T)`` commits that
-measurement update and predicts to ``t + T`` with the jerk reference ``dddq_a_ref`` set at ``t``.
+set at ``t`` (direct feedthrough from ``q_m_meas`` and ``acc_s``). ``do_step(t, T)`` commits the
+last such update, predicts to ``t + T`` with the jerk reference and fuses the measurement inputs
+as they are now, as the measurement at ``t + T``: under a Gauss-Seidel master, which sets the
+producers' values of ``t + T`` before this step, the estimate is on time (like RigidKinematics);
+a master that sets inputs at ``t`` and reads after the step sees both one step late.
 """
 from __future__ import annotations
 
@@ -73,7 +76,10 @@ class EkfAccelerometer(FlexFusionSlave):
         self.innovation_norm = nu
 
     def step(self, t: float, dt: float) -> None:
-        if self._inputs_dirty or self._pending is None:
+        # Commit the estimate at t as last computed (from the measurements present then), not
+        # from inputs set since: a Gauss-Seidel master sets the measurements of t + dt before
+        # this doStep, and they are fused below, after the prediction to t + dt.
+        if self._pending is None:
             self.update_outputs()
         if self._diverged:
             raise em.FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate")
@@ -84,4 +90,4 @@ class EkfAccelerometer(FlexFusionSlave):
         except em.FilterDivergence as exc:
             self._diverged = f"{exc} (at t = {t:.6g} s)"
             raise
-        self.update_outputs()      # provisional: recomputed when the next measurements are set
+        self.update_outputs()      # the inputs as the measurement at t + dt (re-fused if they change)

@@ -150,13 +150,17 @@ def spring_stiffness(D, p: RobotParameters) -> np.ndarray:
     return np.array(k.k_hi) - np.array(k.k_soft) / np.cosh(_arr(D) / np.array(k.delta)) ** 2
 
 
-def spring_deflection(tau, p: RobotParameters) -> np.ndarray:
-    """The deflection ``D`` with ``tau_s(D) = tau`` (Newton's method; ``tau_s`` is monotonic)."""
+def spring_deflection(tau, p: RobotParameters, D0=None) -> np.ndarray:
+    """The deflection ``D`` with ``tau_s(D) = tau`` (Newton's method; ``tau_s`` is monotonic),
+    from ``D0`` if given (a nearby solution: one or two steps)."""
     k = _constants(p)
     tau = _arr(tau)
     k_hi, k_soft, delta = np.array(k.k_hi), np.array(k.k_soft), np.array(k.delta)
-    # start on the high-stiffness asymptote, shifted by the soft zone: within a few Newton steps
-    D = (tau + np.sign(tau) * k_soft * delta * np.tanh(np.abs(tau) / (k_hi * delta))) / k_hi
+    if D0 is not None:
+        D = _arr(D0)
+    else:
+        # start on the high-stiffness asymptote, shifted by the soft zone: a few Newton steps
+        D = (tau + np.sign(tau) * k_soft * delta * np.tanh(np.abs(tau) / (k_hi * delta))) / k_hi
     for _ in range(50):
         f = k_hi * D - k_soft * delta * np.tanh(D / delta) - tau
         D = D - f / (k_hi - k_soft / np.cosh(D / delta) ** 2)

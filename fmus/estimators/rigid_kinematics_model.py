@@ -25,19 +25,23 @@ class RigidKinematicsParameters(RobotParameters):
 
 
 
-def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = True,
-               iterations: int = 4) -> np.ndarray:
+def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = True) -> np.ndarray:
     """Arm angles from motor angles: ``q_m / r``, minus the gravity deflection ``D(G(q_a))``.
 
-    The fixed point ``q_a = q_m / r - D(G(q_a))`` contracts fast (``|dD/dq| ~ 1e-3``): a few
-    iterations reach machine precision.
+    The fixed point ``q_a = q_m / r - D(G(q_a))`` contracts fast (``|dD/dq| ~ 1e-3``): each
+    iteration gains three digits (so the error left after a change ``c`` is about ``1e-3 c``), and
+    each spring inversion starts from the last one.
     """
-    q = np.asarray(q_m, float) / as_array(robot.gear_ratio)
+    q_motor = np.asarray(q_m, float) / as_array(robot.gear_ratio)
     if not gravity_compensation:
-        return q
-    q_motor = q.copy()
-    for _ in range(iterations):
-        q = q_motor - dynamics.spring_deflection(dynamics.gravity_torque(q, robot), robot)
+        return q_motor
+    q, D = q_motor, None
+    for _ in range(8):
+        D = dynamics.spring_deflection(dynamics.gravity_torque(q, robot), robot, D)
+        q_next = q_motor - D
+        if np.abs(q_next - q).max() <= 1e-11:      # error left: about 1e-14 rad
+            return q_next
+        q = q_next
     return q
 
 

@@ -183,16 +183,44 @@ def main(argv: list[str] | None = None) -> int:
     p_ssp.add_argument("-o", "--output", required=True, type=Path, help="the .ssp file to write")
     p_ssp.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE", help="override a parameter")
 
+    p_study = sub.add_parser("study", help="studies: Monte Carlo, tuning, robustness, ...")
+    kinds = p_study.add_subparsers(dest="study", required=True, metavar="KIND")
+    for module in study_modules():
+        module.register(kinds)
+
     args, rest = parser.parse_known_args(argv)
     if args.command == "build":
         from orchestration import build
         return build.main(rest)
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
-    handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp}
+    handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp, "study": cmd_study}
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         return handlers[args.command](args)
+
+
+def study_modules() -> list[Any]:
+    """The ``orchestration.study_<kind>`` modules: each adds its sub-command with
+    ``register(subparsers)``, whose ``func(args)`` returns the exit status."""
+    import importlib
+    import pkgutil
+
+    from orchestration import __path__ as package_path
+    names = sorted(m.name for m in pkgutil.iter_modules(package_path) if m.name.startswith("study_"))
+    modules = [importlib.import_module(f"orchestration.{name}") for name in names]
+    return [m for m in modules if hasattr(m, "register")]
+
+
+def cmd_study(args: argparse.Namespace) -> int:
+    from .master import RunError
+    from .scenario import ScenarioError
+    from .study import StudyError
+
+    try:
+        return args.func(args)
+    except (StudyError, ScenarioError, RunError) as exc:
+        return _error(str(exc))
 
 
 def console_main() -> None:

@@ -18,6 +18,7 @@ import argparse
 import multiprocessing
 import os
 import time
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -95,6 +96,7 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (
         As :func:`orchestration.master.run`.
     """
     from . import metrics as _metrics
+    from .master import CouplingWarning
     from .master import simulate as _simulate
     from .scenario import ScenarioError, load_scenario
 
@@ -108,7 +110,9 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (
         rows.append(np.array(values, dtype=float))
 
     t0 = time.perf_counter()
-    notes = _simulate(sc, sink)
+    with warnings.catch_warnings():      # returned on RunArrays.warnings, not printed per run
+        warnings.simplefilter("ignore", CouplingWarning)
+        notes = _simulate(sc, sink)
     wall = time.perf_counter() - t0
     data = np.array(rows).reshape(len(rows), len(columns))
     run = RunArrays(np.array(times), columns, data, {}, wall, notes)

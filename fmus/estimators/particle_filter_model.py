@@ -1,0 +1,510 @@
+"""The particle filter of Axelsson, Karlsson and Norrlöf (2012): arm angles from the motor angles
+and a tool accelerometer, with the estimation model of the EKF.
+
+Model
+-----
+Exactly the model of :mod:`fmus.estimators.ekf_accelerometer_model` (section 3.2, eqs. 12-19):
+the state, the transition matrices ``F, G_u, G_w`` (eq. 14), ``Q`` and ``R`` (eq. 26, the
+EKF's parameters) and the measurement function ``h`` (eq. 15). :class:`BatchMeasurementModel`
+evaluates ``h`` and its Jacobian for all particles at once (checked against the scalar
+:class:`~fmus.estimators.ekf_accelerometer_model.MeasurementModel` in the tests).
+
+Algorithm (section 2.2, Algorithm 1)
+------------------------------------
+Each update with the measurement ``y_t`` samples the particles ``x_t^(i)`` from the proposal
+and weights them (step 2 and 4 of Algorithm 1), forms the MMSE estimate (eq. 6) and a weighted
+covariance, then resamples (step 3; systematic resampling, one uniform draw) always (the paper,
+section 4.3) or when the effective sample size ``1 / sum(g_i^2)`` falls below
+``ess_threshold * N``. The prior of particle ``i`` is Gaussian, ``x = m_i + L e``,
+``e ~ N(0, I_k)``:
+
+* after a time update, ``m_i = F x_{t-1}^(i) + G_u u_{t-1}`` and ``L = G_w chol(Q)`` (eqs. 13-14;
+  ``k`` is the number of noise inputs, 2 without the bias states);
+* at the first update (Algorithm 1, step 1: ``p(x_0)``), ``m_i = x_0`` and ``L = chol(P_0)``.
+
+Proposals (noise coordinates ``e``, where the transition density is not degenerate; the
+Jacobian of ``x = m_i + L e`` is common to the transition density and the proposal and cancels
+in the weight):
+
+* ``"prior"`` (bootstrap, eq. 28): ``e ~ N(0, I)``, weight ``g_i *= p(y_t | x_t^(i))``;
+* ``"ekf"`` (eq. 30): one EKF measurement update per particle, linearised at its prior mean
+  ``m_i``: with ``H_e = H(m_i) L``, ``A = I + H_e^T R^-1 H_e`` (the information form of eq. 30's
+  covariance ``(H^T R^-1 H + Q^-1)^-1``, well conditioned where the measurements are precise)
+  the proposal is ``N(A^-1 H_e^T R^-1 (y_t - h(m_i)), A^-1)`` and the weight
+  ``g_i *= p(y_t | x_t^(i)) N(e; 0, I) / N(e; mu_i, A^-1)`` (Algorithm 1, step 2).
+
+Degeneracy
+----------
+If no particle keeps a finite weight and state (every likelihood underflows to zero, e.g. an
+absurd measurement, or the states overflow), the filter does not return NaN: it re-initialises
+the cloud around the last good estimate, propagated to the current time with the model, with
+the initial covariance ``P_0``, and fuses the measurement again from that prior; if even that
+gives no finite weight, the measurement is skipped (the cloud is the re-initialised prior,
+equal weights). Each such event increments :attr:`ParticleFilterModel.n_reinit` (the FMU logs
+a warning). Only if the last good estimate itself cannot be propagated to a finite value does
+the filter raise :class:`~fmus.estimators.ekf_accelerometer_model.FilterDivergence`.
+
+Limits (measured, see tests/test_particle_filter_model.py)
+---------------------------------------------------------
+The measurements are much more precise than the prior of one step (motor angles about 5 urad
+arm side), and only the 2 jerk noises (with the biases: 6) rejuvenate the 6-10 states:
+
+* the bootstrap proposal keeps an effective sample size of about 60 of 1000 while tracking and
+  needs a prior of the initial angles of the order of the motor-angle noise (``p0_q`` about
+  1e-5 rad): with the default 1 mrad one particle survives the first update and the cloud
+  cannot follow (the paper found the same on its experimental data, section 5.2, and used
+  eq. 30); its angle RMSE is within a factor 2 of the EKF's;
+* with the EKF proposal (the default) 1000 particles track like the EKF (within 15 %);
+* neither recovers from a true initial state far outside ``p(x_0)`` (e.g. an arm already
+  moving at 0.15 rad/s with ``p0_dq`` = 0.01 rad/s): the jerk noise cannot move the cloud's
+  velocities there; the EKF's linear update can. Start the filter at rest, or widen ``p0_*``
+  only together with many more particles.
+
+Randomness
+----------
+One generator, ``make_rng(seed, "particle_filter")``. :meth:`ParticleFilterModel.filtered`
+works on a copy of its state, so recomputing the update for changed inputs (as an FMU does
+when a master sets inputs more than once) draws the same random numbers; :meth:`commit`
+advances it.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from fmus.common import dynamics, kinematics
+from fmus.common.noise import make_rng
+from fmus.common.parameters import param
+from fmus.estimators.ekf_accelerometer_model import (DDQ_, DQ_, Q_, EkfAccelerometerParameters,
+                                                     FilterDivergence, Layout, MeasurementModel,
+                                                     initial_covariance, measurement_noise,
+                                                     process_noise, transition_matrices)
+
+PAPER = "Axelsson, Karlsson, Norrlöf 2012"
+PROPOSALS = ("prior", "ekf")
+RESAMPLING = ("always", "ess")
+RNG_STREAM = "particle_filter"
+
+
+@dataclass(frozen=True)
+class ParticleFilterParameters(EkfAccelerometerParameters):
+    """Parameters of the particle filter: those of the EKF (same model, noise, initial
+    estimate) plus the number of particles, the proposal, the resampling rule and the seed."""
+
+    n_particles: int = param(1000, "1", "number of particles N", low=1, high=10_000_000,
+                             source=f"{PAPER}, section 4.3")
+    proposal: str = param("ekf", "1", "proposal density: prior (bootstrap, eq. 28) or ekf "
+                          "(per-particle EKF update, eq. 30)", choices=PROPOSALS,
+                          source=f"{PAPER}, eqs. 28 and 30; ekf: the paper's choice for high SNR")
+    resampling: str = param("always", "1", "resample always (the paper, section 4.3) or when the "
+                            "effective sample size is below ess_threshold * N", choices=RESAMPLING,
+                            source=f"{PAPER}, section 4.3")
+    ess_threshold: float = param(0.5, "1", "resampling threshold as a fraction of N (resampling = ess)",
+                                 low=0.0, high=1.0)
+    seed: int = param(0, "1", "seed of the filter's random numbers", low=0)
+
+
+# ---- eqs. 15-19 for all particles at once --------------------------------------------------------
+class BatchMeasurementModel:
+    """``h(x)`` of eq. 15 and its Jacobian, vectorised over particles (``X`` of shape (N, n)).
+
+    The constants are those of the scalar :class:`MeasurementModel` (the EKF's), so both
+    evaluate the same model.
+    """
+
+    def __init__(self, meas: MeasurementModel) -> None:
+        self.meas = meas
+        self.p = meas.p
+        self.layout = meas.layout
+        self.a, self.c, self.e = meas.a, meas.c, meas.e
+        self.g1, self.g2, self.g, self.l1 = meas.g1, meas.g2, meas.g, meas.l1
+        self.v, self.Sv, self.r = meas.v, meas.Sv, meas.r
+        p = self.p
+        self.k_hi = np.asarray(p.k_hi, float)
+        self.k_soft = self.k_hi - np.asarray(p.k_lo, float)
+        self.delta = np.asarray(p.delta, float)
+
+    def arm_torque(self, X: np.ndarray) -> np.ndarray:
+        """``tau_a = M(q) ddq + C(q, dq) dq + G(q)`` (eq. 11), (N, 2)."""
+        q1, q2, dq1, dq2, a1, a2 = X[:, 0], X[:, 1], X[:, 2], X[:, 3], X[:, 4], X[:, 5]
+        b = -self.e * np.sin(q2)
+        bd = -self.e * np.cos(q2)
+        gc = self.g2 * np.cos(q1 + q2)
+        tau = np.empty((X.shape[0], 2))
+        tau[:, 0] = (self.a + 2 * b) * a1 + (self.c + b) * a2 + bd * (2 * dq1 * dq2 + dq2 * dq2) \
+            - self.g1 * np.sin(q1) - gc
+        tau[:, 1] = (self.c + b) * a1 + self.c * a2 - bd * dq1 * dq1 - gc
+        return tau
+
+    def arm_torque_jacobian(self, X: np.ndarray) -> np.ndarray:
+        """``d tau_a / d(q, dq, ddq)``, (N, 2, 6), analytic."""
+        q1, q2, dq1, dq2, a1, a2 = X[:, 0], X[:, 1], X[:, 2], X[:, 3], X[:, 4], X[:, 5]
+        s2, c2 = np.sin(q2), np.cos(q2)
+        gs = self.g2 * np.sin(q1 + q2)
+        b, bd, bdd = -self.e * s2, -self.e * c2, self.e * s2
+        J = np.zeros((X.shape[0], 2, 6))
+        J[:, 0, 0] = -self.g1 * np.cos(q1) + gs
+        J[:, 1, 0] = gs
+        J[:, 0, 1] = 2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + gs
+        J[:, 1, 1] = bd * a1 - bdd * dq1 * dq1 + gs
+        J[:, 0, 2] = 2 * bd * dq2
+        J[:, 0, 3] = 2 * bd * (dq1 + dq2)
+        J[:, 1, 2] = -2 * bd * dq1
+        J[:, 0, 4], J[:, 0, 5] = self.a + 2 * b, self.c + b
+        J[:, 1, 4], J[:, 1, 5] = self.c + b, self.c
+        return J
+
+    def specific_force(self, X: np.ndarray) -> np.ndarray:
+        """Accelerometer reading (sensor x, z) of eqs. 17-19, (N, 2)."""
+        q1, q2, dq1 = X[:, 0], X[:, 1], X[:, 2]
+        dphi, a1, aphi = dq1 + X[:, 3], X[:, 4], X[:, 4] + X[:, 5]
+        c2, s2 = np.cos(q2), np.sin(q2)
+        phi = q1 + q2
+        u2 = -dq1 * dq1
+        d2 = dphi * dphi
+        f = np.empty((X.shape[0], 2))
+        f[:, 0] = self.l1 * (c2 * a1 - s2 * u2) + self.Sv[0] * aphi - self.v[0] * d2 - self.g * np.sin(phi)
+        f[:, 1] = self.l1 * (s2 * a1 + c2 * u2) + self.Sv[1] * aphi - self.v[1] * d2 + self.g * np.cos(phi)
+        return f
+
+    def specific_force_jacobian(self, X: np.ndarray) -> np.ndarray:
+        """``d f / d(q, dq, ddq)``, (N, 2, 6), analytic."""
+        q1, q2, dq1 = X[:, 0], X[:, 1], X[:, 2]
+        dphi, a1 = dq1 + X[:, 3], X[:, 4]
+        c2, s2 = np.cos(q2), np.sin(q2)
+        phi = q1 + q2
+        cp, sp = np.cos(phi), np.sin(phi)
+        u2 = -dq1 * dq1
+        l1, v, Sv, g = self.l1, self.v, self.Sv, self.g
+        J = np.zeros((X.shape[0], 2, 6))
+        J[:, 0, 0] = -g * cp
+        J[:, 1, 0] = -g * sp
+        J[:, 0, 1] = -g * cp + l1 * (-s2 * a1 - c2 * u2)
+        J[:, 1, 1] = -g * sp + l1 * (c2 * a1 - s2 * u2)
+        J[:, 0, 2] = 2 * l1 * s2 * dq1 - 2 * v[0] * dphi
+        J[:, 1, 2] = -2 * l1 * c2 * dq1 - 2 * v[1] * dphi
+        J[:, 0, 3] = -2 * v[0] * dphi
+        J[:, 1, 3] = -2 * v[1] * dphi
+        J[:, 0, 4] = l1 * c2 + Sv[0]
+        J[:, 1, 4] = l1 * s2 + Sv[1]
+        J[:, 0, 5] = Sv[0]
+        J[:, 1, 5] = Sv[1]
+        return J
+
+    def deflection(self, X: np.ndarray, D0: np.ndarray | None = None) -> np.ndarray:
+        """Gearbox deflections ``D = tau_s^{-1}(tau_a)`` (eq. 16), (N, 2).
+
+        The spring and the tolerance of :func:`fmus.common.dynamics.spring_deflection`
+        (``tau_s(D) = k_hi D - (k_hi - k_lo) delta tanh(D / delta)``, Newton until
+        ``|tau_s(D) - tau| <= 1e-12 max(1, |tau|)``), with one ``tanh`` per iteration
+        (``1/cosh^2 = 1 - tanh^2``) and from ``D0`` if given (the deflections of nearby states,
+        e.g. the particles' prior means: one or two iterations).
+        """
+        tau = self.arm_torque(X)
+        k_hi, k_soft, delta = self.k_hi, self.k_soft, self.delta
+        if D0 is None:      # the high-stiffness asymptote, shifted by the soft zone
+            D = (tau + np.sign(tau) * k_soft * delta * np.tanh(np.abs(tau) / (k_hi * delta))) / k_hi
+        else:
+            D = np.array(D0, float)
+        tol = 1e-12 * np.maximum(1.0, np.abs(tau))
+        for _ in range(50):
+            t = np.tanh(D / delta)
+            f = k_hi * D - k_soft * delta * t - tau
+            if np.all(np.abs(f) <= tol):
+                break
+            D = D - f / (k_hi - k_soft * (1.0 - t * t))
+        return D
+
+    def h(self, X: np.ndarray, D: np.ndarray | None = None) -> np.ndarray:
+        """``h(x)`` of eq. 15 for every row of ``X``: motor angles (eq. 16, motor side, plus the
+        bias), then the accelerometer (eqs. 17-19, plus its bias); (N, m). ``D``: the
+        deflections of ``X`` if known (:meth:`deflection`)."""
+        L = self.layout
+        Y = np.empty((X.shape[0], L.m))
+        Y[:, 0:2] = self.r * (X[:, 0:2] + (self.deflection(X) if D is None else D))
+        if L.bias_m is not None:
+            Y[:, 0:2] += X[:, L.bias_m]
+        if L.use_accelerometer:
+            Y[:, 2:4] = self.specific_force(X)
+            if L.bias_acc is not None:
+                Y[:, 2:4] += X[:, L.bias_acc]
+        return Y
+
+    def jacobian(self, X: np.ndarray, D: np.ndarray | None = None) -> np.ndarray:
+        """``H = dh/dx`` (eq. 4c) for every row of ``X``, (N, m, n): ``r (I + K(D)^-1 d tau_a/dx)``
+        for the motors, :meth:`specific_force_jacobian` for the accelerometer, identities for the
+        biases (as :meth:`MeasurementModel.jacobian`). ``D`` as in :meth:`h`."""
+        L = self.layout
+        H = np.zeros((X.shape[0], L.m, L.n))
+        k = dynamics.spring_stiffness(self.deflection(X) if D is None else D, self.p)
+        H[:, 0:2, 0:6] = (self.r / k)[:, :, None] * self.arm_torque_jacobian(X)
+        H[:, 0, 0] += self.r[0]
+        H[:, 1, 1] += self.r[1]
+        if L.bias_m is not None:
+            H[:, 0, L.bias_m.start] += 1.0
+            H[:, 1, L.bias_m.start + 1] += 1.0
+        if L.use_accelerometer:
+            H[:, 2:4, 0:6] = self.specific_force_jacobian(X)
+            if L.bias_acc is not None:
+                H[:, 2, L.bias_acc.start] += 1.0
+                H[:, 3, L.bias_acc.start + 1] += 1.0
+        return H
+
+
+# ---- Algorithm 1, building blocks -------------------------------------------------------------
+def normalise_log_weights(logw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised weights ``g_i`` (Algorithm 1, step 2) and their logarithms, by log-sum-exp.
+
+    Non-finite log-weights count as zero weight. The caller checks that one is finite.
+    """
+    lmax = np.max(logw)
+    w = np.exp(logw - lmax)
+    s = w.sum()
+    return w / s, logw - (lmax + math.log(s))
+
+
+def effective_sample_size(w: np.ndarray) -> float:
+    """``1 / sum g_i^2`` of normalised weights (N for equal weights, 1 for one particle)."""
+    return float(1.0 / np.dot(w, w))
+
+
+def systematic_resample(w: np.ndarray, u: float) -> np.ndarray:
+    """Indices of systematic resampling (Algorithm 1, step 3) with one uniform ``u`` in [0, 1).
+
+    The points ``(u + j) / N``, ``j = 0..N-1``, select the particle whose cumulative weight
+    interval contains them: particle ``i`` is copied ``floor(N g_i)`` or ``ceil(N g_i)`` times
+    (unbiased: the expected count is ``N g_i``) and never when ``g_i = 0``.
+    """
+    n = w.shape[0]
+    c = np.cumsum(w)
+    c /= c[-1]                                   # exactly 1 at the end
+    idx = np.searchsorted(c, (u + np.arange(n)) / n, side="right")
+    return np.minimum(idx, n - 1)
+
+
+def weighted_mean_cov(X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The MMSE estimate ``sum g_i x_i`` (eq. 6) and the weighted covariance
+    ``sum g_i (x_i - x_hat)(x_i - x_hat)^T``."""
+    x = w @ X
+    d = X - x
+    return x, (d * w[:, None]).T @ d
+
+
+def _chol_solve(A: np.ndarray, b: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For symmetric positive definite ``A`` (N, k, k): ``A^-1 b``, ``C^-T Z`` (a sample of
+    ``N(0, A^-1)`` from standard normals ``Z``) and ``sum log diag C``, ``A = C C^T`` (rows (N, k))."""
+    if A.shape[1] == 2:                         # closed form (no bias states): no LAPACK per particle
+        c11 = np.sqrt(A[:, 0, 0])
+        c21 = A[:, 1, 0] / c11
+        c22 = np.sqrt(A[:, 1, 1] - c21 * c21)
+        z1 = b[:, 0] / c11                      # C z = b
+        z2 = (b[:, 1] - c21 * z1) / c22
+        x2 = z2 / c22                           # C^T x = z
+        x1 = (z1 - c21 * x2) / c11
+        v2 = Z[:, 1] / c22                      # C^T v = Z
+        v1 = (Z[:, 0] - c21 * v2) / c11
+        return (np.column_stack([x1, x2]), np.column_stack([v1, v2]),
+                np.log(c11) + np.log(c22))
+    C = np.linalg.cholesky(A)
+    Ct = np.swapaxes(C, 1, 2)
+    z = np.linalg.solve(C, b[:, :, None])
+    x = np.linalg.solve(Ct, z)[:, :, 0]
+    v = np.linalg.solve(Ct, Z[:, :, None])[:, :, 0]
+    return x, v, np.log(np.diagonal(C, axis1=1, axis2=2)).sum(axis=1)
+
+
+@dataclass
+class FilterStep:
+    """The result of one measurement update (not yet committed)."""
+
+    X: np.ndarray            #: particles after resampling (N, n)
+    logw: np.ndarray         #: their normalised log-weights
+    x: np.ndarray            #: MMSE estimate (eq. 6), before resampling
+    P: np.ndarray            #: weighted covariance, before resampling
+    ess: float               #: effective sample size before resampling
+    resampled: bool
+    reinit: str              #: "" or why the cloud was re-initialised
+    rng_state: dict
+
+
+class ParticleFilterModel:
+    """The particle filter of Algorithm 1 with the model of eqs. 12-19 (the EKF's).
+
+    Parameters
+    ----------
+    p
+        Filter parameters (the EKF's plus particles, proposal, resampling, seed).
+
+    Notes
+    -----
+    Per sample: :meth:`update` with ``y_t`` (sampling from the proposal, weighting, eq. 6,
+    resampling), then :meth:`predict` with the jerk reference ``u_t`` and the period ``T``
+    (prior means of the next update, eqs. 13-14). :meth:`filtered` computes an update without
+    committing it (for an FMU's outputs); :meth:`commit` stores it.
+    """
+
+    def __init__(self, p: ParticleFilterParameters) -> None:
+        self.p = p
+        self.layout = Layout(bool(p.use_accelerometer), bool(p.use_bias))
+        self.meas = MeasurementModel(p.robot(), self.layout)
+        self.batch = BatchMeasurementModel(self.meas)
+        self.Q = process_noise(p, self.layout)
+        self.R = measurement_noise(p, self.layout)
+        self.r_inv = 1.0 / np.diag(self.R)
+        self.P0 = initial_covariance(p, self.layout)
+        self.L0 = np.linalg.cholesky(self.P0)
+        self.N = int(p.n_particles)
+        self.proposal = p.proposal
+        self.resample_always = p.resampling == "always"
+        self.ess_min = float(p.ess_threshold) * self.N
+        self.rng = make_rng(int(p.seed), RNG_STREAM)
+        self._work = make_rng(int(p.seed), RNG_STREAM)
+        n = self.layout.n
+        self.x = np.zeros(n)
+        self.x[Q_] = p.initial_angles()
+        self.P = self.P0.copy()
+        self.ess = float(self.N)
+        self.n_reinit = 0
+        self.X: np.ndarray | None = None             # no particles before the first update
+        self.logw = np.full(self.N, -math.log(self.N))
+        # the prior of the next update: means M (N, n), factor L (n, k); and the last good
+        # estimate propagated to the time of the next update
+        self.M = np.broadcast_to(self.x, (self.N, n))
+        self.L = self.L0
+        self.x_prior = self.x.copy()
+        self._T: float | None = None
+
+    # -- eqs. 13-14
+    def _matrices(self, T: float) -> None:
+        if self._T != T:
+            self.F, self.Gu, Gw = transition_matrices(T, self.layout)
+            self.Lw = Gw @ np.linalg.cholesky(self.Q)
+            self._T = T
+
+    def measurement_vector(self, q_m, acc_xz=None) -> np.ndarray:
+        """Stack the readings as ``y`` of eq. 15 (the accelerometer only if it is used)."""
+        y = np.asarray(q_m, float)
+        if self.layout.use_accelerometer:
+            y = np.concatenate([y, np.asarray(acc_xz, float)])
+        return y
+
+    def predict(self, u, T: float) -> np.ndarray:
+        """Time update over ``T`` with the jerk reference ``u`` held (eqs. 13-14): the prior
+        means ``F x^(i) + G_u u`` of the next update (its noise is drawn there, by the
+        proposal). Returns the predicted estimate ``F x_hat + G_u u``.
+
+        Raises
+        ------
+        FilterDivergence
+            If the predicted estimate is not finite (the jerk input or the period overflow it).
+        """
+        self._matrices(float(T))
+        if self.X is None:                         # predict before any measurement: move x_0
+            self.X = np.broadcast_to(self.x, (self.N, self.layout.n))
+        with np.errstate(all="ignore"):
+            Gu_u = self.Gu @ np.asarray(u, float)
+            x_prior = self.F @ self.x + Gu_u
+            M = self.X @ self.F.T + Gu_u
+        if not np.all(np.isfinite(x_prior)):
+            raise FilterDivergence("particle filter diverged in the time update: the predicted "
+                                   "estimate is not finite")
+        self.M, self.L, self.x_prior = M, self.Lw, x_prior
+        return x_prior
+
+    # -- Algorithm 1, steps 2-4, one measurement
+    def _sample_and_weight(self, M, L, logw_prev, y, rng) -> tuple | None:
+        """Sample ``x = M + L e`` from the proposal and weight it; ``None`` if no particle has a
+        finite weight and state."""
+        n_p, k = M.shape[0], L.shape[1]
+        Z = rng.standard_normal((n_p, k))
+        D0 = None
+        if self.proposal == "ekf":                # eq. 30: one EKF update per particle
+            D0 = self.batch.deflection(M)
+            He = self.batch.jacobian(M, D0) @ L                     # (N, m, k)
+            HtRi = np.swapaxes(He, 1, 2) * self.r_inv               # H_e^T R^-1
+            A = HtRi @ He
+            A[:, range(k), range(k)] += 1.0
+            b = (HtRi @ (y - self.batch.h(M, D0))[:, :, None])[:, :, 0]
+            bad = ~(np.all(np.isfinite(A), axis=(1, 2)) & np.all(np.isfinite(b), axis=1))
+            if bad.any():         # overflowed particles: any proposal, their weight is 0 below
+                A[bad], b[bad] = np.eye(k), 0.0
+            mu, v, logdet_half = _chol_solve(A, b, Z)
+            E = mu + v
+            # log N(e; 0, I) - log N(e; mu, A^-1), (e - mu)^T A (e - mu) = Z^T Z
+            dlog = 0.5 * (np.einsum("ij,ij->i", Z, Z) - np.einsum("ij,ij->i", E, E)) - logdet_half
+        else:                                      # eq. 28: the prior
+            E, dlog = Z, 0.0
+        X = M + E @ L.T
+        nu = y - self.batch.h(X, self.batch.deflection(X, D0))
+        logw = logw_prev - 0.5 * (nu * nu) @ self.r_inv + dlog    # p(y | x) (Gaussian e_t)
+        ok = np.isfinite(logw) & np.all(np.isfinite(X), axis=1)
+        if not ok.any():
+            return None
+        logw = np.where(ok, logw, -np.inf)
+        w, logw = normalise_log_weights(logw)
+        X = np.where(ok[:, None], X, 0.0)
+        x, P = weighted_mean_cov(X, w)
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+            return None
+        return X, w, logw, x, P
+
+    def _resample(self, X, w, logw, rng) -> tuple[np.ndarray, np.ndarray, bool]:
+        ess = effective_sample_size(w)
+        if self.resample_always or ess < self.ess_min:
+            idx = systematic_resample(w, float(rng.random()))
+            return X[idx], np.full(self.N, -math.log(self.N)), True
+        return X, logw, False
+
+    def filtered(self, y) -> FilterStep:
+        """The update with the measurement ``y`` (Algorithm 1, steps 2-4, eq. 6), not committed.
+
+        Raises
+        ------
+        FilterDivergence
+            Only if the re-initialised cloud is not finite either (see the module docstring).
+        """
+        y = np.asarray(y, float)
+        rng = self._work
+        rng.bit_generator.state = self.rng.bit_generator.state
+        reinit = ""
+        with np.errstate(all="ignore"):           # non-finite weights and states are handled
+            r = self._sample_and_weight(self.M, self.L, self.logw, y, rng)
+            if r is None:
+                reinit = "all particle weights underflowed or were not finite"
+                M0 = np.broadcast_to(self.x_prior, (self.N, self.layout.n))
+                r = self._sample_and_weight(M0, self.L0, np.zeros(self.N), y, rng)
+                if r is None:                     # the measurement cannot be fused at all
+                    reinit += "; the measurement was skipped"
+                    X = M0 + rng.standard_normal((self.N, self.layout.n)) @ self.L0.T
+                    w = np.full(self.N, 1.0 / self.N)
+                    x, P = weighted_mean_cov(X, w)
+                    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+                        raise FilterDivergence("particle filter diverged: the re-initialised "
+                                               "particle cloud is not finite")
+                    r = X, w, np.log(w), x, P
+            X, w, logw, x, P = r
+            ess = effective_sample_size(w)
+            X, logw, resampled = self._resample(X, w, logw, rng)
+        return FilterStep(X, logw, x, P, ess, resampled, reinit, rng.bit_generator.state)
+
+    def commit(self, s: FilterStep) -> np.ndarray:
+        """Store the update ``s`` (from :meth:`filtered` on the current state); returns ``x_hat``."""
+        self.X, self.logw, self.x, self.P, self.ess = s.X, s.logw, s.x, s.P, s.ess
+        self.n_reinit += bool(s.reinit)
+        self.rng.bit_generator.state = s.rng_state
+        return self.x
+
+    def update(self, y) -> np.ndarray:
+        """Measurement update (Algorithm 1, steps 2-3, eq. 6); returns ``x_{t|t}``."""
+        return self.commit(self.filtered(y))
+
+    def tool_position(self, x=None) -> np.ndarray:
+        """Tool position from the estimated arm angles (eq. 29)."""
+        return kinematics.tool_position((self.x if x is None else x)[Q_], self.meas.p)
+
+
+__all__ = ["ParticleFilterParameters", "ParticleFilterModel", "BatchMeasurementModel", "FilterStep",
+           "systematic_resample", "effective_sample_size", "normalise_log_weights",
+           "weighted_mean_cov", "PROPOSALS", "RESAMPLING", "DQ_", "DDQ_", "Q_"]

@@ -1,0 +1,349 @@
+"""The particle filter's math (Axelsson et al. 2012, Algorithm 1, eqs. 6, 28, 30): batched model
+against the EKF's scalar one, resampling, the Kalman filter limit, tracking, degeneracy."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from fmus.common.parameters import ParameterError, validate
+from fmus.estimators import ekf_accelerometer_model as em
+from fmus.estimators import particle_filter_model as pm
+
+T = 0.01
+
+
+def _motion(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """State (q, dq, ddq) and jerk of ``q = q0 + A (1 - cos w t)^2`` at the times ``t``."""
+    q0, A, w = np.array([0.2, -0.1]), np.array([0.05, 0.03]), np.array([3.0, 5.0])
+    c, s = np.cos(np.outer(t, w)), np.sin(np.outer(t, w))
+    S = 1 - c
+    x = np.column_stack([q0 + A * S * S, 2 * A * w * S * s, 2 * A * w * w * (s * s + S * c)])
+    return x, 2 * A * w ** 3 * (3 * s * c - S * s)
+
+
+def signals_from_rest(n: int, p: em.EkfAccelerometerParameters, seed: int = 0):
+    """The motion of the EKF tests' ``_signals`` (same amplitudes, frequencies and noise) but
+    starting at rest: ``q = q0 + A (1 - cos w t)^2``, so that velocity, acceleration and jerk
+    are zero at t = 0, where the filters' prior ``p(x_0)`` (at rest) has it. Returns the noisy
+    motor angles, the noisy accelerometer (x, z), the jerk and the true state (n, 6)."""
+    x, u = _motion(np.arange(n) * T)
+    mm = em.MeasurementModel(p.robot(), em.Layout(True, False))
+    rng = np.random.default_rng(seed)
+    qm = np.array([mm.motor_angles(xk) for xk in x]) + rng.normal(0, 1e-3, (n, 2))
+    f = np.array([mm.specific_force(xk) for xk in x]) + rng.normal(0, 1e-2, (n, 2))
+    return qm, f, u, x
+
+
+def test_signals_are_consistent() -> None:
+    t = np.linspace(0.0, 3.0, 301)
+    h = 1e-5          # central differences: truncation h^2/6 |x'''| < 1e-8, rounding < 1e-10
+    (xp, up), (xm, um) = _motion(t + h), _motion(t - h)
+    x, u = _motion(t)
+    assert_allclose((xp[:, 0:4] - xm[:, 0:4]) / (2 * h), x[:, 2:6], atol=1e-7)
+    assert_allclose((xp[:, 4:6] - xm[:, 4:6]) / (2 * h), u, atol=1e-7)
+    assert_allclose(x[0], [0.2, -0.1, 0, 0, 0, 0], atol=1e-15)
+    assert_allclose(u[0], 0.0, atol=1e-15)
+
+
+# ---- the batched measurement model ----------------------------------------------------------
+LAYOUTS = [(True, False), (True, True), (False, False), (False, True)]
+
+
+def _states(n_states: int, n: int = 25, seed: int = 3) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n, n_states)) * np.r_[0.8, 0.8, 1.0, 1.0, 5.0, 5.0, [1e-3] * (n_states - 6)]
+    X[:3, 4:6] *= 1e-5        # some particles in the soft zone of the gearbox (tiny torque) ...
+    X[:3, 0:2] = [0.0, math.pi / 2]   # ... where gravity is zero
+    return X
+
+
+@pytest.mark.parametrize("acc,bias", LAYOUTS)
+def test_batched_h_and_jacobian_equal_the_scalar_ekf_model(acc: bool, bias: bool) -> None:
+    p = pm.ParticleFilterParameters(use_accelerometer=acc, use_bias=bias)
+    f = pm.ParticleFilterModel(p)
+    X = _states(f.layout.n)
+    Y, H = f.batch.h(X), f.batch.jacobian(X)
+    assert Y.shape == (len(X), f.layout.m) and H.shape == (len(X), f.layout.m, f.layout.n)
+    for i, x in enumerate(X):
+        assert_allclose(Y[i], f.meas.h(x), rtol=1e-13, atol=1e-13)
+        assert_allclose(H[i], f.meas.jacobian(x), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("acc,bias", LAYOUTS)
+def test_batched_jacobian_equals_finite_differences(acc: bool, bias: bool) -> None:
+    p = pm.ParticleFilterParameters(use_accelerometer=acc, use_bias=bias)
+    f = pm.ParticleFilterModel(p)
+    X = _states(f.layout.n)[3:]             # away from the soft zone's curvature
+    H = f.batch.jacobian(X)
+    eps = 1e-6
+    Hfd = np.empty_like(H)
+    for j in range(f.layout.n):
+        dX = np.zeros_like(X)
+        dX[:, j] = eps
+        Hfd[:, :, j] = (f.batch.h(X + dX) - f.batch.h(X - dX)) / (2 * eps)
+    # central differences: truncation O(eps^2 h''') and rounding about 1e-16 |h| / eps
+    assert_allclose(H, Hfd, rtol=1e-6, atol=1e-6)
+
+
+# ---- resampling, weights -----------------------------------------------------------------------
+def test_systematic_resampling_is_unbiased_and_deterministic() -> None:
+    rng = np.random.default_rng(7)
+    for n in (1, 5, 100, 1000):
+        w = rng.exponential(size=n) ** 3
+        w[rng.random(n) < 0.2] = 0.0               # zero weights are never drawn
+        if w.sum() == 0:
+            w[0] = 1.0
+        w /= w.sum()
+        expected = n * w
+        total = np.zeros(n)
+        J = 500
+        for j in range(J):
+            u = (j + 0.5) / J
+            idx = pm.systematic_resample(w, u)
+            counts = np.bincount(idx, minlength=n)
+            assert counts.sum() == n
+            assert np.all(np.abs(counts - expected) < 1.0 + 1e-9), (n, u)
+            assert np.all(counts[w == 0] == 0)
+            assert np.all(np.diff(idx) >= 0)
+            assert_array_equal(pm.systematic_resample(w, u), idx)      # deterministic in u
+            total += counts
+        # the mean count over u (a midpoint rule over [0, 1)) is N w_i: the counts are unbiased;
+        # each count is a step function of u with at most 2 steps: quadrature error <= 2 / J
+        assert_allclose(total / J, expected, atol=2.0 / J)
+
+
+def test_effective_sample_size_and_log_sum_exp() -> None:
+    assert pm.effective_sample_size(np.full(8, 1 / 8)) == pytest.approx(8.0)
+    assert pm.effective_sample_size(np.r_[1.0, np.zeros(7)]) == 1.0
+    w, lw = pm.normalise_log_weights(np.array([-1e4, -1e4 + math.log(3), -np.inf]))   # exp underflows
+    assert_allclose(w, [0.25, 0.75, 0.0])
+    assert_allclose(lw[:2], np.log([0.25, 0.75]))
+
+
+def test_parameters_are_checked() -> None:
+    with pytest.raises(ParameterError, match="proposal"):
+        validate(pm.ParticleFilterParameters(proposal="optimal"))
+    with pytest.raises(ParameterError, match="n_particles"):
+        validate(pm.ParticleFilterParameters(n_particles=0))
+    with pytest.raises(ParameterError, match="ess_threshold"):
+        validate(pm.ParticleFilterParameters(ess_threshold=1.5))
+
+
+# ---- the linear-Gaussian limit: the Kalman filter ----------------------------------------------
+def _linear(**kw) -> pm.ParticleFilterParameters:
+    """A robot for which eq. 15 is linear: no gravity, forearm centre of mass on axis 3 (no
+    Coriolis or inertia change), linear springs; motor angles only. The EKF is then the exact
+    Kalman filter. The motor noise is raised to the prior's scale (arm side 5e-4 rad) so that
+    the prior proposal keeps a useful sample size."""
+    return validate(pm.ParticleFilterParameters(g=0.0, c2=0.0, k_lo=(8.0e5, 2.4e5), use_accelerometer=False,
+                                                r_motor=1e-2, q_a0=(0.3, -0.2), **kw))
+
+
+@pytest.mark.parametrize("proposal", pm.PROPOSALS)
+def test_one_update_converges_to_the_kalman_filter(proposal: str) -> None:
+    """From the prior N(x_0, P_0), one update: the weighted particles are an importance sample
+    of the Gaussian posterior, so their mean and covariance differ from the Kalman filter's by
+    sampling error only, of standard deviation sqrt(P_ii / ESS) and P_ii sqrt(2 / ESS)."""
+    n = 40_000
+    p = _linear(proposal=proposal, n_particles=n, seed=11)
+    pf, kf = pm.ParticleFilterModel(p), em.EkfAccelerometerModel(p)
+    y = kf.meas.h(kf.x) + np.array([0.05, -0.08])          # motor side, 0.5 to 1 sigma
+    s = pf.filtered(y)
+    kf.update(y)
+    if proposal == "ekf":       # the EKF proposal is the exact posterior here: equal weights
+        assert s.ess == pytest.approx(n, rel=1e-9)
+    else:
+        assert 0.1 * n < s.ess < 0.9 * n
+    sd = np.sqrt(np.diag(kf.P))
+    assert np.all(np.abs(s.x - kf.x) < 4.5 * sd / math.sqrt(s.ess)), (s.x - kf.x) / sd * math.sqrt(s.ess)
+    assert_allclose(np.diag(s.P), np.diag(kf.P), rtol=4.5 * math.sqrt(2 / s.ess))
+    # the posterior moved: the test is not passed by the prior
+    assert np.abs(kf.x[0:2] - pf.x[0:2]).min() > 10 * sd[0:2].max() / math.sqrt(s.ess)
+
+
+def _linear_run(p: pm.ParticleFilterParameters, steps: int):
+    """The PF and the KF (the EKF on the linear model) on one simulated run; the filtered
+    estimates of the last step."""
+    pf, kf = pm.ParticleFilterModel(p), em.EkfAccelerometerModel(p)
+    rng = np.random.default_rng(2)                  # the same data for every PF seed
+    x_true = kf.x.copy()
+    F, Gu, Gw = em.transition_matrices(T, kf.layout)
+    for k in range(steps):
+        if k:
+            u = np.array([5.0, -3.0]) * math.sin(k / 3)
+            x_true = F @ x_true + Gu @ u + Gw @ rng.normal(0, math.sqrt(p.q_jerk), 2)
+            kf.predict(u, T)
+            pf.predict(u, T)
+        y = kf.meas.h(x_true) + rng.normal(0, math.sqrt(p.r_motor), 2)
+        kf.update(y)
+        s = pf.filtered(y)
+        pf.commit(s)
+    return s, kf.x, kf.P
+
+
+def test_filter_follows_the_kalman_filter_over_steps() -> None:
+    """Fifteen steps of the linear model with the EKF proposal (eq. 30, here the optimal
+    proposal). Over several steps the Monte Carlo error of a particle filter accumulates through
+    resampling and has no closed form, so it is measured: R runs with independent seeds. Their
+    mean must agree with the Kalman filter within its standard error (Student t with R - 1
+    degrees of freedom, 5.0: two-sided p < 0.5 % per component: no bias), and the Monte Carlo
+    spread of one run must be small against the posterior spread (below 0.25 sd_KF at
+    N = 8000; it falls like 1/sqrt(N): about 0.3 at 500, 0.15 at 4000, 0.06 at 32000)."""
+    R, n, steps = 6, 8000, 15
+    runs = [_linear_run(_linear(n_particles=n, seed=100 + r, q_jerk=1e6), steps) for r in range(R)]
+    x_kf, P_kf = runs[0][1], runs[0][2]
+    sd = np.sqrt(np.diag(P_kf))
+    xs = np.array([s.x for s, _, _ in runs])
+    mc_sd = xs.std(axis=0, ddof=1)
+    assert np.all(np.abs(xs.mean(axis=0) - x_kf) < 5.0 * mc_sd / math.sqrt(R)), (xs.mean(0) - x_kf) / mc_sd
+    assert np.all(mc_sd < 0.25 * sd), mc_sd / sd
+    cov_ratio = np.array([np.diag(s.P) for s, _, _ in runs]) / np.diag(P_kf)
+    assert_allclose(cov_ratio.mean(axis=0), 1.0, atol=5.0 * cov_ratio.std(axis=0, ddof=1).max() / math.sqrt(R))
+
+
+# ---- tracking the robot (nonlinear model) --------------------------------------------------------
+def _run(pf: pm.ParticleFilterModel, qm, f, u) -> np.ndarray:
+    est = []
+    for k in range(len(u)):
+        est.append(pf.update(pf.measurement_vector(qm[k], f[k])).copy())
+        pf.predict(u[k], T)
+    return np.array(est)
+
+
+@pytest.mark.parametrize("proposal,kw,ratio", [
+    ("ekf", dict(), 1.15),
+    ("ekf", dict(resampling="ess"), 1.15),
+    ("prior", dict(p0_q=1e-5), 2.0),
+], ids=["ekf", "ekf-ess", "prior"])
+def test_tracks_like_the_ekf(proposal: str, kw: dict, ratio: float) -> None:
+    """1000 particles on the EKF tests' motion (from rest): angle and velocity RMSE after a
+    transient of 0.2 s within 15 % of the EKF's with the EKF proposal, within a factor 2 with
+    the bootstrap proposal (its effective sample size is about 60 of 1000: the measurements
+    are much more precise than the prior of one step). The bootstrap proposal (eq. 28) needs a prior of
+    the initial angles of the order of the motor-angle noise (arm side 5 urad): with
+    p0_q = 1 mrad one particle of 1000 survives the first update and the cloud cannot follow
+    (the paper's finding on its high-SNR experiment)."""
+    n, skip = 150, 20
+    p = validate(pm.ParticleFilterParameters(q_a0=(0.2, -0.1), proposal=proposal, **kw))
+    qm, f, u, x = signals_from_rest(n, p)
+    est = _run(pm.ParticleFilterModel(p), qm, f, u)
+    ekf = em.EkfAccelerometerModel(p)
+    est_ekf = []
+    for k in range(n):
+        est_ekf.append(ekf.update(ekf.measurement_vector(qm[k], f[k])).copy())
+        ekf.predict(u[k], T)
+    rmse = np.sqrt(np.mean((est[skip:, 0:4] - x[skip:, 0:4]) ** 2, axis=0))
+    rmse_ekf = np.sqrt(np.mean((np.array(est_ekf)[skip:, 0:4] - x[skip:, 0:4]) ** 2, axis=0))
+    assert np.all(rmse < ratio * rmse_ekf), (rmse, rmse_ekf)
+    assert np.all(rmse[0:2] < 1e-5)               # 10 urad: twice the motor noise, arm side
+
+
+# ---- degeneracy, determinism ---------------------------------------------------------------------
+@pytest.mark.parametrize("proposal", pm.PROPOSALS)
+def test_absurd_measurement_reinitialises_without_nan(proposal: str) -> None:
+    n = 80
+    p = validate(pm.ParticleFilterParameters(q_a0=(0.2, -0.1), proposal=proposal, n_particles=500,
+                                             p0_q=1e-5))
+    qm, f, u, x = signals_from_rest(n, p)
+    pf = pm.ParticleFilterModel(p)
+    _run(pf, qm[:30], f[:30], u[:30])
+    x_good = pf.x_prior.copy()
+    s = pf.filtered(pf.measurement_vector(qm[30], (1e200, 0.0)))    # squares overflow: no weight left
+    assert s.reinit and "skipped" in s.reinit
+    assert np.all(np.isfinite(s.x)) and np.all(np.isfinite(s.P)) and np.all(np.isfinite(s.X))
+    # the cloud is the re-initialised prior: around the last good estimate, with P_0
+    assert np.all(np.abs(s.x - x_good) < 5 * np.sqrt(np.diag(pf.P0)) / math.sqrt(pf.N))
+    assert_allclose(np.diag(s.P), np.diag(pf.P0), rtol=5 * math.sqrt(2 / pf.N))
+    pf.commit(s)
+    assert pf.n_reinit == 1
+    pf.predict(u[30], T)
+    est = _run(pf, qm[31:], f[31:], u[31:])
+    assert pf.n_reinit == 1 and np.all(np.isfinite(est))
+    if proposal == "ekf":       # tracks again (the bootstrap cannot: P_0's velocity spread is
+        assert np.abs(est[-20:, 0:2] - x[-20:, 0:2]).max() < 3e-5      # too wide for its prior)
+
+
+def test_nonfinite_prediction_is_a_named_divergence() -> None:
+    pf = pm.ParticleFilterModel(pm.ParticleFilterParameters(n_particles=10))
+    pf.update(pf.meas.h(pf.x))
+    with pytest.raises(em.FilterDivergence, match="time update"):
+        pf.predict((np.inf, 0.0), T)
+
+
+@pytest.mark.parametrize("proposal", pm.PROPOSALS)
+def test_deterministic_for_a_seed_and_filtered_does_not_commit(proposal: str) -> None:
+    p = validate(pm.ParticleFilterParameters(q_a0=(0.2, -0.1), proposal=proposal, n_particles=300,
+                                             resampling="ess"))
+    qm, f, u, x = signals_from_rest(30, p)
+    a, b = pm.ParticleFilterModel(p), pm.ParticleFilterModel(p)
+    for k in range(30):
+        y = a.measurement_vector(qm[k], f[k])
+        b.filtered(y + 1e-3)              # recomputed for other inputs, not committed
+        s1, s2 = b.filtered(y), b.filtered(y)
+        assert_array_equal(s1.X, s2.X)
+        b.commit(s1)
+        a.update(y)
+        assert_array_equal(a.x, b.x)
+        assert_array_equal(a.X, b.X)
+        assert_array_equal(a.logw, b.logw)
+        a.predict(u[k], T)
+        b.predict(u[k], T)
+    c = pm.ParticleFilterModel(validate(pm.ParticleFilterParameters(
+        q_a0=(0.2, -0.1), proposal=proposal, n_particles=300, resampling="ess", seed=1)))
+    c.update(a.measurement_vector(qm[0], f[0]))
+    assert not np.array_equal(c.X, _first(p, qm, f))       # another seed, other particles
+
+
+def _first(p, qm, f) -> np.ndarray:
+    pf = pm.ParticleFilterModel(p)
+    pf.update(pf.measurement_vector(qm[0], f[0]))
+    return pf.X
+
+
+def test_corrupted_cloud_is_reinitialised_and_the_measurement_fused() -> None:
+    """Particles whose predicted measurement overflows (a corrupted cloud) carry no weight: the
+    cloud is re-initialised around the last good estimate and the measurement is fused."""
+    p = validate(pm.ParticleFilterParameters(q_a0=(0.2, -0.1), n_particles=500))
+    qm, f, u, x = signals_from_rest(40, p)
+    pf = pm.ParticleFilterModel(p)
+    _run(pf, qm[:30], f[:30], u[:30])
+    pf.M = pf.M.copy()
+    pf.M[:, 2] = 1e200                                   # dq^2 overflows in eqs. 17-19
+    s = pf.filtered(pf.measurement_vector(qm[30], f[30]))
+    assert s.reinit == "all particle weights underflowed or were not finite"
+    assert np.all(np.isfinite(s.X)) and np.abs(s.x[0:2] - x[30, 0:2]).max() < 2e-5
+
+
+def test_resampling_rule() -> None:
+    """``always`` resamples every update (the paper, section 4.3); ``ess`` only below the
+    threshold: never at 0, always at 1 (the ESS is below N unless all weights are equal)."""
+    qm, f, u, x = signals_from_rest(3, pm.ParticleFilterParameters())
+    steps = {}
+    for name, kw in (("always", dict()), ("never", dict(resampling="ess", ess_threshold=0.0)),
+                     ("ess1", dict(resampling="ess", ess_threshold=1.0))):
+        pf = pm.ParticleFilterModel(validate(pm.ParticleFilterParameters(q_a0=(0.2, -0.1), proposal="prior",
+                                                                         n_particles=400, seed=3, **kw)))
+        steps[name] = pf.filtered(pf.measurement_vector(qm[0], f[0]))
+    assert steps["always"].resampled and steps["ess1"].resampled and not steps["never"].resampled
+    assert_allclose(steps["always"].logw, -math.log(400))
+    assert steps["never"].ess < 400 and np.ptp(steps["never"].logw) > 0
+    w = np.exp(steps["never"].logw)
+    assert_allclose(w.sum(), 1.0)
+    assert_allclose(w @ steps["never"].X, steps["never"].x)       # eq. 6 from the kept weights
+    assert steps["never"].ess == steps["always"].ess == steps["ess1"].ess       # same draws
+
+
+def test_batched_cholesky_solve_closed_form_equals_lapack() -> None:
+    rng = np.random.default_rng(4)
+    for k in (2, 3, 6):
+        B = rng.normal(size=(50, k, k))
+        A = np.eye(k) + B @ np.swapaxes(B, 1, 2) * 10.0 ** rng.uniform(-3, 6, (50, 1, 1))
+        b, Z = rng.normal(size=(50, k)), rng.normal(size=(50, k))
+        x, v, half_logdet = pm._chol_solve(A, b, Z)
+        assert_allclose(np.einsum("nij,nj->ni", A, x), b, rtol=1e-8, atol=1e-8)
+        C = np.linalg.cholesky(A)
+        assert_allclose(np.einsum("nji,nj->ni", C, v), Z, rtol=1e-10, atol=1e-10)     # C^T v = Z
+        assert_allclose(half_logdet, 0.5 * np.linalg.slogdet(A)[1], rtol=1e-12)

@@ -172,6 +172,18 @@ def test_measurement_jacobian_against_finite_differences(layout: em.Layout) -> N
         assert_allclose(H, num, rtol=1e-6, atol=1e-6 * np.abs(num).max())
 
 
+@pytest.mark.parametrize("layout", LAYOUTS, ids=str)
+def test_fused_scalar_linearisation_equals_h_and_jacobian(layout: em.Layout) -> None:
+    """The filter's hot path (scalar torque and spring inversion) gives the vectorised h and H."""
+    mm = em.MeasurementModel(RobotParameters(), layout)
+    states = list(_states(layout, 5, seed=3))
+    states.append(np.r_[0.0, np.pi / 2, 0.0, 0.0, 1e-4, -2e-4, np.zeros(layout.n - 6)])  # soft zone
+    for x in states:
+        y, H = mm.h_and_jacobian(x)
+        assert_allclose(y, mm.h(x), rtol=1e-14, atol=1e-12)
+        assert_allclose(H, mm.jacobian(x), rtol=1e-12, atol=1e-9)
+
+
 def test_measurement_jacobian_of_the_soft_spring_zone() -> None:
     """Near zero arm torque the spring stiffness changes fastest: still the analytic H is right."""
     p = RobotParameters()

@@ -226,6 +226,9 @@ class MeasurementModel:
         self.v = np.array([p.l2 + p.sensor_offset[0], p.sensor_offset[1]], float)   # mount, tool frame
         self.Sv = np.array([self.v[1], -self.v[0]])
         self.r = np.asarray(p.gear_ratio, float)
+        self._k_hi = tuple(map(float, p.k_hi))
+        self._k_soft = tuple(float(h - lo) for h, lo in zip(p.k_hi, p.k_lo))
+        self._delta = tuple(map(float, p.delta))
 
     # -- eq. 11: rigid arm torque and its derivatives
     def arm_torque(self, q, dq, ddq) -> np.ndarray:
@@ -296,6 +299,54 @@ class MeasurementModel:
         J[:, 4] = l1 * np.array([c2, s2]) + Sv
         J[:, 5] = Sv
         return J
+
+    # -- eqs. 11 and 16 on scalars: the filter's hot path
+    def _torque_deflection(self, x) -> tuple[tuple[float, float], tuple[float, float]]:
+        """Arm torque ``tau_a`` (eq. 11) and the spring deflection ``D(tau_a)`` per joint, in
+        scalar arithmetic (the same numbers as :meth:`arm_torque` and
+        ``dynamics.spring_deflection``, without numpy's per-call overhead)."""
+        q1, q2, dq1, dq2, a1, a2 = (float(v) for v in x[0:6])
+        s2, c2 = math.sin(q2), math.cos(q2)
+        b, bd = -self.e * s2, -self.e * c2
+        cp = math.cos(q1 + q2)
+        tau = ((self.a + 2 * b) * a1 + (self.c + b) * a2 + bd * (2 * dq1 * dq2 + dq2 * dq2)
+               - self.g1 * math.sin(q1) - self.g2 * cp,
+               (self.c + b) * a1 + self.c * a2 - bd * dq1 * dq1 - self.g2 * cp)
+        D = []
+        for i in range(2):
+            k_hi, k_soft, delta, t = self._k_hi[i], self._k_soft[i], self._delta[i], tau[i]
+            d = (t + math.copysign(k_soft * delta * math.tanh(abs(t) / (k_hi * delta)), t)) / k_hi
+            for _ in range(50):
+                f = k_hi * d - k_soft * delta * math.tanh(d / delta) - t
+                d -= f / (k_hi - k_soft / math.cosh(d / delta) ** 2)
+                if abs(f) <= 1e-12 * max(1.0, abs(t)):
+                    break
+            D.append(d)
+        return tau, (D[0], D[1])
+
+    def h_and_jacobian(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`h` and :meth:`jacobian` at ``x`` in one pass (one torque and one spring
+        inversion instead of two; the filter calls this once per update)."""
+        L = self.layout
+        _, D = self._torque_deflection(x)
+        y = np.empty(L.m)
+        H = np.zeros((L.m, L.n))
+        Jt = self.arm_torque_jacobian(x[Q_], x[DQ_], x[DDQ_])
+        for i in range(2):
+            k = self._k_hi[i] - self._k_soft[i] / math.cosh(D[i] / self._delta[i]) ** 2
+            y[i] = self.r[i] * (float(x[i]) + D[i])
+            H[i, 0:6] = (self.r[i] / k) * Jt[i]
+            H[i, i] += self.r[i]
+        if L.bias_m is not None:
+            y[0:2] += x[L.bias_m]
+            H[0:2, L.bias_m] = np.eye(2)
+        if L.use_accelerometer:
+            y[2:4] = self.specific_force(x)
+            H[2:4, 0:6] = self.specific_force_jacobian(x)
+            if L.bias_acc is not None:
+                y[2:4] += x[L.bias_acc]
+                H[2:4, L.bias_acc] = np.eye(2)
+        return y, H
 
     # -- eq. 15
     def h(self, x) -> np.ndarray:
@@ -397,8 +448,8 @@ class EkfAccelerometerModel:
 
     def _filtered(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         x, P = self.x, self.P
-        H = self.meas.jacobian(x)
-        nu = y - self.meas.h(x)
+        hx, H = self.meas.h_and_jacobian(x)
+        nu = y - hx
         S = H @ P @ H.T + self.R
         try:
             Sc = np.linalg.cholesky(S)

@@ -166,19 +166,20 @@ def _kahn(names: list[str], edges: set[tuple[str, str]], rank: dict[str, int]) -
 
 
 def _find_cycle(nodes: list[str], edges: set[tuple[str, str]], rank: dict[str, int]) -> list[tuple[str, str]]:
-    """Edges of one cycle among ``nodes`` (every node there is on or behind a cycle)."""
+    """Edges of one cycle among ``nodes``, the ones Kahn's sort left.
+
+    Each of them has a predecessor among them (else the sort would have taken it), so a walk
+    backwards through predecessors must repeat a node; the repeated part is a cycle. (A forward
+    walk can end at a node that is only downstream of a cycle.)
+    """
     node_set = set(nodes)
-    succ = {n: sorted((d for (s, d) in edges if s == n and d in node_set), key=rank.get) for n in nodes}
-    # walk forward from the first node until a node repeats: the repeated part is a cycle
+    pred = {n: sorted((s for (s, d) in edges if d == n and s in node_set), key=rank.get) for n in nodes}
     path = [nodes[0]]
     seen = {nodes[0]: 0}
     while True:
-        nxt = succ[path[-1]]
-        if not nxt:  # cannot happen: a node left by Kahn has a predecessor; walk backwards then
-            raise RuntimeError("internal error: no cycle found")
-        n = nxt[0]
+        n = pred[path[-1]][0]
         if n in seen:
-            cyc = path[seen[n]:] + [n]
+            cyc = (path[seen[n]:] + [n])[::-1]
             return list(zip(cyc[:-1], cyc[1:]))
         seen[n] = len(path)
         path.append(n)

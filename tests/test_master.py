@@ -53,6 +53,15 @@ def test_cycle_is_broken_with_one_warning_naming_the_edge(tmp_path):
     assert p.order == ["a", "b"] and p.broken == [("b", "a")]
 
 
+def test_a_cycle_is_found_when_a_component_behind_it_comes_first(tmp_path):
+    """Kahn's sort leaves the cycle a <-> b and the mass g fed by it; g, listed first, only lies
+    downstream of the cycle."""
+    path = write(tmp_path, MASS_SPRING.replace('connections = [', 'connections = ["a.x -> g.x_other", ')
+                 .replace("[components.a]", '[components.g]\nfmu = "MassSpring"\n[components.a]'))
+    p = plan(load_scenario(path))
+    assert p.broken == [("b", "a")] and p.order == ["a", "g", "b"]
+
+
 # ---- multi-rate -----------------------------------------------------------------------------
 def test_multirate_steps_every_k_base_steps_and_holds_outputs(tmp_path):
     path = write(tmp_path, """

@@ -16,6 +16,7 @@ Format::
     include = ["tuned.toml"]   # optional: [components.X.parameters] of these files are merged
                                # in (relative to this file; an included value wins over this
                                # file's, an override given on the command line wins over both)
+    # parameters named *_file (e.g. csv_file) are paths relative to the file that sets them
 
     [components.plant]
     fmu = "FlexibleRobot2DOF"  # model identifier in dist/fmus (or $FLEXFUSION_FMU_DIR),
@@ -380,6 +381,14 @@ def _lookup(where: str, components: dict[str, Component], ref: str) -> tuple[Com
     return comp, var, group
 
 
+def resolve_file_parameters(params: dict[str, Any], base_dir: Path) -> None:
+    """Make relative paths in file parameters (names ending in ``_file``) relative to the
+    scenario file that sets them, so a scenario runs from any working directory."""
+    for key, value in params.items():
+        if key.endswith("_file") and isinstance(value, str) and value and not Path(value).is_absolute():
+            params[key] = str(base_dir / value)
+
+
 def _check_keys(where: str, table: Any, allowed: Iterable[str]) -> None:
     if not isinstance(table, dict):
         raise ScenarioError(f"{where} must be a table")
@@ -419,6 +428,10 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     if not comps_doc:
         raise ScenarioError(f"{label}: no [components.*] given")
 
+    for ctab in comps_doc.values():
+        if isinstance(ctab, dict) and isinstance(ctab.get("parameters"), dict):
+            resolve_file_parameters(ctab["parameters"], base_dir)
+
     # includes: their [components.X.parameters] are merged over this file's
     includes = head.get("include", [])
     if isinstance(includes, str):
@@ -432,7 +445,9 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
             if not isinstance(ctab, dict):
                 raise ScenarioError(f"{inc_path}: [components.{cname}] must be a table")
             _check_keys(f"{inc_path}: [components.{cname}]", ctab, {"parameters"})
-            comps_doc[cname].setdefault("parameters", {}).update(ctab.get("parameters", {}))
+            params = dict(ctab.get("parameters", {}))
+            resolve_file_parameters(params, inc_path.resolve().parent)
+            comps_doc[cname].setdefault("parameters", {}).update(params)
 
     # overrides
     for text in overrides:

@@ -67,7 +67,8 @@ def test_metrics_flag_nan():
 def test_plots_written(tmp_path):
     s, setup, *_ = synthetic_run()
     files = sc.plot_contact({"observer": s, "raw": s}, setup, tmp_path)
-    assert len(files) == 2
+    assert [f.name for f in files] == ["contact_fig6_observer.png", "contact_fig7_observer.png",
+                                       "contact_fig7_raw.png", "contact_fig8_position.png"]
     for f in files:
         assert f.exists() and f.stat().st_size > 10_000
 

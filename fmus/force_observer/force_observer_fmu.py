@@ -124,6 +124,7 @@ class ForceObserver(FlexFusionSlave):
             self.f_contact_hat[:] = est
             self.f_raw[:] = u
             self.a_meas[:] = a
+            self._last_good = self.f_contact_hat.copy()    # what a fault holds: the last output
         else:
             self.f_contact_hat[:] = self._last_good        # hold; never a NaN
             if fault == fom.FAULT_SATURATED:
@@ -137,7 +138,6 @@ class ForceObserver(FlexFusionSlave):
             self.update_outputs()
         fault, u, a, x = self._current
         if fault == fom.FAULT_NONE:
-            self._last_good = self.f_contact_hat.copy()
             self.core.advance(u, a, x, dt)
             self._in_fault = 0
         else:

@@ -20,6 +20,7 @@ directly on an input, :meth:`FlexFusionSlave.update_outputs`.
 from __future__ import annotations
 
 import math
+import sys
 from functools import partial
 import traceback
 from typing import Any, Iterable, Sequence
@@ -31,6 +32,8 @@ from pythonfmu.fmi2slave import Fmi2Slave
 from pythonfmu.variables import Boolean, Integer, Real, String
 
 from . import parameters as _parameters
+
+_MODULE_DICTS: list = []   # see FlexFusionSlave.__init_subclass__
 
 # SI base-unit exponents (kg, m, s, rad) of every unit our FMUs use.
 _UNITS: dict[str, dict[str, int]] = {
@@ -91,6 +94,21 @@ class FlexFusionSlave(Fmi2Slave):
     nan_inputs: str = "error"
     author = "FlexFusion"
     license = "MIT"
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Keep one more reference to the defining script's module dictionary.
+
+        pythonfmu 0.7's ``findClass`` (PySlaveInstance.cpp) re-executes the FMU script in its
+        module's dictionary on every ``fmi2Instantiate`` and then ``Py_DECREF``s that dictionary,
+        which it only borrowed: each instance drains one reference, and a thin script (no
+        functions holding ``__globals__``) loses its dictionary at the first instance, so the
+        second one fails or crashes. Defining the class runs this once per execution, before
+        that decrement, and balances it.
+        """
+        super().__init_subclass__(**kwargs)
+        module = sys.modules.get(cls.__module__)
+        if module is not None:
+            _MODULE_DICTS.append(module.__dict__)
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)

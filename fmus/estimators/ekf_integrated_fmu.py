@@ -1,0 +1,19 @@
+"""FMU adapter of EKF Integrated (Henriksson et al. 2009, section III-A): tool position of the flexible
+two-axis robot from motor angles and the integrated world-frame accelerometer velocity (eq. 8).
+
+The adapter is :class:`fmus.estimators.ekf_flexible_fmu_base.EkfFlexibleSlave` (timing and
+divergence handling are documented there); the math is in :mod:`fmus.estimators.ekf_flexible_model`.
+"""
+from __future__ import annotations
+
+from fmus.estimators import ekf_flexible_model as em
+from fmus.estimators import ekf_flexible_fmu_base as base
+
+
+class EkfIntegrated(base.EkfFlexibleSlave):
+    """EKF Integrated of the 2009 paper on the 8-state flexible-joint model (eq. 2, Euler-discretised)."""
+
+    variant = "integrated"
+    parameters_class = em.EkfIntegratedParameters
+    description = ("EKF Integrated (Henriksson et al. 2009): tool position from motor angles and the "
+                   "integrated world-frame accelerometer velocity (eq. 8)")

@@ -91,7 +91,7 @@ def test_fmu_matches_the_plain_model(fmu: Path, params: dict) -> None:
         assert_allclose(s.get("p_tool_hat", 2), kinematics.tool_position(xf[0:2], p), rtol=1e-12)
         assert_allclose(s.get("trace_P_q"), ekf.P[0, 0] + ekf.P[1, 1], rtol=1e-12)
         assert_allclose(s.get("innovation_norm"), ekf.innovation_norm, rtol=1e-10)
-        ekf.predict(u[k], T)
+        ekf.predict(0.5 * ((u[k - 1] if k else 0.0) + u[k]), T)   # mean of the last two jerk inputs
         s.step(T)
     s.close()
     # and it estimates the motion (the filtered estimate at the last sample)
@@ -110,9 +110,9 @@ def test_gauss_seidel_inputs_are_fused_after_the_prediction(fmu: Path) -> None:
     ekf = em.EkfAccelerometerModel(p)
     ekf.update(ekf.measurement_vector(qm[0], f[0]))
     for k in range(n - 1):
-        s.set(q_m_meas=qm[k + 1], acc_s=acc[k + 1], dddq_a_ref=u[k])
+        s.set(q_m_meas=qm[k + 1], acc_s=acc[k + 1], dddq_a_ref=u[k + 1])
         s.step(T)
-        ekf.predict(u[k], T)
+        ekf.predict(0.5 * (u[k] + u[k + 1]), T)
         xf = ekf.update(ekf.measurement_vector(qm[k + 1], f[k + 1]))
         assert_allclose(s.get("q_a_hat", 2), xf[0:2], rtol=1e-12, atol=1e-15)
         assert_allclose(s.get("dq_a_hat", 2), xf[2:4], rtol=1e-12, atol=1e-14)

@@ -5,7 +5,8 @@ communication step, whose length is the sample period ``T`` of eqs. 13-14 (the p
 
 Timing: the outputs at time ``t`` are the filtered estimate ``x_{t|t}`` from the measurements
 set at ``t`` (direct feedthrough from ``q_m_meas`` and ``acc_s``). ``do_step(t, T)`` commits the
-last such update, predicts to ``t + T`` with the jerk reference and fuses the measurement inputs
+last such update, predicts to ``t + T`` with the mean of the jerk
+reference inputs at ``t`` and ``t + T`` and fuses the measurement inputs
 as they are now, as the measurement at ``t + T``: under a Gauss-Seidel master, which sets the
 producers' values of ``t + T`` before this step, the estimate is on time (like RigidKinematics);
 a master that sets inputs at ``t`` and reads after the step sees both one step late.
@@ -53,6 +54,7 @@ class EkfAccelerometer(FlexFusionSlave):
         self._ix, self._iz = params.index_x - 1, params.index_z - 1
         self._pending: tuple | None = None
         self._diverged = ""
+        self._u_start = self.dddq_a_ref.copy()     # the jerk input at the last step
         self.update_outputs()
 
     def _y(self) -> np.ndarray:
@@ -85,8 +87,13 @@ class EkfAccelerometer(FlexFusionSlave):
             raise em.FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate")
         self.ekf.x, self.ekf.P, self.ekf.innovation_norm = self._pending
         self._pending = None
+        # the jerk over [t, t + dt]: the mean of its values at t and t + dt (the input now, under
+        # our Gauss-Seidel master), not the end value alone, which would lead the model by dt / 2
+        u_end = self.dddq_a_ref.copy()
+        u = 0.5 * (self._u_start + u_end)
+        self._u_start = u_end
         try:
-            self.ekf.predict(self.dddq_a_ref, dt)
+            self.ekf.predict(u, dt)
         except em.FilterDivergence as exc:
             self._diverged = f"{exc} (at t = {t:.6g} s)"
             raise

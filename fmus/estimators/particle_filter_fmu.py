@@ -6,7 +6,8 @@ period ``T`` of eqs. 13-14 (the paper: 100 Hz).
 
 Timing (as the EkfAccelerometer FMU): the outputs at time ``t`` are the filtered estimate from
 the measurements set at ``t`` (direct feedthrough from ``q_m_meas`` and ``acc_s``).
-``do_step(t, T)`` commits the last such update, predicts to ``t + T`` with the jerk reference
+``do_step(t, T)`` commits the last such update, predicts to ``t + T`` with the mean of the jerk
+reference inputs at ``t`` and ``t + T``
 and fuses the measurement inputs as they are now, as the measurement at ``t + T``. Recomputing
 the update for changed inputs redraws the same random numbers (the RNG advances on commit), so
 a run is reproducible for a given ``seed`` whatever the master's get/set pattern.
@@ -62,6 +63,7 @@ class ParticleFilter(FlexFusionSlave):
         self._ix, self._iz = params.index_x - 1, params.index_z - 1
         self._pending: pm.FilterStep | None = None
         self._diverged = ""
+        self._u_start = self.dddq_a_ref.copy()     # the jerk input at the last step
         self.update_outputs()
 
     def _y(self) -> np.ndarray:
@@ -99,8 +101,13 @@ class ParticleFilter(FlexFusionSlave):
             self.log(f"{self.instance_name}: particle cloud re-initialised around the last good estimate "
                      f"with the initial covariance at t = {t:.6g} s: {s.reinit} "
                      f"(n_reinit = {self.pf.n_reinit})", Fmi2Status.warning)
+        # the jerk over [t, t + dt]: the mean of its values at t and t + dt (the input now, under
+        # our Gauss-Seidel master), not the end value alone, which would lead the model by dt / 2
+        u_end = self.dddq_a_ref.copy()
+        u = 0.5 * (self._u_start + u_end)
+        self._u_start = u_end
         try:
-            self.pf.predict(self.dddq_a_ref, dt)
+            self.pf.predict(u, dt)
         except FilterDivergence as exc:
             self._diverged = f"{exc} (at t = {t:.6g} s)"
             raise

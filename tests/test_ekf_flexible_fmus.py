@@ -11,6 +11,7 @@ from fmpy import read_model_description
 from numpy.testing import assert_allclose
 
 from fmus.common import dynamics
+from fmus.common.parameters import replace
 from fmus.estimators import ekf_flexible_model as em
 from fmu_host import Slave
 from orchestration.build import build_all
@@ -37,9 +38,10 @@ def test_model_description(fmus: dict, variant: str) -> None:
                 ("ddq_a_hat[2]", "rad/s2"),
                 ("q_m_hat[1]", "rad"), ("p_tool_hat[2]", "m"), ("trace_P_p", "m2"), ("innovation_norm", "1")]
     if variant != "motor":
-        expected.append(("acc_s[3]", "m/s2"))
+        expected += [("acc_s[3]", "m/s2"), ("stiffness_factor_hat", "1")]
     if variant == "integrated":
         expected.append(("v_acc[2]", "m/s"))
+        assert v["drift_correction"].causality == "parameter"
     for name, unit in expected:
         assert v[name].unit == unit, name
     assert ("acc_s[1]" in v) == (variant != "motor")
@@ -54,23 +56,30 @@ def test_model_description(fmus: dict, variant: str) -> None:
     assert deps["p_tool_hat[1]"] == meas
 
 
-@pytest.mark.parametrize("variant", em.VARIANTS)
-def test_runs_standalone_under_simulate_fmu(fmus: dict, variant: str) -> None:
+@pytest.mark.parametrize("variant,start", [(v, {}) for v in em.VARIANTS]
+                         + [("integrated", {"drift_correction": "tilt_stiffness", "substeps": 2})])
+def test_runs_standalone_under_simulate_fmu(fmus: dict, variant: str, start: dict) -> None:
     """Default inputs (motors at zero, no torque, the accelerometer at rest): the model falls
     under gravity and the zero motor angles pull it back; nothing may blow up in 0.1 s."""
-    res = fmpy.simulate_fmu(str(fmus[variant]), stop_time=0.1, step_size=T, output_interval=T)
+    res = fmpy.simulate_fmu(str(fmus[variant]), stop_time=0.1, step_size=T, output_interval=T,
+                            start_values=start)
     assert len(res) >= 200
     for name in res.dtype.names:
         assert np.all(np.isfinite(res[name])), name
     assert np.all(res["trace_P_p"] > 0)
 
 
-@pytest.mark.parametrize("variant", em.VARIANTS)
-def test_fmu_matches_the_plain_model(fmus: dict, variant: str) -> None:
+@pytest.mark.parametrize("variant,correction", [(v, "off") for v in em.VARIANTS]
+                         + [("integrated", "tilt_stiffness"), ("complete", "stiffness")])
+def test_fmu_matches_the_plain_model(fmus: dict, variant: str, correction: str) -> None:
     d = truth.simulate()
     n = 400                                               # 0.2 s, through the first hammer strike
-    k0 = int(0.2 / T)
+    k0 = int(0.2 / T)                                     # at rest: the static alignment holds
     params = dict(q_a0=d["q_a0"], lambda3=3.0, stiffness_scale=0.8)
+    if variant == "integrated":
+        params["drift_correction"] = correction
+    elif correction == "stiffness":
+        params["estimate_stiffness"] = True
     ekf = em.make_filter(variant, **params)
     s = Slave(fmus[variant], params)
     s.init()
@@ -84,16 +93,23 @@ def test_fmu_matches_the_plain_model(fmus: dict, variant: str) -> None:
         assert_allclose(s.get("q_a_hat", 2), xf[0:2], rtol=1e-12, atol=1e-15)
         assert_allclose(s.get("dq_a_hat", 2), xf[4:6], rtol=1e-12, atol=1e-14)
         assert_allclose(s.get("q_m_hat", 2), xf[2:4], rtol=1e-12, atol=1e-13)
-        ddq = dynamics.arm_acceleration(xf, (0.0, 0.0), ekf.robot)
+        sig = ekf.stiffness_factor(xf)          # the model's springs times the estimated factor
+        robot = replace(ekf.robot, k_lo=tuple(sig * k for k in ekf.robot.k_lo),
+                        k_hi=tuple(sig * k for k in ekf.robot.k_hi))
+        ddq = dynamics.arm_acceleration(xf[0:8], (0.0, 0.0), robot)
         assert_allclose(s.get("ddq_a_hat", 2), ddq, rtol=1e-12, atol=1e-12)
         assert_allclose(s.get("p_tool_hat", 2), ekf.tool_position(xf), rtol=1e-12)
         assert_allclose(s.get("trace_P_p"), ekf.tool_position_variance(), rtol=1e-10)
         assert_allclose(s.get("innovation_norm"), ekf.innovation_norm, rtol=1e-9)
         if variant == "integrated":
             assert_allclose(s.get("v_acc", 2), ekf.v_int, rtol=1e-12, atol=1e-15)
+        if variant != "motor":
+            assert_allclose(s.get("stiffness_factor_hat"), sig, rtol=1e-12)
         ekf.predict(T)
         s.step(T)
     s.close()
+    if correction != "off":
+        assert ekf.stiffness_factor() > 1.05        # the model's 0.8 is being corrected upwards
 
 
 def test_gauss_seidel_inputs_are_fused_after_the_prediction(fmus: dict) -> None:

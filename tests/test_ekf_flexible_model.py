@@ -77,11 +77,31 @@ def test_dynamics_jacobian_matches_finite_differences() -> None:
         assert np.abs(A - A_fd).max() <= np.abs(A - A_fd2).max() + 1e-6
 
 
-@pytest.mark.parametrize("variant", em.VARIANTS)
-def test_measurement_jacobian_matches_finite_differences(variant: str) -> None:
-    ekf = em.make_filter(variant)
+def _augmented(ekf, x: np.ndarray, k: int = 0) -> np.ndarray:
+    """``x`` with drift-correction states appended: velocity errors of some mm/s and a log
+    stiffness factor off 1 (as ``ekf`` has them)."""
+    extra = [3e-3 * (k + 1), -2e-3][: 2 * ekf._tilt] + [0.3 - 0.2 * k][: ekf._stiff]
+    return np.concatenate([x, extra])
+
+
+def _filter(variant: str, correction: str, **params):
+    """``make_filter`` with EKF Integrated's ``drift_correction`` or, for EKF Complete,
+    ``correction == "stiffness"``: its ``estimate_stiffness``."""
+    if variant == "integrated":
+        params["drift_correction"] = correction
+    elif correction == "stiffness":
+        params["estimate_stiffness"] = True
+    return em.make_filter(variant, **params)
+
+
+@pytest.mark.parametrize("variant,correction", [(v, "off") for v in em.VARIANTS]
+                         + [("integrated", "tilt"), ("integrated", "tilt_stiffness"),
+                            ("complete", "stiffness")])
+def test_measurement_jacobian_matches_finite_differences(variant: str, correction: str) -> None:
+    ekf = _filter(variant, correction)
     u = (0.7, 0.2)
-    for x in _states():
+    for k, x in enumerate(_states()):
+        x = _augmented(ekf, x, k % 3)
         H = ekf.h_jacobian(x, u)
         H_fd = _fd(lambda z: ekf.h(z, u), x)
         scale = np.abs(H_fd).max(axis=1, keepdims=True) + 1.0
@@ -98,6 +118,77 @@ def test_transition_is_euler_forward() -> None:
         assert_allclose(ekf.transition_jacobian(x, u, T), A_fd, rtol=1e-6, atol=1e-6 * T * 1e3)
 
 
+@pytest.mark.parametrize("variant,correction", [("integrated", "tilt"), ("integrated", "tilt_stiffness"),
+                                                ("complete", "stiffness")])
+def test_drift_correction_transition_jacobian_matches_finite_differences(variant: str,
+                                                                       correction: str) -> None:
+    """The augmented transition (velocity-error states ``b' = (R(phi_used) - R(phi)) rho_s``,
+    log stiffness factor scaling the spring torque) against finite differences, at tool angles
+    off ``phi_used`` and with a hammer-sized specific force."""
+    ekf = _filter(variant, correction)
+    T = 5e-4
+    u = (0.5, -0.5)
+    for k, x in enumerate(_states(4)):
+        x = _augmented(ekf, x, k % 3)
+        aux = (x[0] + x[1] + 0.02 * (k - 1), 30.0 - 10 * k, 9.81 + 5 * k)
+        A = ekf.transition_jacobian(x, u, T, aux)
+        A_fd = _fd(lambda z: ekf.transition(z, u, T, aux), x)
+        scale = np.abs(A_fd).max(axis=0) + 1.0
+        assert_allclose(A / scale, A_fd / scale, rtol=0, atol=1e-6)
+        if correction == "tilt":
+            assert A.shape == (10, 10)
+        else:
+            assert np.abs(A[4:8, -1]).max() > 1e-3       # the stiffness column is exercised
+    if variant == "complete":
+        assert A.shape == (9, 9)
+        return
+    # the values: b integrates (R(phi_used) - R(phi)) rho_s; phi = phi_used leaves b alone
+    x = _augmented(ekf, _states(1)[0])
+    phi = x[0] + x[1]
+    xn = ekf.transition(x, u, T, (phi, 3.0, 9.0))
+    assert_allclose(xn[8:10], x[8:10], rtol=0, atol=1e-15)
+    xn = ekf.transition(x, u, T, (phi + 0.1, 0.0, 9.81))
+    R = lambda a: np.array([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]])   # noqa: E731
+    assert_allclose(xn[8:10] - x[8:10], T * (R(phi + 0.1) - R(phi)) @ (0.0, 9.81), rtol=1e-12)
+
+
+@pytest.mark.parametrize("correction", ["off", "tilt_stiffness"])
+def test_substeps_are_euler_steps_of_the_shorter_step(correction: str) -> None:
+    """``substeps = k``: the state takes k Euler steps of T / k (here checked against k single
+    steps of a ``substeps = 1`` filter); ``A`` stays ``I + T df/dx`` at the start."""
+    one = em.make_filter("integrated", drift_correction=correction)
+    four = em.make_filter("integrated", drift_correction=correction, substeps=4)
+    T, u = 5e-4, (0.4, -0.3)
+    for k, x in enumerate(_states(3)):
+        x = _augmented(one, x, k)
+        aux = (x[0] + x[1] + 0.01, 5.0, 9.0)
+        z = x
+        for _ in range(4):
+            z = one.transition(z, u, T / 4, aux)
+        assert_allclose(four.transition(x, u, T, aux), z, rtol=1e-13, atol=1e-13)
+        assert_allclose(four.transition_jacobian(x, u, T, aux), one.transition_jacobian(x, u, T, aux),
+                        rtol=1e-12, atol=1e-12)
+        assert np.abs(four.transition(x, u, T, aux) - one.transition(x, u, T, aux)).max() > 1e-9
+
+
+def test_stiffness_factor_state_scales_the_spring() -> None:
+    """``f`` with the factor ``sigma = exp(s)`` is the plant's dynamics with ``k_lo``, ``k_hi``
+    times ``sigma`` (the spring torque is linear in them; the damping is not scaled)."""
+    from fmus.common.parameters import replace
+    ekf = em.make_filter("integrated", drift_correction="tilt_stiffness")
+    sig = 1.7
+    p2 = replace(P, k_lo=tuple(sig * k for k in P.k_lo), k_hi=tuple(sig * k for k in P.k_hi))
+    for x in _states(3):
+        xa = np.concatenate([x, [0.0, 0.0, math.log(sig)]])
+        u = (0.3, -0.8)
+        assert_allclose(ekf.model_derivatives(xa, u), dynamics.derivatives(x, u, (0.0, 0.0), p2),
+                        rtol=1e-11, atol=1e-9)
+        assert_allclose(ekf.transition(xa, u, 5e-4)[0:8],
+                        x + 5e-4 * dynamics.derivatives(x, u, (0.0, 0.0), p2), rtol=1e-12, atol=1e-12)
+    assert_allclose(ekf.stiffness_factor(xa), sig, rtol=1e-14)
+    assert em.make_filter("integrated").stiffness_factor() == 1.0
+
+
 def test_noise_follows_the_lambda_parameterisation() -> None:
     """Section III-C: lambda1..4 scale the q_a, q_m, dq_a, dq_m blocks of Q, lambda5 the
     motor-angle block of R; the second measurement block is unscaled."""
@@ -111,6 +202,13 @@ def test_noise_follows_the_lambda_parameterisation() -> None:
     assert_allclose(np.diag(ekf.R) / np.diag(base.R), [11, 11, 1, 1], rtol=1e-14)
     assert_allclose(np.diag(em.make_filter("complete").R), [1e-8, 1e-8, 0.05 ** 2, 0.05 ** 2], rtol=1e-14)
     assert em.make_filter("motor").R.shape == (2, 2)
+    # the drift-correction states append w_b^2 (x2) and w_stiffness^2, unscaled
+    aug = em.make_filter("integrated", drift_correction="tilt_stiffness", w_b=2e-3, w_stiffness=0.1,
+                         lambda1=2.0)
+    assert_allclose(np.diag(aug.process_noise(T)),
+                    T * np.concatenate([np.repeat(np.square([1e-4, 1e-4, 1.0, 10.0]) * [2, 1, 1, 1], 2),
+                                        [4e-6, 4e-6, 0.01]]), rtol=1e-14)
+    assert aug.R.shape == (4, 4) and aug.P.shape == (11, 11)
 
 
 # ---- measurement functions (eqs. 6-8) --------------------------------------------------------------
@@ -169,17 +267,20 @@ def _rigid(d: dict) -> np.ndarray:
 
 
 @lru_cache(maxsize=None)
-def _errors(variant: str, stiffness_scale: float = 1.0, noise: bool = False) -> dict:
+def _run(variant: str, stiffness_scale: float = 1.0, noise: bool = False, correction: str = "off"):
+    """The filter after the run and its tool positions (cached)."""
+    d = truth.simulate(noise=noise)
+    kw = {"drift_correction": correction} if variant == "integrated" else {}
+    ekf = em.make_filter(variant, q_a0=d["q_a0"], stiffness_scale=stiffness_scale, **kw)
+    return ekf, truth.run_filter(ekf, d)["p_tool"]
+
+
+@lru_cache(maxsize=None)
+def _errors(variant: str, stiffness_scale: float = 1.0, noise: bool = False, correction: str = "off") -> dict:
     """Max and mean tool-position error [m], all frequencies and 3-30 Hz."""
     d = truth.simulate(noise=noise)
-    if variant == "rigid":
-        p_hat = _rigid(d)
-    else:
-        ekf = em.make_filter(variant, q_a0=d["q_a0"], stiffness_scale=stiffness_scale)
-        p_hat = truth.run_filter(ekf, d)["p_tool"]
-    e = np.linalg.norm(p_hat - d["p_tool"], axis=1)
-    eb = np.linalg.norm(truth.bandpass(p_hat - d["p_tool"]), axis=1)
-    return dict(max=e.max(), mean=e.mean(), bp_max=eb.max(), bp_mean=eb.mean())
+    p_hat = _rigid(d) if variant == "rigid" else _run(variant, stiffness_scale, noise, correction)[1]
+    return truth.errors(p_hat, d)
 
 
 @pytest.mark.parametrize("variant", em.VARIANTS)
@@ -234,6 +335,90 @@ def test_stiffness_error_hurts_ekf_motor_most() -> None:
     assert rows["integrated"][1] < rows["motor"][1] / 2
 
 
+# ---- EKF Integrated's drift correction (beyond the paper) ----------------------------------------------
+def test_tilt_and_a_common_stiffness_factor_determine_the_static_arm_angles() -> None:
+    """The observability argument: at rest the accelerometer's gravity direction gives the tool
+    angle, hence ``D1 + D2``; a common stiffness factor splits it by the model's ratio. With a
+    (nearly) noiseless tilt the static alignment recovers the plant's stiffness (the filter's is
+    50 % low: factor 2) and its arm angles to the motor-angle resolution, although the filter's
+    own static equilibrium is 3.3 mm off at the tool."""
+    d = truth.simulate()
+    ekf = em.make_filter("integrated", q_a0=d["q_a0"], stiffness_scale=0.5, drift_correction="tilt_stiffness",
+                         r_tilt=1e-7)
+    x0 = ekf.initial_state(d["q_m"][0])
+    assert np.linalg.norm(ekf.tool_position(x0) - d["p_tool"][0]) > 3e-3
+    x, P0 = ekf.static_alignment(d["q_m"][0], d["acc_s"][0])
+    assert_allclose(ekf.stiffness_factor(x), 2.0, rtol=1e-5)
+    assert_allclose(x[0:8], d["x"][0], rtol=0, atol=1e-8)
+    assert np.sqrt(P0[10, 10]) < 1e-3 * 0.35 and np.all(np.linalg.eigvalsh(P0) > 0)
+    # with the accelerometer's noise as r_tilt (default 2e-3 rad) the start moves part of the way
+    ekf = em.make_filter("integrated", q_a0=d["q_a0"], stiffness_scale=0.5, drift_correction="tilt_stiffness")
+    x = ekf.update(d["q_m"][0], d["acc_s"][0], d["tau"][0])
+    assert 1.0 < ekf.stiffness_factor(x) < 2.0
+    assert np.linalg.norm(ekf.tool_position(x) - d["p_tool"][0]) < 2.5e-3
+
+
+def test_drift_correction_with_50_percent_stiffness_error() -> None:
+    """P1 (noiseless) with the filter's stiffness 50 % low: the paper's EKF Integrated has an
+    all-frequency mean error worse than rigid kinematics (4.9 vs 3.9 mm); with ``tilt_stiffness``
+    it is about 12x better than rigid kinematics (0.31 mm; asserted 5x), its max error (the
+    start) below rigid kinematics' max, its 3-30 Hz mean error below the paper's filter's (0.023
+    vs 0.032 mm; the band gain over rigid kinematics is 8x, asserted the paper's 2x), and the
+    stiffness factor converges to within 2 % of the plant's (asserted 5 %)."""
+    rigid, off = _errors("rigid"), _errors("integrated", 0.5)
+    fix = _errors("integrated", 0.5, correction="tilt_stiffness")
+    assert off["mean"] > rigid["mean"]                   # the paper's drift problem, reproduced
+    assert fix["mean"] < rigid["mean"] / 5
+    assert fix["max"] < rigid["max"]
+    assert fix["bp_mean"] < rigid["bp_mean"] / 2
+    assert fix["bp_mean"] < off["bp_mean"]
+    ekf = _run("integrated", 0.5, correction="tilt_stiffness")[0]
+    assert_allclose(0.5 * ekf.stiffness_factor(), 1.0, rtol=0.05)
+
+
+def test_drift_correction_nominal() -> None:
+    """P1 (noiseless), exact stiffness: with ``tilt_stiffness`` the all-frequency mean error stays
+    far below rigid kinematics' (0.042 vs 3.9 mm; asserted 10x, like the paper's filter) and below
+    the paper's filter's (0.064 mm); the 3-30 Hz gain over rigid kinematics is kept (16x; asserted
+    the paper's 2x) at the price of a 3-30 Hz mean error about 1.3x the paper's filter's (the
+    stiffness factor wanders by 3 % in the first motion; asserted below 1.6x). ``tilt`` alone is
+    the best nominal variant (0.026 / 0.0076 mm) but no help with a stiffness error (3.7 mm: see
+    ``python tests/ekf_flexible_truth.py``)."""
+    rigid, off = _errors("rigid"), _errors("integrated")
+    fix = _errors("integrated", correction="tilt_stiffness")
+    tilt = _errors("integrated", correction="tilt")
+    assert fix["mean"] < rigid["mean"] / 10 and fix["mean"] < off["mean"]
+    assert fix["max"] < rigid["max"] / 10
+    assert fix["bp_mean"] < rigid["bp_mean"] / 2
+    assert fix["bp_mean"] < 1.6 * off["bp_mean"]
+    assert tilt["mean"] < off["mean"] and tilt["bp_mean"] < off["bp_mean"]
+
+
+@pytest.mark.slow
+def test_euler_substeps_remove_most_of_the_nominal_error() -> None:
+    """The nominal error of the exact-model filter is Euler's first-order error: 4 sub-steps cut
+    EKF Integrated's all-frequency and 3-30 Hz mean errors about 4x (0.064 -> 0.014 mm,
+    0.0094 -> 0.0023 mm; asserted 3x). Slow only for the module's time budget (2 s); the fast
+    test_substeps_are_euler_steps_of_the_shorter_step covers the code."""
+    d = truth.simulate()
+    ekf = em.make_filter("integrated", q_a0=d["q_a0"], substeps=4)
+    e, off = truth.errors(truth.run_filter(ekf, d)["p_tool"], d), _errors("integrated")
+    assert e["mean"] < off["mean"] / 3
+    assert e["bp_mean"] < off["bp_mean"] / 3
+
+
+@pytest.mark.slow
+def test_drift_correction_with_sensor_noise() -> None:
+    """As the two tests above with encoder and accelerometer noise (a second plant simulation:
+    about 5 s; noisy numbers: python tests/ekf_flexible_truth.py --noise)."""
+    rigid, fix = _errors("rigid", noise=True), _errors("integrated", 1.0, True, "tilt_stiffness")
+    half, off_half = _errors("integrated", 0.5, True, "tilt_stiffness"), _errors("integrated", 0.5, True)
+    for e in (fix, half):
+        assert e["mean"] < rigid["mean"] / 5 and e["max"] < rigid["max"]
+        assert e["bp_mean"] < rigid["bp_mean"] / 2
+    assert half["bp_mean"] < off_half["bp_mean"]
+
+
 # ---- divergence and parameters ---------------------------------------------------------------------
 def test_divergence_raises_and_keeps_the_estimate() -> None:
     ekf = em.make_filter("complete")
@@ -252,5 +437,11 @@ def test_bad_parameters_are_named() -> None:
         em.make_filter("integrated", stiffness_scale=-1.0)
     with pytest.raises(ParameterError, match="variant"):
         em.make_filter("complet")
+    with pytest.raises(ParameterError, match="drift_correction"):
+        em.make_filter("integrated", drift_correction="leak")
+    with pytest.raises(ParameterError, match="p0_stiffness"):
+        em.make_filter("integrated", p0_stiffness=0.0)
+    with pytest.raises(ParameterError, match="substeps"):
+        em.make_filter("motor", substeps=0)
     with pytest.raises(TypeError, match="EkfCompleteParameters"):
         em.EkfFlexibleModel(em.EkfMotorParameters(), "complete")

@@ -50,6 +50,11 @@ class EkfFlexibleSlave(FlexFusionSlave):
                     description="trace of the filtered tool-position covariance J P_qa J^T")
         self.output("innovation_norm", unit="1", depends_on=deps,
                     description="normalised innovation norm sqrt(nu^T S^-1 nu) of the last update")
+        if self.variant != "motor":
+            self.output("stiffness_factor_hat", unit="1", depends_on=deps,
+                        description="estimated factor on the model's gearbox stiffness (EKF Integrated's "
+                        "drift_correction = tilt_stiffness, EKF Complete's estimate_stiffness; else 1)",
+                        start=1.0)
         if self.variant == "integrated":
             self.output("v_acc", 2, unit="m/s", depends_on=deps,
                         description="integrated accelerometer velocity of the sensor mount, world x and z "
@@ -75,13 +80,15 @@ class EkfFlexibleSlave(FlexFusionSlave):
         xf = r.x
         self.q_a_hat[:] = xf[0:2]
         self.dq_a_hat[:] = xf[4:6]
-        self.ddq_a_hat[:] = self.ekf.model.f(tuple(xf.tolist()), r.u)[4:6]
+        self.ddq_a_hat[:] = self.ekf.model_derivatives(xf, r.u)[4:6]
         self.q_m_hat[:] = xf[2:4]
         self.p_tool_hat[:] = self.ekf.tool_position(xf)
         self.trace_P_p = self.ekf.tool_position_variance(xf, r.P)
         self.innovation_norm = r.innovation_norm
         if self.variant == "integrated":
             self.v_acc[:] = r.v_int
+        if self.variant != "motor":
+            self.stiffness_factor_hat = self.ekf.stiffness_factor(xf)
 
     def step(self, t: float, dt: float) -> None:
         # Commit the estimate at t as last computed (from the measurements present then), not

@@ -19,6 +19,8 @@ class RigidKinematics(FlexFusionSlave):
         self.output("q_a_hat", 2, unit="rad", description="arm angle estimate", depends_on=feed)
         self.output("p_tool_hat", 2, unit="m", description="tool position estimate, world x and z",
                     depends_on=feed)
+        self.output("phi_tool_hat", unit="rad", description="tool angle estimate about world y "
+                    "(q_a_hat[1] + q_a_hat[2])", depends_on=feed)
 
     def setup(self, params: RigidKinematicsParameters) -> None:
         self.robot = params.robot()
@@ -31,3 +33,4 @@ class RigidKinematics(FlexFusionSlave):
         q = arm_angles(self.q_m_meas, self.robot, self.compensate)
         self.q_a_hat[:] = q
         self.p_tool_hat[:] = kinematics.tool_position(q, self.robot)
+        self.phi_tool_hat = float(q[0] + q[1])

@@ -1,0 +1,83 @@
+"""FMU adapter of the IMU EKF (IMU paper, section 4.2, eqs. 3-4).
+
+The math is in :mod:`fmus.estimators.imu_ekf_model` (3-D, error-state quaternion); this adapter
+maps the planar kinematic pose (world x, z and the angle about +y) to 3-D and back.
+
+Timing: as the ComplementaryFilter, no direct feedthrough: ``do_step(t, T)`` predicts to
+``t + T`` and fuses the inputs present at the call as the measurements at ``t + T`` (on time
+under a Gauss-Seidel master).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fmus.common.fmi import FlexFusionSlave
+from fmus.common.robot_params import G
+from fmus.estimators import complementary_filter_model as cfm
+from fmus.estimators import imu_ekf_model as iem
+from fmus.estimators import quaternion as qt
+
+
+class ImuEkf(FlexFusionSlave):
+    """Tool pose from forward kinematics and a tool IMU by an error-state EKF with position,
+    velocity, acceleration, orientation, angular rate and IMU bias states.
+
+    Divergence (a non-finite state, a covariance that is not positive definite) ends the step
+    with an FMI error status naming the cause, and so does every later step; the outputs keep
+    the last good estimate (never NaN) and stay readable.
+    """
+
+    parameters_class = iem.ImuEkfParameters
+    description = "EKF of the tool pose from forward kinematics and a tool IMU (bias states)"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.input("p_fk", 2, unit="m", description="forward-kinematics tool position, world x and z")
+        self.input("phi_fk", unit="rad", description="forward-kinematics tool angle about world y")
+        self.input("acc_s", 3, unit="m/s2", description="IMU specific force, sensor frame",
+                   start=(0.0, 0.0, G))
+        self.input("gyro_s", 3, unit="rad/s", description="IMU angular rate, sensor frame")
+        self.output("p_tool_hat", 2, unit="m", description="estimated tool position, world x and z")
+        self.output("phi_tool_hat", unit="rad", description="estimated tool angle about world y")
+        self.output("p_hat", 3, unit="m", description="estimated tool position, world x, y, z")
+        self.output("q_hat", 4, unit="1", description="estimated tool orientation, unit quaternion "
+                    "(w, x, y, z), tool to world", start=(1.0, 0.0, 0.0, 0.0))
+        self.output("b_acc_hat", 3, unit="m/s2", description="accelerometer bias estimate, sensor frame")
+        self.output("b_gyro_hat", 3, unit="rad/s", description="gyro bias estimate, sensor frame")
+        self.output("std_position", unit="m", description="filter's position standard deviation "
+                    "(root of the trace of the position covariance)")
+        self.output("nis", unit="1", description="normalised innovation squared of the last update")
+
+    def _pose(self):
+        return cfm.planar_pose(self.p_fk, self.phi_fk)
+
+    def setup(self, params: iem.ImuEkfParameters) -> None:
+        self.ekf = iem.ImuEkfModel(params)
+        p, q = self._pose()
+        self.ekf.reset(p, q, self.acc_s, self.gyro_s)
+        self._diverged = ""
+        self._publish()
+
+    def _publish(self) -> None:
+        e = self.ekf
+        q = e.q_tool
+        p = e.p - qt.rotate(q, e.lever)
+        self.p_hat[:] = p
+        self.p_tool_hat[0], self.p_tool_hat[1] = p[0], p[2]
+        self.q_hat[:] = q
+        self.phi_tool_hat = qt.angle_y(q)
+        self.b_acc_hat[:] = e.b_acc
+        self.b_gyro_hat[:] = e.b_gyro
+        self.std_position = float(np.sqrt(np.trace(e.P[0:3, 0:3])))
+        self.nis = e.nis
+
+    def step(self, t: float, dt: float) -> None:
+        if self._diverged:
+            raise iem.FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate")
+        p, q = self._pose()
+        try:
+            self.ekf.step(p, q, self.acc_s, self.gyro_s, dt)
+        except iem.FilterDivergence as exc:
+            self._diverged = f"{exc} (at t = {t + dt:.6g} s)"
+            raise iem.FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate") from None
+        self._publish()

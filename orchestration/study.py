@@ -137,7 +137,8 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (
 # executors
 # ---------------------------------------------------------------------------------------------
 @contextmanager
-def open_executor(workers: int | None = None, scheduler: str | None = None) -> Iterator[Executor]:
+def open_executor(workers: int | None = None, scheduler: str | None = None,
+                  connect_timeout: float = 10.0) -> Iterator[Executor]:
     """A ``concurrent.futures`` executor for a study's jobs.
 
     Parameters
@@ -149,6 +150,8 @@ def open_executor(workers: int | None = None, scheduler: str | None = None) -> I
         ``None``: a local process pool. An address (``tcp://host:8786``): the executor of a
         Dask ``distributed`` client connected to that scheduler. ``"local"``: a Dask
         ``LocalCluster`` started here (one thread per worker process).
+    connect_timeout
+        Seconds to wait for a remote scheduler.
     """
     if workers is not None and workers < 1:
         raise StudyError(f"--workers must be at least 1, not {workers}")
@@ -176,7 +179,7 @@ def open_executor(workers: int | None = None, scheduler: str | None = None) -> I
         else:
             cluster = None
             try:
-                client = Client(scheduler, timeout=10)
+                client = Client(scheduler, timeout=connect_timeout)
             except OSError as exc:
                 raise StudyError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
         try:

@@ -99,5 +99,5 @@ def test_a_failing_run_in_a_worker_names_the_component(tmp_path):
 def test_an_unreachable_scheduler_is_one_clear_error():
     pytest.importorskip("distributed")
     with pytest.raises(study.StudyError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:1"):
-        with study.open_executor(scheduler="tcp://127.0.0.1:1"):
+        with study.open_executor(scheduler="tcp://127.0.0.1:1", connect_timeout=1):
             pass

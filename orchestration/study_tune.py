@@ -1,0 +1,465 @@
+"""Automatic tuning of an estimator's parameters (Henriksson et al. 2009, section III-C).
+
+The paper tunes the EKFs' covariance scalings ``lambda_1..lambda_5`` and the deterministic
+observer's poles (eigenfrequency and damping) by minimising the tool-position error against the
+measured truth on path P1 with a randomised global optimiser (COMPLEXRF). Here the optimiser is
+``scipy.optimize.differential_evolution`` (also randomised and global), whose population is
+evaluated in parallel on the study executor (``workers=executor.map``): each evaluation is one
+scenario run (:func:`orchestration.study.simulate`) with the candidate as overrides
+``component.param=value``, and its cost the RMSE (or the band-passed error) of the estimate.
+
+Speed: before tuning, the scenario is *pruned* to what the estimate and the truth depend on
+(the components upstream of them through the connections); other estimators, their metrics and
+recordings are dropped. The noise streams do not change (each component's seed depends on the
+scenario seed and its own name only).
+
+:func:`write_include` writes the result as a TOML file a scenario can ``include``.
+
+CLI::
+
+    flexfusion study tune SCENARIO --estimator COMPONENT --out DIR [--param NAME=LOW:HIGH ...]
+        [--maxiter N] [--popsize N] [--stop-time S] [--metric rmse|bandpass_mean|bandpass_max]
+        [--apply-to OTHER_COMPONENT ...] [--workers K | --scheduler ADDR]
+
+writes ``DIR/tuned_COMPONENT.toml`` (the include file; ``--apply-to`` repeats the values for
+variants of the estimator) and ``DIR/tune_COMPONENT.json`` (result and history).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+import tomllib
+from concurrent.futures import Executor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .study import StudyError, add_executor_arguments, open_executor, simulate
+
+#: Default search ranges per estimator FMU type (model identifier), used when no --param is
+#: given. The observer: four pole pairs (Hz, damping), section III-C-2. The EKFs: the five
+#: covariance scalings of section III-C-1, searched over eight decades around the initial guess.
+DEFAULT_BOUNDS: dict[str, dict[str, tuple[float, float]]] = {
+    "AccelerationObserver": {
+        **{f"pole_freq[{i}]": (0.3, 60.0) for i in range(1, 5)},
+        **{f"pole_damping[{i}]": (0.2, 3.0) for i in range(1, 5)},
+    },
+    **{ekf: {f"lambda{i}": (1e-4, 1e4) for i in range(1, 6)}
+       for ekf in ("EkfComplete", "EkfMotor", "EkfIntegrated")},
+}
+
+METRICS = ("rmse", "bandpass_mean", "bandpass_max")
+PENALTY = 1.0e3          # cost of a failed run (metres): far worse than any estimate
+
+
+@dataclass
+class TuneResult:
+    """Outcome of :func:`tune`.
+
+    ``params`` the best values (name -> value), ``cost`` its cost (m), ``initial_cost`` the
+    cost of the scenario's own values (NaN if not evaluated), ``n_evals`` runs made,
+    ``wall_time`` seconds, ``history`` one dict per evaluation (``params``, ``cost``) in order,
+    ``failed`` the number of evaluations whose run failed (cost :data:`PENALTY`).
+    """
+
+    component: str
+    params: dict[str, float]
+    cost: float
+    n_evals: int
+    wall_time: float
+    history: list[dict[str, Any]] = field(default_factory=list)
+    initial_cost: float = float("nan")
+    failed: int = 0
+    metric: str = "rmse"
+    message: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return {"component": self.component, "params": self.params, "cost": self.cost,
+                "initial_cost": self.initial_cost, "metric": self.metric, "n_evals": self.n_evals,
+                "failed": self.failed, "wall_time": self.wall_time, "message": self.message,
+                "history": self.history}
+
+
+# ---------------------------------------------------------------------------------------------
+# the scenario document
+# ---------------------------------------------------------------------------------------------
+def _component_of(ref: str) -> str:
+    return ref.split(".", 1)[0]
+
+
+def load_document(scenario: str | Path | dict[str, Any]) -> dict[str, Any]:
+    """The scenario as a self-contained TOML document: includes merged in, FMU paths absolute.
+
+    Raises
+    ------
+    StudyError
+        If the file cannot be read.
+    """
+    if isinstance(scenario, dict):
+        return json.loads(json.dumps(scenario))
+    path = Path(scenario)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise StudyError(f"cannot read scenario {path}: {exc}") from None
+    base = path.resolve().parent
+    head = doc.setdefault("scenario", {})
+    head.setdefault("name", path.stem)
+    includes = head.pop("include", [])
+    for inc in [includes] if isinstance(includes, str) else includes:
+        try:
+            inc_doc = tomllib.loads((base / inc).read_text())
+        except (OSError, tomllib.TOMLDecodeError) as exc:
+            raise StudyError(f"{path}: cannot read include {inc}: {exc}") from None
+        for cname, ctab in inc_doc.get("components", {}).items():
+            if cname in doc.get("components", {}):
+                doc["components"][cname].setdefault("parameters", {}).update(ctab.get("parameters", {}))
+    for ctab in doc.get("components", {}).values():
+        fmu = ctab.get("fmu", "")
+        if isinstance(fmu, str) and fmu.endswith(".fmu") and not Path(fmu).is_absolute():
+            ctab["fmu"] = str(base / fmu)
+    return doc
+
+
+def prune(doc: dict[str, Any], keep_refs: Sequence[str]) -> dict[str, Any]:
+    """A copy of ``doc`` with only the components the variables ``keep_refs`` (``comp.var``)
+    depend on through the connections; no metrics; those variables recorded."""
+    doc = json.loads(json.dumps(doc))
+    conns = [c for c in doc.get("connections", []) if isinstance(c, str) and "->" in c]
+    edges = [(_component_of(a.strip()), _component_of(b.strip())) for a, b in (c.split("->") for c in conns)]
+    need = {_component_of(r) for r in keep_refs}
+    changed = True
+    while changed:
+        changed = False
+        for src, dst in edges:
+            if dst in need and src not in need:
+                need.add(src)
+                changed = True
+    doc["components"] = {k: v for k, v in doc.get("components", {}).items() if k in need}
+    doc["connections"] = [c for c, (s, d) in zip(conns, edges) if s in need and d in need]
+    doc["metrics"] = []
+    doc["record"] = {k: v for k, v in doc.get("record", {}).items() if k == "interval"}
+    doc["record"]["variables"] = list(dict.fromkeys(keep_refs))
+    return doc
+
+
+def fmu_type(doc: dict[str, Any], component: str) -> str:
+    """The model identifier of a component (its ``fmu`` entry without a path or ``.fmu``)."""
+    try:
+        fmu = doc["components"][component]["fmu"]
+    except KeyError:
+        raise StudyError(f"component '{component}' is not in the scenario (components: "
+                         f"{', '.join(doc.get('components', {}))})") from None
+    return Path(str(fmu)).stem
+
+
+def default_bounds(doc: dict[str, Any], component: str) -> dict[str, tuple[float, float]]:
+    """:data:`DEFAULT_BOUNDS` of the component's FMU type.
+
+    Raises
+    ------
+    StudyError
+        If there are none for that type (then give the bounds explicitly).
+    """
+    kind = fmu_type(doc, component)
+    if kind not in DEFAULT_BOUNDS:
+        raise StudyError(f"no default tuning parameters for '{component}' ({kind}); give them "
+                         f"with --param NAME=LOW:HIGH (defaults exist for {', '.join(DEFAULT_BOUNDS)})")
+    return dict(DEFAULT_BOUNDS[kind])
+
+
+# ---------------------------------------------------------------------------------------------
+# the objective (runs in the workers)
+# ---------------------------------------------------------------------------------------------
+def _value_text(v: float) -> str:
+    return repr(float(v))
+
+
+def evaluate(doc: dict[str, Any], overrides: Sequence[str], estimate: str, truth: str,
+             after: float, metric: str) -> float:
+    """Cost of one run: the error of ``estimate`` against ``truth`` after ``after`` seconds
+    (metres); :data:`PENALTY` if the run fails or the error is not finite."""
+    from . import metrics as _metrics
+    try:
+        run = simulate(doc, overrides, variables=[estimate, truth])
+    except Exception:  # noqa: BLE001 - a diverging candidate is a bad candidate, not an error
+        return PENALTY
+    t = run.time
+    keep = t >= after - 1e-12
+    est, tru = run[estimate], run[truth]
+    try:
+        if metric == "rmse":
+            cost = _metrics.rmse(est[keep], tru[keep])
+        else:
+            fs = 1.0 / float(np.median(np.diff(t)))
+            mx, mean = _metrics.bandpass_errors(est, tru, fs, keep=keep)
+            cost = mean if metric == "bandpass_mean" else mx
+    except ValueError:
+        return PENALTY
+    return float(cost) if math.isfinite(cost) else PENALTY
+
+
+class _Objective:
+    """``f(x)`` for differential evolution: decode ``x`` into overrides and run (picklable)."""
+
+    def __init__(self, doc, component, names, log_mask, base_overrides, estimate, truth, after, metric):
+        self.doc, self.component, self.names = doc, component, list(names)
+        self.log_mask = list(log_mask)
+        self.base_overrides = tuple(base_overrides)
+        self.estimate, self.truth, self.after, self.metric = estimate, truth, after, metric
+
+    def values(self, x: Sequence[float]) -> dict[str, float]:
+        return {n: float(10.0 ** v if lg else v) for n, v, lg in zip(self.names, x, self.log_mask)}
+
+    def overrides(self, x: Sequence[float]) -> list[str]:
+        return list(self.base_overrides) + [f"{self.component}.{n}={_value_text(v)}"
+                                            for n, v in self.values(x).items()]
+
+    def __call__(self, x: Sequence[float]) -> float:
+        return evaluate(self.doc, self.overrides(x), self.estimate, self.truth, self.after, self.metric)
+
+
+class _RecordingMap:
+    """``workers`` for differential evolution: the executor's map, recording every evaluation."""
+
+    def __init__(self, executor: Executor | None, objective: _Objective) -> None:
+        self.executor = executor
+        self.objective = objective
+        self.history: list[dict[str, Any]] = []
+
+    def __call__(self, fn: Any, xs: Any) -> list[float]:
+        xs = [np.asarray(x, float) for x in xs]
+        if self.executor is None:
+            costs = [fn(x) for x in xs]
+        else:
+            costs = list(self.executor.map(fn, xs))
+        for x, c in zip(xs, costs):
+            self.history.append({"params": self.objective.values(x), "cost": float(c)})
+        return costs
+
+
+def tune(scenario: str | Path | dict[str, Any], component: str,
+         bounds: dict[str, tuple[float, float]] | None = None, *, truth: str = "plant.p_tool",
+         estimate: str | None = None, after: float = 0.5, log_scale: bool = True,
+         maxiter: int = 10, popsize: int = 4, seed: int = 0, executor: Executor | None = None,
+         progress: bool = True, overrides: Sequence[str] = (), metric: str = "rmse",
+         tol: float = 0.01) -> TuneResult:
+    """Minimise the estimation error of ``component`` over ``bounds`` (section III-C).
+
+    Parameters
+    ----------
+    scenario
+        Scenario file (or parsed document) with the estimator and the truth.
+    component
+        The estimator's component name.
+    bounds
+        ``{parameter: (low, high)}``; a vector element as ``name[i]``. Default: the FMU type's
+        :data:`DEFAULT_BOUNDS`.
+    truth, estimate
+        Recorded variables compared (default estimate ``f"{component}.p_tool_hat"``).
+    after
+        Seconds at the start left out of the cost.
+    log_scale
+        Search ``log10`` of every parameter whose low bound is positive.
+    maxiter, popsize, seed, tol
+        Of ``scipy.optimize.differential_evolution`` (population ``popsize * len(bounds)``; no
+        final gradient polish: each evaluation is a simulation).
+    executor
+        Where the population is evaluated (``None``: in this process).
+    overrides
+        Extra ``comp.param=value`` / ``scenario.key=value`` for every run (e.g. a shorter
+        ``scenario.stop_time``).
+    metric
+        ``rmse`` (the paper's 2-norm of the error), ``bandpass_mean`` or ``bandpass_max``
+        (3-30 Hz).
+
+    Raises
+    ------
+    StudyError
+        For bounds that are empty or inverted, an unknown component or metric.
+    ScenarioError
+        For a parameter the component does not have (checked before the first run).
+    """
+    from scipy.optimize import differential_evolution
+
+    if metric not in METRICS:
+        raise StudyError(f"unknown tuning metric {metric!r} (one of {', '.join(METRICS)})")
+    doc = load_document(scenario)
+    fmu_type(doc, component)
+    if bounds is None:
+        bounds = default_bounds(doc, component)
+    if not bounds:
+        raise StudyError("no parameters to tune")
+    names = list(bounds)
+    log_mask, de_bounds = [], []
+    for n in names:
+        lo, hi = (float(b) for b in bounds[n])
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise StudyError(f"bounds of '{n}' must be finite with low < high, got ({lo}, {hi})")
+        lg = bool(log_scale and lo > 0)
+        log_mask.append(lg)
+        de_bounds.append((math.log10(lo), math.log10(hi)) if lg else (lo, hi))
+    estimate = estimate or f"{component}.p_tool_hat"
+    small = prune(doc, [estimate, truth])
+    if component not in small["components"]:
+        raise StudyError(f"the estimate '{estimate}' is not an output of '{component}'")
+    objective = _Objective(small, component, names, log_mask, overrides, estimate, truth, after, metric)
+    # a parameter name or value the FMU rejects fails here, once, with the scenario's message
+    # (in the workers it would only make every candidate cost the penalty)
+    from .scenario import load_scenario
+    load_scenario(small, objective.overrides([0.5 * (lo + hi) for lo, hi in de_bounds]))
+    recorder = _RecordingMap(executor, objective)
+
+    bar = None
+    if progress:
+        import sys
+
+        from tqdm import tqdm
+        bar = tqdm(total=maxiter, desc=f"tune {component}", unit="gen", file=sys.stderr, leave=False)
+
+    def callback(xk: Any, convergence: float = 0.0) -> bool:
+        if bar is not None:
+            best = min(h["cost"] for h in recorder.history)
+            bar.set_postfix(best=f"{best * 1e3:.4g} mm")
+            bar.update(1)
+        return False
+
+    t0 = time.perf_counter()
+    try:
+        res = differential_evolution(objective, de_bounds, maxiter=maxiter, popsize=popsize, seed=seed,
+                                     tol=tol, polish=False, updating="deferred", workers=recorder,
+                                     callback=callback, init="latinhypercube")
+    finally:
+        if bar is not None:
+            bar.close()
+    wall = time.perf_counter() - t0
+    best = objective.values(res.x)
+    return TuneResult(component=component, params=best, cost=float(res.fun), n_evals=len(recorder.history),
+                      wall_time=wall, history=recorder.history, metric=metric,
+                      failed=sum(1 for h in recorder.history if h["cost"] >= PENALTY),
+                      message=str(res.message))
+
+
+# ---------------------------------------------------------------------------------------------
+# output
+# ---------------------------------------------------------------------------------------------
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, str):
+        return json.dumps(v)
+    return repr(float(v))
+
+
+def _collapse(params: dict[str, float]) -> dict[str, Any]:
+    """``name[1..n]`` given completely -> ``name = [..]``; other keys unchanged."""
+    out: dict[str, Any] = {}
+    groups: dict[str, dict[int, float]] = {}
+    for k, v in params.items():
+        if k.endswith("]") and "[" in k:
+            base, idx = k[:-1].split("[", 1)
+            if idx.isdigit():
+                groups.setdefault(base, {})[int(idx)] = v
+                continue
+        out[k] = v
+    for base, items in groups.items():
+        if sorted(items) == list(range(1, len(items) + 1)):
+            out[base] = [items[i] for i in range(1, len(items) + 1)]
+        else:
+            for i, v in items.items():
+                out[f"{base}[{i}]"] = v
+    return out
+
+
+def write_include(path: str | Path, component: str | Sequence[str], params: dict[str, Any],
+                  comment: str = "") -> Path:
+    """Write ``params`` as ``[components.<component>.parameters]`` of a TOML file a scenario can
+    list in ``include = [...]`` (complete vectors ``name[1..n]`` written as one list). Several
+    components (a list) get the same values, each in its own table."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = [f"# {line}" for line in comment.splitlines()] if comment else []
+    for comp in [component] if isinstance(component, str) else list(component):
+        lines.append(f"[components.{comp}.parameters]")
+        for k, v in _collapse(params).items():
+            key = k if k.replace("_", "").isalnum() else json.dumps(k)
+            lines.append(f"{key} = {_toml_value(v)}")
+        lines.append("")
+    path.write_text("\n".join(lines))
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# CLI
+# ---------------------------------------------------------------------------------------------
+def parse_param(text: str) -> tuple[str, tuple[float, float]]:
+    """``NAME=LOW:HIGH`` -> ``(NAME, (LOW, HIGH))``."""
+    try:
+        name, rng = text.split("=", 1)
+        lo, hi = rng.split(":", 1)
+        return name.strip(), (float(lo), float(hi))
+    except ValueError:
+        raise StudyError(f"--param {text!r}: expected NAME=LOW:HIGH, e.g. pole_freq[1]=0.5:40") from None
+
+
+def main(args: argparse.Namespace) -> int:
+    bounds = dict(parse_param(t) for t in args.param) if args.param else None
+    overrides = list(args.set or [])
+    if args.stop_time is not None:
+        overrides.append(f"scenario.stop_time={args.stop_time}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with open_executor(args.workers, args.scheduler) as ex:
+        res = tune(args.scenario, args.estimator, bounds, truth=args.truth, estimate=args.estimate,
+                   after=args.after, log_scale=not args.linear, maxiter=args.maxiter,
+                   popsize=args.popsize, seed=args.seed, executor=ex, progress=not args.no_progress,
+                   overrides=overrides, metric=args.metric)
+    comment = (f"tuned by: flexfusion study tune {args.scenario} --estimator {args.estimator} "
+               f"(metric {res.metric}, cost {res.cost * 1e3:.4g} mm, {res.n_evals} runs, "
+               f"{res.wall_time:.0f} s)")
+    inc = write_include(out / f"tuned_{args.estimator}.toml", [args.estimator] + list(args.apply_to or []),
+                        res.params, comment)
+    (out / f"tune_{args.estimator}.json").write_text(json.dumps(res.to_json(), indent=1))
+    print(f"{args.estimator}: cost {res.cost * 1e3:.4g} mm ({res.metric}) after {res.n_evals} runs "
+          f"in {res.wall_time:.1f} s; {res.failed} failed")
+    for k, v in res.params.items():
+        print(f"  {k:<20} {v:.6g}")
+    print(f"include file: {inc}")
+    return 0
+
+
+def register(subparsers: Any) -> None:
+    """Add ``flexfusion study tune``."""
+    p = subparsers.add_parser("tune", help="tune an estimator's parameters on a scenario "
+                              "(differential evolution, parallel on the study executor)",
+                              description=__doc__.split("\n\n")[0])
+    p.add_argument("scenario", help="scenario TOML file with the estimator and the truth")
+    p.add_argument("--estimator", required=True, metavar="COMPONENT", help="component to tune")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--param", action="append", metavar="NAME=LOW:HIGH",
+                   help="parameter and its range (repeatable; default: per FMU type)")
+    p.add_argument("--maxiter", type=int, default=10, help="generations (default 10)")
+    p.add_argument("--popsize", type=int, default=4, help="population per parameter (default 4)")
+    p.add_argument("--seed", type=int, default=0, help="optimiser seed")
+    p.add_argument("--metric", choices=METRICS, default="rmse", help="cost (default rmse)")
+    p.add_argument("--truth", default="plant.p_tool", help="truth variable")
+    p.add_argument("--estimate", default=None, help="estimate variable (default COMPONENT.p_tool_hat)")
+    p.add_argument("--after", type=float, default=0.5, help="seconds left out at the start")
+    p.add_argument("--stop-time", type=float, default=None, help="shorter runs while tuning (s)")
+    p.add_argument("--linear", action="store_true", help="search linearly, not in log10")
+    p.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE", help="override (repeatable)")
+    p.add_argument("--apply-to", action="append", metavar="COMPONENT",
+                   help="also write the tuned values for this component (repeatable; e.g. a variant "
+                        "of the estimator)")
+    add_executor_arguments(p)
+    p.set_defaults(func=main)
+
+
+__all__ = ["tune", "TuneResult", "write_include", "evaluate", "prune", "load_document",
+           "default_bounds", "DEFAULT_BOUNDS", "register", "PENALTY"]

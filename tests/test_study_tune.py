@@ -1,0 +1,103 @@
+"""study_tune: the generic tuner (differential evolution over scenario runs) on a toy case, the
+scenario pruning, the include file, and the CLI's argument handling."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from orchestration import study_tune as st
+from orchestration.scenario import load_scenario
+from orchestration.study import StudyError, open_executor
+
+pytestmark = pytest.mark.usefixtures("toy_fmus")
+
+# truth src.ys = (t, 2t); estimate g.yv = gain * src.ys: the error is smallest at gain = 1
+TOY = """
+connections = ["src.ys -> g.uv", "src.y -> other.u"]
+[scenario]
+name = "toy_tune"
+stop_time = 0.1
+base_step = 0.01
+[components.src]
+fmu = "Source"
+[components.g]
+fmu = "Gain"
+parameters = { gain = 3.0 }
+[components.other]
+fmu = "Gain"
+[record]
+variables = ["src.ys", "g.yv", "other.y"]
+"""
+
+
+def _toy(tmp_path: Path) -> Path:
+    p = tmp_path / "toy.toml"
+    p.write_text(TOY)
+    return p
+
+
+def test_prune_keeps_what_the_estimate_needs(tmp_path) -> None:
+    doc = st.load_document(_toy(tmp_path))
+    small = st.prune(doc, ["g.yv", "src.ys"])
+    assert set(small["components"]) == {"src", "g"}
+    assert small["connections"] == ["src.ys -> g.uv"]
+    assert small["record"]["variables"] == ["g.yv", "src.ys"]
+    p1 = st.load_document(Path(st.__file__).parent / "scenarios" / "henriksson2009_p1.toml")
+    small = st.prune(p1, ["observer.p_tool_hat", "plant.p_tool"])
+    assert set(small["components"]) == {"controller", "plant", "pulses", "encoder", "imu", "observer"}
+    bounds = st.default_bounds(p1, "observer")
+    assert bounds == st.DEFAULT_BOUNDS["AccelerationObserver"] and len(bounds) == 8
+    with pytest.raises(StudyError, match="no default tuning parameters"):
+        st.default_bounds(p1, "plant")
+
+
+def test_tune_finds_the_optimum_of_a_toy(tmp_path) -> None:
+    res = st.tune(_toy(tmp_path), "g", {"gain": (0.1, 10.0)}, truth="src.ys", estimate="g.yv",
+                  after=0.0, maxiter=8, popsize=5, seed=1, progress=False)
+    assert res.params["gain"] == pytest.approx(1.0, abs=0.02)
+    # cost = rmse of (gain - 1) (t, 2 t) over the record, evaluated independently
+    t = np.arange(0.0, 0.1 + 1e-9, 0.01)
+    assert_allclose(res.cost, abs(res.params["gain"] - 1) * np.sqrt(np.mean(5 * t * t)), rtol=1e-6)
+    assert res.n_evals == len(res.history) <= 5 * (8 + 1)
+    assert min(h["cost"] for h in res.history) == pytest.approx(res.cost)
+    assert res.failed == 0 and res.wall_time > 0
+
+
+def test_tune_on_the_study_executor_and_include(tmp_path) -> None:
+    """The population runs in worker processes (workers=executor.map); the include file
+    sets the tuned value in a scenario."""
+    with open_executor(workers=2) as ex:
+        res = st.tune(_toy(tmp_path), "g", {"gain": (0.1, 10.0), "offset": (-1.0, 1.0)}, truth="src.ys",
+                      estimate="g.yv", after=0.0, maxiter=1, popsize=3, seed=0, executor=ex,
+                      progress=False)
+    assert res.n_evals == 6 * 2
+    assert set(res.params) == {"gain", "offset"}
+    inc = st.write_include(tmp_path / "tuned.toml", "g", {**res.params, "v[1]": 1.0, "v[2]": 2.0},
+                           comment="test")
+    text = inc.read_text()
+    assert "v = [1.0, 2.0]" in text and text.startswith("# test")
+    scen = tmp_path / "with_include.toml"
+    scen.write_text(TOY.replace('name = "toy_tune"', 'name = "toy_tune"\ninclude = ["tuned_g.toml"]'))
+    st.write_include(tmp_path / "tuned_g.toml", ["g", "other"], res.params)
+    sc = load_scenario(scen)
+    assert sc.components["g"].parameters["gain"] == pytest.approx(res.params["gain"])
+    assert sc.components["other"].parameters["offset"] == pytest.approx(res.params["offset"])
+
+
+def test_a_failing_candidate_costs_the_penalty_and_bad_bounds_are_refused(tmp_path) -> None:
+    doc = st.prune(st.load_document(_toy(tmp_path)), ["g.yv", "src.ys"])
+    assert st.evaluate(doc, ["g.no_such_param=1"], "g.yv", "src.ys", 0.0, "rmse") == st.PENALTY
+    with pytest.raises(StudyError, match="low < high"):
+        st.tune(_toy(tmp_path), "g", {"gain": (2.0, 1.0)}, truth="src.ys", estimate="g.yv", progress=False)
+    with pytest.raises(StudyError, match="not in the scenario"):
+        st.tune(_toy(tmp_path), "nope", {"gain": (0.5, 2.0)}, progress=False)
+    from orchestration.scenario import ScenarioError
+    with pytest.raises(ScenarioError, match="no_such_param"):
+        st.tune(_toy(tmp_path), "g", {"no_such_param": (0.5, 2.0)}, truth="src.ys", estimate="g.yv",
+                progress=False)
+    with pytest.raises(StudyError, match="NAME=LOW:HIGH"):
+        st.parse_param("gain=1")
+    assert st.parse_param("pole_freq[2]=0.5:40") == ("pole_freq[2]", (0.5, 40.0))

@@ -110,6 +110,8 @@ def column_labels(doc: dict[str, Any]) -> dict[str, str]:
         params = doc["components"][comp].get("parameters", {})
         if kind == "AccelerationObserver" and float(params.get("drift_crossover", 0.0)) > 0:
             label += f" + FK fusion ({float(params['drift_crossover']):g} Hz)"
+        if kind == "EkfIntegrated" and params.get("drift_correction", "off") != "off":
+            label += f" + drift correction ({params['drift_correction']})"
         labels[comp] = label
     values = list(labels.values())
     return {c: (f"{l} [{c}]" if values.count(l) > 1 else l) for c, l in labels.items()}

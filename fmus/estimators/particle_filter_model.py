@@ -76,7 +76,7 @@ import numpy as np
 
 from fmus.common import dynamics, kinematics
 from fmus.common.noise import make_rng
-from fmus.common.parameters import param
+from fmus.common.parameters import ParameterError, param
 from fmus.estimators.ekf_accelerometer_model import (DDQ_, DQ_, Q_, EkfAccelerometerParameters,
                                                      FilterDivergence, Layout, MeasurementModel,
                                                      initial_covariance, measurement_noise,
@@ -104,6 +104,29 @@ class ParticleFilterParameters(EkfAccelerometerParameters):
     ess_threshold: float = param(0.5, "1", "resampling threshold as a fraction of N (resampling = ess)",
                                  low=0.0, high=1.0)
     seed: int = param(0, "1", "seed of the filter's random numbers", low=0)
+    regularise: bool = param(True, "1", "after each resampling, move the particles with a Gaussian "
+                             "kernel that keeps the cloud's mean and covariance (regularised particle "
+                             "filter with shrinkage); off: plain Algorithm 1",
+                             source="Musso, Oudjane, Le Gland 2001; Liu, West 2001")
+    bandwidth: float = param(1.0, "1", "kernel bandwidth h as a multiple of the optimal "
+                             "h_opt = (4 / (N (n + 2)))^(1 / (n + 4)) (regularise = true); h < 1",
+                             low=0.0, source="Silverman 1986, eq. 4.14")
+
+    def check(self) -> None:
+        super().check()
+        n = 6 + (2 if self.use_bias else 0) + (2 if self.use_bias and self.use_accelerometer else 0)
+        h = self.bandwidth * optimal_bandwidth(self.n_particles, n)
+        if self.regularise and not h < 1.0:
+            raise ParameterError(f"parameter 'bandwidth' = {self.bandwidth} gives the kernel bandwidth "
+                                 f"h = {h:.3g} for {self.n_particles} particles and {n} states; it must "
+                                 f"be below 1 (the kernel keeps the cloud's covariance: a^2 + h^2 = 1)")
+
+
+def optimal_bandwidth(n_particles: int, n_states: int) -> float:
+    """Silverman's bandwidth ``h_opt = (4 / (N (n + 2)))^(1 / (n + 4))`` of a Gaussian kernel that
+    minimises the mean integrated squared error of a Gaussian density estimated from ``N``
+    equally weighted samples in ``n`` dimensions (Musso, Oudjane, Le Gland 2001, eq. 12.11)."""
+    return (4.0 / (n_particles * (n_states + 2))) ** (1.0 / (n_states + 4))
 
 
 # ---- eqs. 15-19 for all particles at once --------------------------------------------------------
@@ -292,6 +315,27 @@ def weighted_mean_cov(X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndar
     return x, (d * w[:, None]).T @ d
 
 
+def kernel_move(X: np.ndarray, x: np.ndarray, P: np.ndarray, h: float, Z: np.ndarray,
+                sum_w2: float = 0.0) -> np.ndarray:
+    """Regularisation after resampling: ``a x_i + (1 - a) x_hat + h S z_i``, ``a = sqrt(1 - h^2)``,
+    ``S S^T = P``, ``z_i ~ N(0, I)`` (rows of ``Z``).
+
+    Each resampled particle is replaced by a draw from a Gaussian kernel of covariance
+    ``h^2 P`` centred on it, shrunk towards the estimate ``x_hat`` so that the cloud keeps the
+    mean ``x_hat`` and the covariance ``P`` of the weighted particles (``a^2 P + h^2 P = P``;
+    Liu and West 2001's shrinkage of the regularised particle filter of Musso, Oudjane and
+    Le Gland 2001). Copies of one particle become distinct again, in every direction of the
+    state, also in those the process noise reaches only through many steps (here the angles and
+    velocities: the noise is the jerk). ``S`` is the symmetric square root of ``P`` with
+    negative round-off eigenvalues set to zero (``P`` may be singular, e.g. one survivor).
+    """
+    lam, V = np.linalg.eigh(0.5 * (P + P.T))
+    S = V * np.sqrt(np.clip(lam, 0.0, None))
+    a = math.sqrt(1.0 - h * h)
+    c = math.sqrt(1.0 / (1.0 - sum_w2) - a * a) if sum_w2 < 1.0 else h
+    return a * X + (1.0 - a) * x + c * (Z @ S.T)
+
+
 def _chol_solve(A: np.ndarray, b: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For symmetric positive definite ``A`` (N, k, k): ``A^-1 b``, ``C^-T Z`` (a sample of
     ``N(0, A^-1)`` from standard normals ``Z``) and ``sum log diag C``, ``A = C C^T`` (rows (N, k))."""
@@ -359,6 +403,7 @@ class ParticleFilterModel:
         self.proposal = p.proposal
         self.resample_always = p.resampling == "always"
         self.ess_min = float(p.ess_threshold) * self.N
+        self.h = (float(p.bandwidth) * optimal_bandwidth(self.N, self.layout.n)) if p.regularise else 0.0
         self.rng = make_rng(int(p.seed), RNG_STREAM)
         self._work = make_rng(int(p.seed), RNG_STREAM)
         n = self.layout.n
@@ -450,11 +495,14 @@ class ParticleFilterModel:
             return None
         return X, w, logw, x, P
 
-    def _resample(self, X, w, logw, rng) -> tuple[np.ndarray, np.ndarray, bool]:
+    def _resample(self, X, w, logw, x, P, rng) -> tuple[np.ndarray, np.ndarray, bool]:
         ess = effective_sample_size(w)
         if self.resample_always or ess < self.ess_min:
             idx = systematic_resample(w, float(rng.random()))
-            return X[idx], np.full(self.N, -math.log(self.N)), True
+            X = X[idx]
+            if self.h > 0.0:
+                X = kernel_move(X, x, P, self.h, rng.standard_normal(X.shape), float(np.dot(w, w)))
+            return X, np.full(self.N, -math.log(self.N)), True
         return X, logw, False
 
     def filtered(self, y) -> FilterStep:
@@ -486,7 +534,7 @@ class ParticleFilterModel:
                     r = X, w, np.log(w), x, P
             X, w, logw, x, P = r
             ess = effective_sample_size(w)
-            X, logw, resampled = self._resample(X, w, logw, rng)
+            X, logw, resampled = self._resample(X, w, logw, x, P, rng)
         return FilterStep(X, logw, x, P, ess, resampled, reinit, rng.bit_generator.state)
 
     def commit(self, s: FilterStep) -> np.ndarray:
@@ -506,5 +554,5 @@ class ParticleFilterModel:
 
 
 __all__ = ["ParticleFilterParameters", "ParticleFilterModel", "BatchMeasurementModel", "FilterStep",
-           "systematic_resample", "effective_sample_size", "normalise_log_weights",
+           "systematic_resample", "kernel_move", "optimal_bandwidth", "effective_sample_size", "normalise_log_weights",
            "weighted_mean_cov", "PROPOSALS", "RESAMPLING", "DQ_", "DDQ_", "Q_"]

@@ -398,22 +398,27 @@ def _check_keys(where: str, table: Any, allowed: Iterable[str]) -> None:
                             f"(allowed: {', '.join(sorted(allowed))})")
 
 
-def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] = ()) -> Scenario:
-    """Load, resolve and validate a scenario.
-
-    Parameters
-    ----------
-    source
-        Path of a TOML file, or an already parsed document (paths then relative to the cwd).
-    overrides
-        ``comp.param=value`` / ``comp.param[i]=value`` / ``scenario.key=value`` strings.
+def scenario_document(source: str | Path | dict[str, Any], overrides: Iterable[str] = ()) -> dict[str, Any]:
+    """The scenario as one self-contained TOML document: includes merged in, overrides applied,
+    relative FMU paths and ``*_file`` parameters made absolute (no FMU is read).
 
     Raises
     ------
     ScenarioError
-        One message naming the file, the component and the variable.
+        An unreadable file, an unknown component in an include or an override.
     """
-    overrides = tuple(overrides)
+    doc, path, _, base_dir = _document(source, tuple(overrides))
+    doc["scenario"].setdefault("name", path.stem if path else "scenario")
+    for ctab in doc["components"].values():
+        fmu = ctab.get("fmu") if isinstance(ctab, dict) else None
+        if isinstance(fmu, str) and (fmu.endswith(".fmu") or "/" in fmu) and not Path(fmu).is_absolute():
+            ctab["fmu"] = str(base_dir / fmu)
+    return doc
+
+
+def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
+              ) -> tuple[dict[str, Any], Path | None, str, Path]:
+    """``(document, path, label, base_dir)``: the TOML with includes and overrides applied."""
     if isinstance(source, dict):
         path, doc, label, base_dir = None, _deepcopy(source), "<scenario>", Path.cwd()
     else:
@@ -467,7 +472,30 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
             params[pname] = value
         else:
             params[f"{pname}[{index}]"] = value
+    head.pop("include", None)
+    doc["scenario"] = head
+    return doc, path, label, base_dir
 
+
+def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] = ()) -> Scenario:
+    """Load, resolve and validate a scenario.
+
+    Parameters
+    ----------
+    source
+        Path of a TOML file, or an already parsed document (paths then relative to the cwd).
+    overrides
+        ``comp.param=value`` / ``comp.param[i]=value`` / ``scenario.key=value`` strings.
+
+    Raises
+    ------
+    ScenarioError
+        One message naming the file, the component and the variable.
+    """
+    overrides = tuple(overrides)
+    doc, path, label, base_dir = _document(source, overrides)
+    head = doc["scenario"]
+    comps_doc = doc["components"]
     name = head.get("name", path.stem if path else "scenario")
     if not isinstance(name, str):
         raise ScenarioError(f"{label}: [scenario] name must be a string")

@@ -311,35 +311,6 @@ RECORDED = ("path.p_ref", "plant.p_tool", "plant.a_tool", "contact.f_ext", "obse
 LIMITS = {"free_ratio": 0.20, "steady_hat_err": 0.02, "steady_x_err": 0.05, "steady_F_err": 0.05}
 
 
-def _scenario_doc(path: Path, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
-    """The scenario's TOML document with the ``comp.param=value`` overrides applied (no FMU read)."""
-    import tomllib
-
-    from orchestration.scenario import ScenarioError, resolve_file_parameters, parse_override
-    try:
-        doc = tomllib.loads(Path(path).read_text())
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise ScenarioError(f"{path}: {exc}") from None
-    comps = doc.setdefault("components", {})
-    for comp in comps.values():           # *_file parameters relative to the scenario file
-        resolve_file_parameters(comp.setdefault("parameters", {}), Path(path).resolve().parent)
-    head = doc.setdefault("scenario", {})
-    for text in overrides:
-        comp, name, index, value = parse_override(text)
-        if comp == "scenario":
-            head[name] = value
-            continue
-        params = comps.setdefault(comp, {}).setdefault("parameters", {})
-        if index is None:
-            params[name] = value
-        else:
-            vec = list(params.get(name, []))
-            if len(vec) >= index:
-                vec[index - 1] = value
-                params[name] = vec
-    return doc
-
-
 def scenario_setup(path: Path, overrides: tuple[str, ...] = ()) -> ContactSetup:
     """The :class:`ContactSetup` of a contact scenario file, read from its parameters.
 
@@ -353,9 +324,9 @@ def scenario_setup(path: Path, overrides: tuple[str, ...] = ()) -> ContactSetup:
     from fmus.force_observer.impedance_controller_fmu import ImpedanceControllerParameters
     from fmus.robot_plant.contact_environment_fmu import ContactEnvironmentParameters
     from fmus.robot_plant.trajectory import make_path
-    from orchestration.scenario import ScenarioError
+    from orchestration.scenario import ScenarioError, scenario_document
 
-    doc = _scenario_doc(path, overrides)
+    doc = scenario_document(path, overrides)
     comps = doc["components"]
     cpar = {**vars(ContactEnvironmentParameters()), **comps.get("contact", {}).get("parameters", {})}
     ipar = {**vars(ImpedanceControllerParameters()), **comps.get("impedance", {}).get("parameters", {})}
@@ -383,7 +354,8 @@ def scenario_setup(path: Path, overrides: tuple[str, ...] = ()) -> ContactSetup:
 def contact_motion_window(path: Path) -> tuple[float, float]:
     """The time of the last move of the scenario's path (the motion along the wall)."""
     from fmus.robot_plant.trajectory import make_path
-    ppar = _scenario_doc(path)["components"]["path"]["parameters"]
+    from orchestration.scenario import scenario_document
+    ppar = scenario_document(path)["components"]["path"]["parameters"]
     t0, t1, _ = make_path("csv", csv_file=ppar["csv_file"]).move_intervals()[-1]
     return float(t0), float(t1)
 

@@ -30,7 +30,6 @@ import argparse
 import json
 import math
 import time
-import tomllib
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -92,37 +91,18 @@ def _component_of(ref: str) -> str:
 
 
 def load_document(scenario: str | Path | dict[str, Any]) -> dict[str, Any]:
-    """The scenario as a self-contained TOML document: includes merged in, FMU paths absolute.
+    """The scenario as a self-contained TOML document (:func:`orchestration.scenario.scenario_document`).
 
     Raises
     ------
     StudyError
         If the file cannot be read.
     """
-    if isinstance(scenario, dict):
-        return json.loads(json.dumps(scenario))
-    path = Path(scenario)
+    from .scenario import ScenarioError, scenario_document
     try:
-        doc = tomllib.loads(path.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise StudyError(f"cannot read scenario {path}: {exc}") from None
-    base = path.resolve().parent
-    head = doc.setdefault("scenario", {})
-    head.setdefault("name", path.stem)
-    includes = head.pop("include", [])
-    for inc in [includes] if isinstance(includes, str) else includes:
-        try:
-            inc_doc = tomllib.loads((base / inc).read_text())
-        except (OSError, tomllib.TOMLDecodeError) as exc:
-            raise StudyError(f"{path}: cannot read include {inc}: {exc}") from None
-        for cname, ctab in inc_doc.get("components", {}).items():
-            if cname in doc.get("components", {}):
-                doc["components"][cname].setdefault("parameters", {}).update(ctab.get("parameters", {}))
-    for ctab in doc.get("components", {}).values():
-        fmu = ctab.get("fmu", "")
-        if isinstance(fmu, str) and fmu.endswith(".fmu") and not Path(fmu).is_absolute():
-            ctab["fmu"] = str(base / fmu)
-    return doc
+        return scenario_document(scenario)
+    except ScenarioError as exc:
+        raise StudyError(f"cannot read scenario: {exc}") from None
 
 
 def prune(doc: dict[str, Any], keep_refs: Sequence[str]) -> dict[str, Any]:

@@ -41,8 +41,8 @@ def test_model_description(fmu: Path) -> None:
                        ("q_a_hat[1]", "rad"), ("dq_a_hat[2]", "rad/s"), ("ddq_a_hat[1]", "rad/s2"),
                        ("p_tool_hat[2]", "m"), ("trace_P_q", "rad2"), ("ess", "1"), ("n_reinit", "1")):
         assert v[name].unit == unit, name
-    for name in ("n_particles", "proposal", "resampling", "ess_threshold", "seed", "use_accelerometer",
-                 "q_jerk", "r_motor", "r_acc", "gear_ratio[1]", "q_a0[1]", "index_x"):
+    for name in ("n_particles", "proposal", "resampling", "ess_threshold", "seed", "bandwidth",
+                 "use_accelerometer", "q_jerk", "r_motor", "r_acc", "gear_ratio[1]", "q_a0[1]", "index_x"):
         assert v[name].causality == "parameter", name
     assert v["proposal"].type == "String" and v["n_particles"].type == "Integer"
     deps = {o.variable.name: {d.name for d in o.dependencies} for o in md.outputs}
@@ -67,10 +67,12 @@ CASES = [
     dict(),
     dict(proposal="prior", p0_q=1e-5),
     dict(resampling="ess", ess_threshold=0.3, use_bias=True, index_x=3, index_z=1, n_particles=200, seed=9),
+    dict(bandwidth=0.0, n_particles=300),
+    dict(bandwidth=0.3, proposal="prior", p0_q=1e-5, n_particles=300),
 ]
 
 
-@pytest.mark.parametrize("params", CASES, ids=["ekf", "prior", "ess-bias-swapped"])
+@pytest.mark.parametrize("params", CASES, ids=["ekf", "prior", "ess-bias-swapped", "no-kernel", "bandwidth"])
 def test_fmu_matches_the_plain_model_bit_for_bit(fmu: Path, params: dict) -> None:
     n = 40
     p = validate(pm.ParticleFilterParameters(q_a0=(0.2, -0.1), **params))

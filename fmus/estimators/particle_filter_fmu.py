@@ -1,8 +1,11 @@
 """FMU adapter of the particle filter (Axelsson, Karlsson, Norrlöf 2012, Algorithm 1, eqs. 6, 28, 30).
 
 The math is in :mod:`fmus.estimators.particle_filter_model`; the model (state, ``Q``, ``R``,
-``h``) is the EKF's. The filter runs once per communication step, whose length is the sample
-period ``T`` of eqs. 13-14 (the paper: 100 Hz).
+``h``) is the EKF's. After each resampling the particles are moved by a moment-preserving
+Gaussian kernel (regularised particle filter, parameter ``bandwidth``; 0 = plain Algorithm 1),
+without which the cloud's angle and velocity spread collapses under the rank-2 (jerk) process
+noise and the filter drifts (see the model's docstring). The filter runs once per
+communication step, whose length is the sample period ``T`` of eqs. 13-14 (the paper: 100 Hz).
 
 Timing (as the EkfAccelerometer FMU): the outputs at time ``t`` are the filtered estimate from
 the measurements set at ``t`` (direct feedthrough from ``q_m_meas`` and ``acc_s``).

@@ -178,6 +178,7 @@ def test_fused_scalar_linearisation_equals_h_and_jacobian(layout: em.Layout) -> 
     mm = em.MeasurementModel(RobotParameters(), layout)
     states = list(_states(layout, 5, seed=3))
     states.append(np.r_[0.0, np.pi / 2, 0.0, 0.0, 1e-4, -2e-4, np.zeros(layout.n - 6)])  # soft zone
+    states.append(np.r_[0.3, -0.2, 5.0, -4.0, 3e3, -2e3, np.zeros(layout.n - 6)])       # far out (no overflow)
     for x in states:
         y, H = mm.h_and_jacobian(x)
         assert_allclose(y, mm.h(x), rtol=1e-14, atol=1e-12)

@@ -318,7 +318,7 @@ class MeasurementModel:
             d = (t + math.copysign(k_soft * delta * math.tanh(abs(t) / (k_hi * delta)), t)) / k_hi
             for _ in range(50):
                 f = k_hi * d - k_soft * delta * math.tanh(d / delta) - t
-                d -= f / (k_hi - k_soft / math.cosh(d / delta) ** 2)
+                d -= f / (k_hi - k_soft * (1.0 - math.tanh(d / delta) ** 2))   # sech^2, no overflow
                 if abs(f) <= 1e-12 * max(1.0, abs(t)):
                     break
             D.append(d)
@@ -333,7 +333,7 @@ class MeasurementModel:
         H = np.zeros((L.m, L.n))
         Jt = self.arm_torque_jacobian(x[Q_], x[DQ_], x[DDQ_])
         for i in range(2):
-            k = self._k_hi[i] - self._k_soft[i] / math.cosh(D[i] / self._delta[i]) ** 2
+            k = self._k_hi[i] - self._k_soft[i] * (1.0 - math.tanh(D[i] / self._delta[i]) ** 2)
             y[i] = self.r[i] * (float(x[i]) + D[i])
             H[i, 0:6] = (self.r[i] / k) * Jt[i]
             H[i, i] += self.r[i]

@@ -52,8 +52,7 @@ class ComplementaryFilter(FlexFusionSlave):
 
     def _publish(self) -> None:
         m = self.model
-        q = m.q_tool
-        p = m.p_s - qt.rotate(q, m.lever)
+        p, q = m.mount.tool_pose(m.p_s, m.q_s)
         self.p_hat[:] = p
         self.p_tool_hat[0], self.p_tool_hat[1] = p[0], p[2]
         self.q_hat[:] = q

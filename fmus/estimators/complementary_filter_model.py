@@ -127,8 +127,7 @@ class ComplementaryFilterModel:
 
     def __init__(self, params: ComplementaryFilterParameters) -> None:
         self.params = params
-        self.lever = np.array(params.lever_arm, dtype=float)
-        self.q_mount = qt.from_matrix(rot_rpy(params.mount_rpy))
+        self.mount = qt.RigidMount(params.lever_arm, rot_rpy(params.mount_rpy))
         self.g_vec = np.array([0.0, 0.0, -params.g])
         self._dt = None
         self._gains = (0.0, 0.0, 0.0, 0.0)
@@ -140,20 +139,15 @@ class ComplementaryFilterModel:
         self._w_prev = (0.0, 0.0, 0.0)
 
     # -- frames ----------------------------------------------------------------------------
-    def sensor_pose(self, p_tool, q_tool) -> tuple[np.ndarray, np.ndarray]:
-        """The sensor point and frame of a tool pose (rigid mount)."""
-        return (np.asarray(p_tool, float) + qt.rotate(q_tool, self.lever),
-                qt.multiply(q_tool, self.q_mount))
-
     @property
     def q_tool(self) -> np.ndarray:
         """Estimated tool orientation (tool to world)."""
-        return qt.normalise(qt.multiply(self.q_s, qt.conjugate(self.q_mount)))
+        return self.mount.tool_pose(self.p_s, self.q_s)[1]
 
     @property
     def p_tool(self) -> np.ndarray:
         """Estimated tool point (world x, y, z)."""
-        return self.p_s - qt.rotate(self.q_tool, self.lever)
+        return self.mount.tool_pose(self.p_s, self.q_s)[0]
 
     @property
     def v_tool_approx(self) -> np.ndarray:
@@ -175,7 +169,7 @@ class ComplementaryFilterModel:
 
     def reset(self, p_tool, q_tool, acc_s, gyro_s) -> None:
         """Start at the kinematic pose, at rest (zero velocity and gyro bias)."""
-        self.p_s, self.q_s = self.sensor_pose(p_tool, q_tool)
+        self.p_s, self.q_s = self.mount.sensor_pose(p_tool, q_tool)
         self.v_s = np.zeros(3)
         self.b_gyro = np.zeros(3)
         self._w_prev = tuple(float(x) for x in gyro_s)
@@ -188,7 +182,7 @@ class ComplementaryFilterModel:
                 raise ValueError(f"time step must be positive, got {dt!r}")
             self._set_dt(dt)
         l1, k2, m1, n2 = self._gains
-        p_fk, q_fk = self.sensor_pose(p_tool_fk, q_tool_fk)
+        p_fk, q_fk = self.mount.sensor_pose(p_tool_fk, q_tool_fk)
         # 1. orientation: gyro (trapezoidal mean rate, bias removed), then the kinematic correction
         # (plain floats below: this runs every sample and is the point of the filter's low cost)
         wx, wy, wz = float(gyro_s[0]), float(gyro_s[1]), float(gyro_s[2])

@@ -60,8 +60,7 @@ class ImuEkf(FlexFusionSlave):
 
     def _publish(self) -> None:
         e = self.ekf
-        q = e.q_tool
-        p = e.p - qt.rotate(q, e.lever)
+        p, q = e.mount.tool_pose(e.p, e.q)
         self.p_hat[:] = p
         self.p_tool_hat[0], self.p_tool_hat[1] = p[0], p[2]
         self.q_hat[:] = q

@@ -104,8 +104,7 @@ class ImuEkfModel:
 
     def __init__(self, params: ImuEkfParameters) -> None:
         self.params = params
-        self.lever = np.array(params.lever_arm, dtype=float)
-        self.q_mount = qt.from_matrix(rot_rpy(params.mount_rpy))
+        self.mount = qt.RigidMount(params.lever_arm, rot_rpy(params.mount_rpy))
         self.g_vec = np.array([0.0, 0.0, -params.g])
         p = params
         self.R = np.diag(np.repeat([p.r_position ** 2, p.r_orientation ** 2, p.r_acc ** 2,
@@ -132,25 +131,20 @@ class ImuEkfModel:
         self.nis = 0.0          # normalised innovation squared of the last update
 
     # -- frames (as the complementary filter) ----------------------------------------------
-    def sensor_pose(self, p_tool, q_tool) -> tuple[np.ndarray, np.ndarray]:
-        """The IMU point and frame of a tool pose (rigid mount)."""
-        return (np.asarray(p_tool, float) + qt.rotate(q_tool, self.lever),
-                qt.multiply(q_tool, self.q_mount))
-
     @property
     def q_tool(self) -> np.ndarray:
         """Estimated tool orientation (tool to world)."""
-        return qt.normalise(qt.multiply(self.q, qt.conjugate(self.q_mount)))
+        return self.mount.tool_pose(self.p, self.q)[1]
 
     @property
     def p_tool(self) -> np.ndarray:
         """Estimated tool point (world)."""
-        return self.p - qt.rotate(self.q_tool, self.lever)
+        return self.mount.tool_pose(self.p, self.q)[0]
 
     # -- filter ----------------------------------------------------------------------------
     def reset(self, p_tool, q_tool, acc_s=None, gyro_s=None) -> None:
         """Start at the kinematic pose at rest, zero biases, with the initial covariance."""
-        self.p, self.q = self.sensor_pose(p_tool, q_tool)
+        self.p, self.q = self.mount.sensor_pose(p_tool, q_tool)
         self.v = np.zeros(3)
         self.a = np.zeros(3)
         self.w = np.zeros(3) if gyro_s is None else np.array(gyro_s, dtype=float)
@@ -199,7 +193,7 @@ class ImuEkfModel:
 
     def update(self, p_tool_fk, q_tool_fk, acc_s, gyro_s) -> None:
         """Measurement update with the kinematic pose and the IMU sample (eq. 4)."""
-        p_fk, q_fk = self.sensor_pose(p_tool_fk, q_tool_fk)
+        p_fk, q_fk = self.mount.sensor_pose(p_tool_fk, q_tool_fk)
         Rt = qt.to_matrix(self.q).T
         f_hat = Rt @ (self.a - self.g_vec)
         r = np.empty(12)

@@ -116,6 +116,8 @@ class FlexFusionSlave(Fmi2Slave):
         self._inputs: list[str] = []          # attribute names of the inputs, in order
         self._depends: dict[str, tuple[str, ...]] = {}   # output variable name -> input attrs
         self._inputs_dirty = False
+        self._stale = True        # the model is not built from the current parameters and inputs
+        self._phase = "instantiated"   # -> "initialization" -> "stepping" -> "terminated"
         self._real_getters: dict | None = None   # value reference -> getter, built on first use
         self._real_setters: dict | None = None
         self._ready = False
@@ -179,7 +181,7 @@ class FlexFusionSlave(Fmi2Slave):
         for n in names:
             self._depends[n] = deps
         self._declare_real_array(name, size, Fmi2Causality.output, unit, description, start,
-                                 Fmi2Variability.continuous, Fmi2Initial.exact)
+                                 Fmi2Variability.continuous, Fmi2Initial.calculated)
 
     def _declare_parameters(self, defaults: Any) -> None:
         for f in _parameters.fields(defaults):
@@ -193,19 +195,24 @@ class FlexFusionSlave(Fmi2Slave):
             if isinstance(value, bool):
                 setattr(self, f.name, value)
                 self._register(Boolean(f.name, getter=lambda n=f.name: getattr(self, n),
-                                       setter=lambda v, n=f.name: setattr(self, n, bool(v)), **kw), None)
+                                       setter=partial(self._set_parameter, f.name, bool), **kw), None)
             elif isinstance(value, int):
                 setattr(self, f.name, value)
                 self._register(Integer(f.name, getter=lambda n=f.name: getattr(self, n),
-                                       setter=lambda v, n=f.name: setattr(self, n, int(v)), **kw), None)
+                                       setter=partial(self._set_parameter, f.name, int), **kw), None)
             elif isinstance(value, str):
                 setattr(self, f.name, value)
                 self._register(String(f.name, getter=lambda n=f.name: getattr(self, n),
-                                      setter=lambda v, n=f.name: setattr(self, n, str(v)), **kw), None)
+                                      setter=partial(self._set_parameter, f.name, str), **kw), None)
             else:
                 size = len(value) if isinstance(value, tuple) else None
                 self._declare_real_array(f.name, size, Fmi2Causality.parameter, meta.get("unit", "1"),
-                                         desc, value, Fmi2Variability.fixed, Fmi2Initial.exact)
+                                         desc, value, Fmi2Variability.fixed, Fmi2Initial.exact,
+                                         on_set=self._parameter_set)
+
+    def _set_parameter(self, name: str, kind: type, value: Any) -> None:
+        setattr(self, name, kind(value))
+        self._parameter_set()
 
     def _collect_parameters(self) -> Any:
         values = {}
@@ -216,6 +223,10 @@ class FlexFusionSlave(Fmi2Slave):
 
     def _mark_dirty(self) -> None:
         self._inputs_dirty = True
+        self._stale = True
+
+    def _parameter_set(self) -> None:
+        self._stale = True
 
     # ---- what a subclass implements ------------------------------------------------------
     def setup(self, params: Any) -> None:
@@ -239,15 +250,27 @@ class FlexFusionSlave(Fmi2Slave):
     def setup_experiment(self, start_time: float, stop_time: float | None, tolerance: float | None) -> None:
         self._time = float(start_time)
 
-    def exit_initialization_mode(self) -> int | None:
+    def enter_initialization_mode(self) -> None:
+        self._phase = "initialization"
+
+    def _build(self) -> None:
+        """Build the model from the current parameters and inputs (FMI 2.0, section 4.2.4: in
+        Initialization Mode an output is valid as soon as what it depends on is set)."""
         try:
             self.params = self._collect_parameters() if self.parameters_class else None
             self.setup(self.params)
-            self._ready = True
-            self._inputs_dirty = True
         except Exception as exc:  # noqa: BLE001 - every failure becomes an FMI error status
+            self._ready = False
             self._fail("initialisation", exc)
             raise
+        self._ready = True
+        self._stale = False
+        self._inputs_dirty = True
+
+    def exit_initialization_mode(self) -> int | None:
+        if self._stale or not self._ready:
+            self._build()
+        self._phase = "stepping"
         return None
 
     def _check_inputs(self, t: float) -> None:
@@ -271,6 +294,8 @@ class FlexFusionSlave(Fmi2Slave):
             return False
 
     def get_real(self, vrs: list[int]) -> list[float]:
+        if self._stale and self._phase == "initialization":
+            self._build()
         if self._inputs_dirty and self._ready:
             self._inputs_dirty = False
             try:
@@ -333,6 +358,12 @@ class FlexFusionSlave(Fmi2Slave):
                 unknown.set("dependencies", " ".join(str(i) for i in deps))
                 if deps:
                     unknown.set("dependenciesKind", " ".join("dependent" for _ in deps))
+            # outputs are initial="calculated", so each is an initial unknown; no `dependencies`
+            # attribute = it may depend on every parameter and input in Initialization Mode
+            # (true: setup() may read any of them, e.g. a sensor's first sample)
+            initial = SubElement(root.find("ModelStructure"), "InitialUnknowns")
+            for unknown in outputs:
+                SubElement(initial, "Unknown", index=unknown.get("index"))
         return root
 
 

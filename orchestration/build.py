@@ -1,10 +1,18 @@
 """Build every FlexFusion FMU into ``dist/fmus`` and validate each with fmpy.
 
 An FMU script is any ``fmus/<group>/*_fmu.py``; its model identifier is the name of its
-FMU class. All FMUs bundle the same copy of the whole ``fmus`` package, staged once per
-build: a package bundled into several FMUs is imported only once per process (the first copy
-wins), so the copies must be identical. Each FMU carries ``resources/requirements.txt`` naming
-the third-party packages the importer's Python must have.
+FMU class. Each FMU carries ``resources/requirements.txt`` naming the third-party packages the
+importer's Python must have.
+
+Self-contained FMUs in any Python host. A pythonfmu FMU runs in the host's interpreter, where a
+package is imported once per process, from the first folder that provides it; hosts delete
+extraction folders (fmpy's ``simulate_fmu`` does after each run), and two builds of our FMUs
+may meet in one process (or the host has the working tree's ``fmus`` imported). So every FMU
+bundles the ``fmus`` package vendored under a per-build name, ``fmus_<hash of its sources>``
+(imports rewritten), and its script under ``<script>_<hash>``: FMUs of one build share one
+identical copy, different builds never mix, and the host's own ``fmus`` is never used. The
+script imports every module of its package when it loads, so nothing is imported later from a
+folder that may be gone.
 """
 from __future__ import annotations
 
@@ -39,16 +47,49 @@ def fmu_scripts(root: Path = FMU_SOURCES) -> list[Path]:
     return sorted(p for p in root.glob("*/*_fmu.py"))
 
 
+# `import fmus...` / `from fmus... import` statements, rewritten to the vendored name
+_IMPORT = re.compile(r"^(\s*)(from|import)\s+fmus(?=[.\s])", re.M)
+
+
 def _stage_package(stage: Path) -> Path:
-    target = stage / "fmus"
-    shutil.copytree(FMU_SOURCES, target,
-                    ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*_fmu.py"))
+    """Copy ``fmus`` into ``stage`` as ``fmus_<12 hex of its BUNDLE_ID>``, imports rewritten."""
     digest = hashlib.sha256()
-    for f in sorted(target.rglob("*.py")):
-        digest.update(f.relative_to(target).as_posix().encode() + b"\0" + f.read_bytes())
-    (target / BUNDLE_ID_FILE).write_text(digest.hexdigest() + "\n")
+    sources = sorted(p for p in FMU_SOURCES.rglob("*.py")
+                     if not p.name.endswith("_fmu.py") and "__pycache__" not in p.parts)
+    for f in sources:
+        digest.update(f.relative_to(FMU_SOURCES).as_posix().encode() + b"\0" + f.read_bytes())
+    bundle_id = digest.hexdigest()
+    target = stage / f"fmus_{bundle_id[:12]}"
+    for f in sources:
+        out = target / f.relative_to(FMU_SOURCES)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(_vendored(f.read_text(), target.name))
+    (target / BUNDLE_ID_FILE).write_text(bundle_id + "\n")
     (stage / "requirements.txt").write_text("\n".join(FMU_REQUIREMENTS) + "\n")
     return target
+
+
+def _vendored(source: str, package: str) -> str:
+    return _IMPORT.sub(rf"\1\2 {package}", source)
+
+
+def _stage_script(script: Path, package: Path) -> Path:
+    """The FMU script as it is bundled: imports rewritten, named after its content and package,
+    and preceded by the import of every module of its package (see the module docstring)."""
+    modules = sorted(".".join(f.relative_to(package.parent).with_suffix("").parts).removesuffix(".__init__")
+                     for f in package.rglob("*.py"))
+    preamble = ("# Added by orchestration/build.py: load this FMU's whole package now, so that no\n"
+                "# module is imported later from an extraction folder the host may have deleted.\n"
+                "import importlib as _importlib\n"
+                f"for _module in {modules!r}:\n"
+                "    _importlib.import_module(_module)\n")
+    text = _vendored(script.read_text(), package.name)
+    head, future, rest = text.partition("from __future__ import annotations\n")
+    text = head + future + preamble + rest if future else preamble + text
+    tag = hashlib.sha256((package.name + "\0" + text).encode()).hexdigest()[:12]
+    staged = package.parent / f"{script.stem}_{tag}.py"
+    staged.write_text(text)
+    return staged
 
 
 def validate_fmu(path: Path) -> list[str]:
@@ -71,8 +112,6 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     """
     from pythonfmu.builder import FmuBuilder
 
-    if str(REPO) not in sys.path:  # the builder imports the scripts, which import `fmus`
-        sys.path.insert(0, str(REPO))
     dest.mkdir(parents=True, exist_ok=True)
     built: list[Path] = []
     failures: list[str] = []
@@ -84,7 +123,7 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
                 continue
             t0 = time.perf_counter()
             try:
-                fmu = FmuBuilder.build_FMU(script, dest=dest,
+                fmu = FmuBuilder.build_FMU(_stage_script(script, package), dest=dest,
                                            project_files=[package, stage / "requirements.txt"])
             except Exception as exc:  # noqa: BLE001 - collect and report every failure at once
                 failures.append(f"{_shown(script)}: build failed: {type(exc).__name__}: {exc}")

@@ -44,17 +44,19 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import solve_continuous_are
 
 from fmus.force_observer import force_observer_math as fom
 
 
 def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """Continuous-time LQR gain ``L`` (``u = -L x``) with python-control's ``control.lqr``."""
-    import control  # imported here: only the design needs it
-
-    L, _, _ = control.lqr(np.asarray(A, float), np.asarray(B, float), np.asarray(Q, float),
-                          np.atleast_2d(np.asarray(R, float)))
-    return np.asarray(L)
+    """Continuous-time LQR gain ``L = R^-1 B^T P`` (``u = -L x``), ``P`` the stabilising
+    solution of the algebraic Riccati equation ``A^T P + P A - P B R^-1 B^T P + Q = 0``
+    (what python-control's ``control.lqr`` computes, without that dependency in the FMU)."""
+    A, B, Q = (np.atleast_2d(np.asarray(M, float)) for M in (A, B, Q))
+    R = np.atleast_2d(np.asarray(R, float))
+    P = solve_continuous_are(A, B, Q, R)
+    return np.linalg.solve(R, B.T @ P)
 
 
 @dataclass(frozen=True)

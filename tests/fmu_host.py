@@ -35,11 +35,12 @@ class Slave:
     """An FMU instance in initialisation mode with ``params`` set; :meth:`init` leaves it.
 
     ``params`` values: str → String, bool → Boolean, a list/tuple → the vector ``name[1..n]``,
-    otherwise by the variable's type (Integer or Real). ``unzip_dir`` reuses an extraction.
+    otherwise by the variable's type (Integer or Real). ``unzip_dir`` reuses an extraction;
+    ``logging_on`` is ``fmi2Instantiate``'s (debug logging).
     """
 
     def __init__(self, path: Path, params: dict | None = None, *, init: bool = False,
-                 unzip_dir: str | None = None, instance_name: str = "t") -> None:
+                 unzip_dir: str | None = None, instance_name: str = "t", logging_on: bool = True) -> None:
         self.md = read_model_description(str(path))
         self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
         self.types = {v.name: v.type for v in self.md.modelVariables}
@@ -54,7 +55,7 @@ class Slave:
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzip,
                              modelIdentifier=self.md.coSimulation.modelIdentifier,
                              instanceName=instance_name)
-        self.fmu.instantiate(callbacks=cb, loggingOn=True)
+        self.fmu.instantiate(callbacks=cb, loggingOn=logging_on)
         self.fmu.setupExperiment(startTime=0.0)
         self.fmu.enterInitializationMode()
         for k, v in (params or {}).items():

@@ -11,7 +11,14 @@ every input. This base class adds what our FMUs all need, once:
   when initialisation ends, so a bad value is rejected with an FMI error naming the parameter
   instead of crashing the host;
 * outputs with direct feedthrough recomputed lazily when an input was set;
-* every exception turned into an FMI error status with one clear log message.
+* outputs valid in Initialization Mode (``initial="calculated"``): reading one there builds
+  the model from the parameters and inputs set so far, and again after a later change;
+* the FMI contract: a bad step size, a non-finite output or a change of a fixed parameter after
+  initialisation is an FMI error; errors reach the host's logger even without debug logging;
+* get/set (and serialise) FMU state of the complete internal state, bit-exact;
+* every exception turned into an FMI error status with one clear log message (pythonfmu 0.7's
+  native layer turns an exception into ``fmi2Fatal``, a ``do_step`` returning False into
+  ``fmi2Discard``).
 
 Subclasses implement :meth:`FlexFusionSlave.setup` (build the model from validated parameters),
 :meth:`FlexFusionSlave.step` (advance one communication step) and, if an output depends
@@ -19,7 +26,10 @@ directly on an input, :meth:`FlexFusionSlave.update_outputs`.
 """
 from __future__ import annotations
 
+import copy
+import ctypes
 import math
+import pickle
 import sys
 from functools import partial
 import traceback
@@ -78,6 +88,57 @@ def known_units() -> tuple[str, ...]:
     return tuple(_UNITS)
 
 
+# attributes that are declarations, not state (see FlexFusionSlave._get_fmu_state)
+_NOT_STATE = frozenset({"vars", "log_queue", "instance_name", "resources", "visible", "guid",
+                        "_units", "_inputs", "_depends", "_arrays", "_output_vrs", "_host_log",
+                        "_real_getters", "_real_setters"})
+_BOUND = "flexfusion.bound"   # deepcopy memo key: the live objects _Bound names stand for
+
+
+class _Bound:
+    """In a saved FMU state, the slave (name "") or one of its vector variables' arrays, which
+    the FMI getters and setters are bound to: restored as that live object, not as a copy."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __deepcopy__(self, memo: dict) -> Any:
+        return memo[_BOUND][self.name]
+
+
+_LOGGER = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p,
+                           ctypes.c_char_p)
+
+
+def _host_logger(handle: Any, instance_name: str) -> Any:
+    """``log(status, category, message)`` straight to the host's ``fmi2CallbackLogger``, or None.
+
+    ``handle`` is the ``logger`` the FMI layer gives the slave: a callable (a native layer may
+    pass one), or pythonfmu 0.7's address of its ``Fmi2Logger``, whose layout (x86-64
+    libstdc++: vtable, ``bool debugLogging_``, ``std::string instanceName_``,
+    ``std::vector categories_``, ``const fmi2CallbackFunctions* f_``) is checked by finding
+    this instance's name in it before its callback pointer is used.
+    """
+    if callable(handle):
+        return handle
+    if not isinstance(handle, int) or handle <= 0 or sys.maxsize < 2 ** 63 - 1:
+        return None
+    words = (ctypes.c_uint64 * 10).from_address(handle)
+    name = instance_name.encode()
+    if words[3] != len(name) or not words[2] or ctypes.string_at(words[2], len(name)) != name \
+            or not words[9]:
+        return None
+    functions = (ctypes.c_void_p * 5).from_address(words[9])   # logger, alloc, free, stepFinished, env
+    if not functions[0]:
+        return None
+    callback, environment = _LOGGER(functions[0]), functions[4]
+
+    def log(status: int, category: str, message: str) -> None:
+        # the message is a printf format for the host (FMI 2.0, fmi2CallbackLogger)
+        callback(environment, name, status, category.encode(), message.replace("%", "%%").encode())
+    return log
+
+
 class FlexFusionSlave(Fmi2Slave):
     """Base class of every FlexFusion FMU (see the module docstring).
 
@@ -88,10 +149,14 @@ class FlexFusionSlave(Fmi2Slave):
     ``nan_inputs``
         ``"error"`` (default): a non-finite input ends the step with an FMI error naming it;
         ``"pass"``: the component handles non-finite inputs itself (and flags them).
+    ``nan_outputs``
+        ``"error"`` (default): reading a non-finite output is an FMI error naming it;
+        ``"pass"``: allowed (a test toy standing for a third-party FMU that outputs NaN).
     """
 
     parameters_class: type | None = None
     nan_inputs: str = "error"
+    nan_outputs: str = "error"
     author = "FlexFusion"
     license = "MIT"
 
@@ -118,6 +183,9 @@ class FlexFusionSlave(Fmi2Slave):
         self._inputs_dirty = False
         self._stale = True        # the model is not built from the current parameters and inputs
         self._phase = "instantiated"   # -> "initialization" -> "stepping" -> "terminated"
+        self._arrays: dict[str, np.ndarray] = {}   # every vector variable's array, by attribute
+        self._output_vrs: set[int] = set()
+        self._host_log = _host_logger(kwargs.get("logger"), self.instance_name)
         self._real_getters: dict | None = None   # value reference -> getter, built on first use
         self._real_setters: dict | None = None
         self._ready = False
@@ -142,23 +210,28 @@ class FlexFusionSlave(Fmi2Slave):
             setattr(self, attr, float(start))  # type: ignore[arg-type]
 
             def setter(v: float, attr: str = attr) -> None:
-                setattr(self, attr, float(v))
                 if on_set:
-                    on_set()
+                    on_set()          # first: a fixed parameter refuses the change
+                setattr(self, attr, float(v))
+            if causality == Fmi2Causality.output:
+                self._output_vrs.add(len(self.vars))
             self._register(Real(attr, causality=causality, description=description,
                                 variability=variability, initial=initial,
                                 getter=lambda attr=attr: getattr(self, attr), setter=setter), unit)
             return
         values = np.broadcast_to(np.asarray(start, dtype=float), (size,)).copy()
         setattr(self, attr, values)
+        self._arrays[attr] = values
         # getters and setters bind the array itself (fast): assign vectors in place, never rebind
         for i in range(size):
             getter = partial(values.item, i)
+            if causality == Fmi2Causality.output:
+                self._output_vrs.add(len(self.vars))
 
             def setter(v: float, i: int = i) -> None:
-                values[i] = v
                 if on_set:
                     on_set()
+                values[i] = v
             self._register(Real(f"{attr}[{i + 1}]", causality=causality,
                                 description=f"{description} ({i + 1})", variability=variability,
                                 initial=initial, getter=getter, setter=setter), unit)
@@ -208,11 +281,11 @@ class FlexFusionSlave(Fmi2Slave):
                 size = len(value) if isinstance(value, tuple) else None
                 self._declare_real_array(f.name, size, Fmi2Causality.parameter, meta.get("unit", "1"),
                                          desc, value, Fmi2Variability.fixed, Fmi2Initial.exact,
-                                         on_set=self._parameter_set)
+                                         on_set=partial(self._parameter_set, f.name))
 
     def _set_parameter(self, name: str, kind: type, value: Any) -> None:
+        self._parameter_set(name)
         setattr(self, name, kind(value))
-        self._parameter_set()
 
     def _collect_parameters(self) -> Any:
         values = {}
@@ -225,7 +298,12 @@ class FlexFusionSlave(Fmi2Slave):
         self._inputs_dirty = True
         self._stale = True
 
-    def _parameter_set(self) -> None:
+    def _parameter_set(self, name: str) -> None:
+        if self._phase not in ("instantiated", "initialization"):
+            msg = (f"{self.instance_name}: parameter '{name}' is fixed: it cannot change after "
+                   "initialisation (FMI 2.0, variability \"fixed\")")
+            self.log(msg, Fmi2Status.error)
+            raise ValueError(msg)
         self._stale = True
 
     # ---- what a subclass implements ------------------------------------------------------
@@ -246,6 +324,20 @@ class FlexFusionSlave(Fmi2Slave):
         else:
             msg = f"{self.instance_name}: {where}: {type(exc).__name__}: {exc}\n{traceback.format_exc()}"
         self.log(msg, Fmi2Status.error)
+
+    def log(self, msg: str, status: Fmi2Status = Fmi2Status.ok, category: str | None = None,
+            debug: Any = None) -> None:
+        """pythonfmu's log, except that errors always reach the host.
+
+        pythonfmu 0.7 passes a message to the host's logger only while the host has debug
+        logging on (and its category enabled). An error must be reported whatever the host's
+        setting, as the Reference-FMUs do (their ``logError`` ignores ``loggingOn``): errors go
+        straight to the host's ``fmi2CallbackLogger`` when we can reach it.
+        """
+        if self._host_log is not None and status in (Fmi2Status.error, Fmi2Status.fatal):
+            self._host_log(status.value, category or f"logStatus{status.name.capitalize()}", msg)
+        else:
+            super().log(msg, status, category)
 
     def setup_experiment(self, start_time: float, stop_time: float | None, tolerance: float | None) -> None:
         self._time = float(start_time)
@@ -282,6 +374,13 @@ class FlexFusionSlave(Fmi2Slave):
                 raise FloatingPointError(f"input '{name}' is not finite ({v}) at t = {t:.6g} s")
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        if not (step_size > 0.0 and math.isfinite(step_size) and math.isfinite(current_time)) \
+                or self._phase != "stepping":
+            msg = (f"{self.instance_name}: fmi2DoStep(t = {current_time!r}, h = {step_size!r}) "
+                   + ("refused: the step size must be finite and > 0, the time finite"
+                      if self._phase == "stepping" else f"called in the {self._phase} state"))
+            self.log(msg, Fmi2Status.error)
+            raise ValueError(msg)           # an FMI error status, not a Discard
         try:
             if self.nan_inputs == "error":
                 self._check_inputs(current_time)
@@ -308,9 +407,56 @@ class FlexFusionSlave(Fmi2Slave):
             getters = self._real_getters = {vr: var.getter for vr, var in self.vars.items()
                                             if isinstance(var, Real)}
         try:
-            return [getters[vr]() for vr in vrs]    # floats or numpy float64 (a float)
+            values = [getters[vr]() for vr in vrs]    # floats or numpy float64 (a float)
         except KeyError:
             return super().get_real(vrs)     # pythonfmu's message for a non-Real reference
+        total = sum(values)
+        if total - total != 0.0 and self.nan_outputs == "error":   # NaN, inf, or an overflowed sum
+            self._check_outputs(vrs, values)
+        return values
+
+    def _check_outputs(self, vrs: list[int], values: list[float]) -> None:
+        bad = [(self.vars[vr].name, v) for vr, v in zip(vrs, values)
+               if vr in self._output_vrs and not math.isfinite(v)]
+        if bad:
+            msg = (f"{self.instance_name}: output '{bad[0][0]}' is not finite ({bad[0][1]}) at "
+                   f"t = {self._time:.6g} s" + (f" (also {', '.join(n for n, _ in bad[1:])})" if bad[1:] else ""))
+            self.log(msg, Fmi2Status.error)
+            raise FloatingPointError(msg)
+
+    def terminate(self) -> None:
+        self._phase = "terminated"
+
+    # ---- FMU state: the complete internal state, restored bit-exactly ----------------------
+    def _get_fmu_state(self) -> dict[str, Any]:
+        """A deep copy of everything the slave holds but its declarations (model, filter
+        covariances, particles, RNG states, integrators, inputs, outputs, parameters, mode).
+
+        The vector variables' arrays are bound to the FMI getters and setters, so the copy
+        refers to them by name and :meth:`_set_fmu_state` writes them in place."""
+        memo: dict[Any, Any] = {id(a): _Bound(name) for name, a in self._arrays.items()}
+        memo[id(self)] = _Bound("")
+        attrs = {k: v for k, v in vars(self).items() if k not in _NOT_STATE}
+        return {"arrays": {k: a.copy() for k, a in self._arrays.items()},
+                "attrs": copy.deepcopy(attrs, memo)}
+
+    def _set_fmu_state(self, state: dict[str, Any]) -> None:
+        for name, values in state["arrays"].items():
+            self._arrays[name][:] = values
+        bound = dict(self._arrays, **{"": self})
+        attrs = copy.deepcopy(state["attrs"], {_BOUND: bound})   # a fresh copy: restorable again
+        for k in [k for k in vars(self) if k not in _NOT_STATE and k not in attrs]:
+            delattr(self, k)                 # made after the state was saved
+        for k, v in attrs.items():
+            setattr(self, k, v)
+
+    @staticmethod
+    def _fmu_state_to_bytes(state: dict[str, Any]) -> bytes:
+        return pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
+
+    @staticmethod
+    def _fmu_state_from_bytes(data: bytes) -> dict[str, Any]:
+        return pickle.loads(data)  # noqa: S301 - our own state, from the host that saved it
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
         setters = self._real_setters
@@ -326,6 +472,9 @@ class FlexFusionSlave(Fmi2Slave):
     # ---- modelDescription ----------------------------------------------------------------
     def to_xml(self, model_options: dict[str, str] = dict()) -> Element:  # noqa: B006 - pythonfmu's signature
         root = super().to_xml(model_options)
+        cosim = root.find("CoSimulation")
+        cosim.set("canGetAndSetFMUstate", "true")     # see _get_fmu_state
+        cosim.set("canSerializeFMUstate", "true")
         used = set()
         index_of = {}
         for i, sv in enumerate(root.find("ModelVariables")):

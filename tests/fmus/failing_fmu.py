@@ -18,6 +18,7 @@ class Failing(FlexFusionSlave):
     """y = t until ``fail_at``, then an FMI error or NaN (test toy)."""
 
     parameters_class = FailingParameters
+    nan_outputs = "pass"          # stands for a third-party FMU: the master must catch the NaN
     description = "failing test toy"
 
     def __init__(self, **kwargs):

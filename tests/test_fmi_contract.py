@@ -1,0 +1,110 @@
+"""The FMI 2.0 contract of every FlexFusion FMU (issue 13): bad step sizes and non-finite
+outputs are errors with a logged cause, errors reach the host's logger even without debug
+logging, fixed parameters refuse changes after initialisation, and get/set FMU state restores
+the complete internal state bit-exactly (also through serialisation).
+
+With pythonfmu 0.7's native layer an exception of the slave becomes ``fmi2Fatal`` (it has no
+path to ``fmi2Error``): the tests accept either error status, never OK or Discard.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import read_model_description
+from fmpy.fmi1 import FMICallException
+from numpy.testing import assert_array_equal
+
+from fmu_host import Slave, every_fmu
+
+ERROR, FATAL = 3, 4
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory) -> dict[str, Path]:
+    return {p.stem: p for p in every_fmu(tmp_path_factory)}
+
+
+def _status(call, *args) -> int:
+    try:
+        call(*args)
+    except FMICallException as exc:
+        return exc.status
+    return 0
+
+
+@pytest.mark.parametrize("h", [float("nan"), 0.0, -1e-3, float("inf")])
+def test_bad_step_size_is_an_error_logged_without_debug_logging(fmus, h) -> None:
+    s = Slave(fmus["Encoder"], init=True, logging_on=False)
+    assert _status(s.fmu.doStep, 0.0, h) in (ERROR, FATAL)
+    s.close()
+    assert s.log.has("step size must be finite and > 0"), s.log
+
+
+def test_do_step_before_initialisation_is_an_error(fmus) -> None:
+    s = Slave(fmus["Encoder"], logging_on=False)
+    assert _status(s.fmu.doStep, 0.0, 1e-3) in (ERROR, FATAL)
+    assert s.log.has("called in the initialization state"), s.log
+
+
+def test_non_finite_output_is_an_error_naming_it(fmus) -> None:
+    s = Slave(fmus["FlexibleRobot2DOF"], init=True, logging_on=False)
+    s.set(tau_m=[1e300, 1e300])            # finite, absurd: the states overflow
+    s.step(1e-3)
+    vrs = [s.vr[f"q_a[{i}]"] for i in (1, 2)]
+    assert _status(s.fmu.getReal, vrs) in (ERROR, FATAL)
+    assert s.log.has("output 'q_a[1]' is not finite", "t = 0.001 s"), s.log
+
+
+def test_fixed_parameter_refuses_a_change_after_initialisation(fmus) -> None:
+    s = Slave(fmus["Encoder"], {"noise": 1e-5}, init=True, logging_on=False)
+    assert _status(s.fmu.setReal, [s.vr["noise"]], [2e-5]) in (ERROR, FATAL)
+    assert s.log.has("parameter 'noise' is fixed"), s.log
+    assert s.get("noise") == 1e-5
+    before = Slave(fmus["Encoder"])              # in Initialization Mode it may change
+    before.fmu.setReal([before.vr["noise"]], [2e-5])
+    before.init()
+    assert before.get("noise") == 2e-5
+
+
+def _drive(s: Slave, inputs: list[str], k0: int, n: int, h: float) -> np.ndarray:
+    """n steps with smoothly varying inputs (a function of the step number), the outputs after each."""
+    outputs = [v.valueReference for v in s.md.modelVariables if v.causality == "output"]
+    rows = []
+    for k in range(k0, k0 + n):
+        if inputs:
+            s.fmu.setReal([s.vr[i] for i in inputs],
+                          [0.01 * (j + 1) * np.sin(0.3 * k + j) + (9.81 if "acc_s[3]" == i else 0.0)
+                           for j, i in enumerate(inputs)])
+        s.fmu.doStep(k * h, h)
+        rows.append(s.fmu.getReal(outputs))
+    return np.array(rows)
+
+
+def test_every_fmu_declares_and_restores_its_complete_state(fmus) -> None:
+    h, n1, n2 = 1e-3, 15, 25
+    for name, path in fmus.items():
+        md = read_model_description(str(path))
+        assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate, name
+        inputs = [v.name for v in md.modelVariables if v.causality == "input"]
+        s = Slave(path, init=True)
+        _drive(s, inputs, 0, n1, h)
+        state = s.fmu.getFMUstate()
+        data = s.fmu.serializeFMUstate(state)
+        reference = _drive(s, inputs, n1, n2, h)
+        s.fmu.setFMUstate(state)
+        again = _drive(s, inputs, n1, n2, h)
+        s.fmu.setFMUstate(state)                        # a state can be restored twice
+        twice = _drive(s, inputs, n1, n2, h)
+        s.fmu.freeFMUstate(state)
+        s.close()
+        other = Slave(path, init=True)                  # another instance, from the bytes
+        restored = other.fmu.deSerializeFMUstate(data)
+        other.fmu.setFMUstate(restored)
+        copied = _drive(other, inputs, n1, n2, h)
+        other.close()
+        assert np.all(np.isfinite(reference)), name
+        assert_array_equal(again, reference, err_msg=name)
+        assert_array_equal(twice, reference, err_msg=name)
+        assert_array_equal(copied, reference, err_msg=name)

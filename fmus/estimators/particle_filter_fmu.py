@@ -13,7 +13,10 @@ the measurements set at ``t`` (direct feedthrough from ``q_m_meas`` and ``acc_s`
 reference inputs at ``t`` and ``t + T``
 and fuses the measurement inputs as they are now, as the measurement at ``t + T``. Recomputing
 the update for changed inputs redraws the same random numbers (the RNG advances on commit), so
-a run is reproducible for a given ``seed`` whatever the master's get/set pattern.
+a run is reproducible for a given ``seed`` whatever the master's get/set pattern. The period
+``T`` is the host's step rounded to 12 significant digits (the base class's nominal step): hosts
+pass steps that differ in the last bits (fmpy's ``simulate_fmu``: ``(n + 1) h - n h``), which
+changed ``F`` and ``Q`` and so the estimate from the first such step on.
 """
 from __future__ import annotations
 

@@ -185,8 +185,12 @@ def main(argv: list[str] | None = None) -> int:
 
     p_study = sub.add_parser("study", help="studies: Monte Carlo, tuning, robustness, ...")
     kinds = p_study.add_subparsers(dest="study", required=True, metavar="KIND")
-    for module in study_modules():
-        module.register(kinds)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if next((a for a in argv if not a.startswith("-")), None) == "study":
+        # only then: the study modules import the working tree's `fmus` (models, CRLB), which a
+        # run must not (it runs the FMUs' own bundled copies)
+        for module in study_modules():
+            module.register(kinds)
 
     args, rest = parser.parse_known_args(argv)
     if args.command == "build":

@@ -16,6 +16,7 @@ library is unloaded, and a process that has hosted them ends with
 """
 from __future__ import annotations
 
+import atexit
 import os
 import sys
 
@@ -47,7 +48,12 @@ def keep_fmu_instances_alive() -> None:
 
 
 def exit_without_finalizers(status: int) -> None:
-    """Flush stdout/stderr and end the process without running library destructors."""
+    """Run the Python exit handlers (e.g. the removal of the FMU extraction folders), flush
+    stdout/stderr and end the process without running library destructors."""
+    try:
+        atexit._run_exitfuncs()
+    except Exception:  # noqa: BLE001 - a failing handler must not stop the exit
+        pass
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

@@ -132,7 +132,8 @@ def _host_logger(handle: Any, instance_name: str) -> Any:
     """
     if callable(handle):
         return handle
-    if not isinstance(handle, int) or handle <= 0 or sys.maxsize < 2 ** 63 - 1:
+    if not isinstance(handle, int) or handle <= 0 or sys.platform != "linux" \
+            or sys.maxsize < 2 ** 63 - 1:
         return None
     words = (ctypes.c_uint64 * 10).from_address(handle)
     name = instance_name.encode()

@@ -45,6 +45,7 @@ def test_bad_step_size_is_an_error_logged_without_debug_logging(fmus, h) -> None
 def test_do_step_before_initialisation_is_an_error(fmus) -> None:
     s = Slave(fmus["Encoder"], logging_on=False)
     assert _status(s.fmu.doStep, 0.0, 1e-3) in (ERROR, FATAL)
+    s.close()
     assert s.log.has("called in the initialization state"), s.log
 
 
@@ -62,10 +63,14 @@ def test_fixed_parameter_refuses_a_change_after_initialisation(fmus) -> None:
     assert _status(s.fmu.setReal, [s.vr["noise"]], [2e-5]) in (ERROR, FATAL)
     assert s.log.has("parameter 'noise' is fixed"), s.log
     assert s.get("noise") == 1e-5
+    assert _status(s.fmu.setInteger, [s.vr["seed"]], [7]) in (ERROR, FATAL)
+    assert s.log.has("parameter 'seed' is fixed"), s.log
+    s.close()
     before = Slave(fmus["Encoder"])              # in Initialization Mode it may change
     before.fmu.setReal([before.vr["noise"]], [2e-5])
     before.init()
     assert before.get("noise") == 2e-5
+    before.close()
 
 
 def _drive(s: Slave, inputs: list[str], k0: int, n: int, h: float) -> np.ndarray:

@@ -434,8 +434,9 @@ class FlexFusionSlave(Fmi2Slave):
         bad = [(self.vars[vr].name, v) for vr, v in zip(vrs, values)
                if vr in self._output_vrs and not math.isfinite(v)]
         if bad:
+            also = f" (also {', '.join(n for n, _ in bad[1:])})" if bad[1:] else ""
             msg = (f"{self.instance_name}: output '{bad[0][0]}' is not finite ({bad[0][1]}) at "
-                   f"t = {self._time:.6g} s" + (f" (also {', '.join(n for n, _ in bad[1:])})" if bad[1:] else ""))
+                   f"t = {self._time:.6g} s{also}")
             self.log(msg, Fmi2Status.error)
             raise FloatingPointError(msg)
 

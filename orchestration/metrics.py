@@ -5,6 +5,9 @@
 * :func:`bandpass_errors` -- max and mean of the error norm after a 3–30 Hz band-pass, as in
   Table I of the 2009 paper (Karlsson & Norrlöf / Henriksson et al., tool position estimation).
 * :func:`max_error` -- largest Euclidean error.
+
+A scenario's "truth" may be the plant's truth or a reference system's measurement (the papers'
+laser tracker, with its own noise, rate and time skew): :func:`entries` records which.
 """
 from __future__ import annotations
 
@@ -112,4 +115,13 @@ def compute(spec: Any, time: np.ndarray, estimate: np.ndarray, truth: np.ndarray
     raise ValueError(f"unknown metric kind {spec.kind!r}")
 
 
-__all__ = ["rmse", "max_error", "bandpass_errors", "compute"]
+def entries(spec: Any, values: dict[str, float]) -> dict[str, dict[str, Any]]:
+    """The ``metrics.json`` entries of one spec's :func:`compute` values: each value with what
+    it compares (``estimate``, ``truth``) and whether that ``truth`` is the plant's truth or a
+    reference system's measurement (``against``: ``"truth"`` | ``"reference"`` | another role,
+    :func:`orchestration.roles.against`)."""
+    return {name: {"value": v, "kind": spec.kind, "estimate": spec.estimate, "truth": spec.truth,
+                   "against": spec.against} for name, v in values.items()}
+
+
+__all__ = ["rmse", "max_error", "bandpass_errors", "compute", "entries"]

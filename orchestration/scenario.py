@@ -675,6 +675,11 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
                     metrics=metrics, overrides=overrides, source=doc, oracles=oracles)
 
 
+def connection_key(text: str) -> str:
+    """A connection as ``"a.x -> b.y"``, whatever the spaces it was written with."""
+    return " -> ".join(part.strip() for part in text.split("->"))
+
+
 def _check_honest_signals(label: str, oracles: Any, connections: list[Connection],
                           components: dict[str, Component]) -> list[str]:
     """Warn once per connection that feeds plant truth to an estimator or controller and is
@@ -686,7 +691,7 @@ def _check_honest_signals(label: str, oracles: Any, connections: list[Connection
     by_text = {str(c): c for c in connections}
     marked = []
     for text in oracles:
-        key = " -> ".join(s.strip() for s in text.split("->"))
+        key = connection_key(text)
         if text.count("->") != 1 or key not in by_text:
             raise ScenarioError(f"{label}: oracle {text!r} is not one of the connections")
         marked.append(key)
@@ -732,4 +737,5 @@ def _deepcopy(doc: Any) -> Any:
 
 
 __all__ = ["ScenarioError", "Scenario", "Component", "Connection", "MetricSpec", "VariableInfo",
-           "load_scenario", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables"]
+           "load_scenario", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
+           "connection_key"]

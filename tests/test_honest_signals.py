@@ -137,3 +137,17 @@ def test_metrics_say_what_they_compare_with(fmus, tmp_path):
     loaded = type(result).load(tmp_path)
     assert loaded.metrics == result.metrics and loaded.against == result.against
     assert np.isfinite(list(result.metrics.values())).all()
+
+
+def test_the_tuning_study_prunes_oracles_with_their_connections(fmus):
+    """study tune keeps only the components an estimate needs: an oracle of a dropped
+    connection goes with it (else the pruned scenario would not load), a kept one stays."""
+    from orchestration.study_tune import prune
+    oracle = "plant.q_m -> rigid.q_m_meas"
+    doc = arm(oracles=[oracle.replace(" ", "")])
+    doc["connections"] = [oracle if c == "encoder.q_m_meas -> rigid.q_m_meas" else c for c in doc["connections"]]
+    kept = prune(doc, ["rigid.p_tool_hat"])
+    assert kept["oracles"] == [oracle.replace(" ", "")] and honest_warnings(kept) == []
+    dropped = prune(doc, ["tracker.p_tool_meas"])
+    assert "rigid" not in dropped["components"] and dropped["oracles"] == []
+    assert honest_warnings(dropped) == []                 # and it loads

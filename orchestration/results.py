@@ -163,7 +163,10 @@ class Result:
         metrics, against = {}, {}
         if (out_dir / METRICS_NAME).is_file():
             for name, e in json.loads((out_dir / METRICS_NAME).read_text()).items():
-                metrics[name], against[name] = e["value"], e["against"]
+                if isinstance(e, dict):
+                    metrics[name], against[name] = e["value"], e["against"]
+                else:                       # a run written before metrics said what they compare
+                    metrics[name] = e
         status, error, warns = "ok", None, []
         if (out_dir / RUN_NAME).is_file():
             info = json.loads((out_dir / RUN_NAME).read_text())

@@ -29,13 +29,6 @@ Format::
     oracles = []   # (top level) connections that feed plant truth to an estimator or a
                    # controller on purpose, e.g. ["plant.p_tool -> observer.p_tool"]
 
-Honest signals (:mod:`orchestration.roles`): a truth output (of the plant, the contact
-environment or a force pulse) may feed only sensors, the environment, the plant and the
-reference system (Tracker); the MotionController may read the plant's q_m and dq_m (the drive's
-own motor feedback). Any other such connection gives an :class:`HonestSignalWarning` when the
-scenario is loaded, unless it is listed in ``oracles`` (each entry must be one of the
-``connections``, written the same way up to spaces).
-
     [record]
     variables = ["plant.p_tool"]   # default: every connected output (whole vectors)
     interval = 0.001               # default: base_step
@@ -49,6 +42,13 @@ scenario is loaded, unless it is listed in ``oracles`` (each entry must be one o
     # metrics.json says what `truth` is: "against" = "truth" (plant, environment), "reference"
     # (a reference system such as the Tracker) or the providing component's role
     # bandpass only: low = 3.0, high = 30.0, order = 4 (Hz, Hz, Butterworth order)
+
+Honest signals (:mod:`orchestration.roles`): a truth output (of the plant, the contact
+environment or a force pulse) may feed only sensors, the environment, the plant and the
+reference system (Tracker); the MotionController may read the plant's q_m and dq_m (the drive's
+own motor feedback). Any other such connection gives an :class:`HonestSignalWarning` when the
+scenario is loaded, unless it is listed in ``oracles`` (each entry must be one of the
+``connections``, written the same way up to spaces, else :class:`ScenarioError`).
 
 Overrides (``--set``) are strings ``comp.param=value`` (value parsed as a TOML value, a vector as
 ``[1, 2]``), ``comp.param[2]=value`` and ``scenario.<key>=value`` for ``seed``, ``stop_time``,
@@ -688,11 +688,11 @@ def _check_honest_signals(label: str, oracles: Any, connections: list[Connection
     if not isinstance(oracles, list) or not all(isinstance(o, str) for o in oracles):
         raise ScenarioError(f"{label}: 'oracles' must be a list of \"a.x -> b.y\" strings "
                             "(put it before the first [table])")
-    by_text = {str(c): c for c in connections}
+    written = {str(c) for c in connections}
     marked = []
     for text in oracles:
         key = connection_key(text)
-        if text.count("->") != 1 or key not in by_text:
+        if text.count("->") != 1 or key not in written:
             raise ScenarioError(f"{label}: oracle {text!r} is not one of the connections")
         marked.append(key)
     for c in roles.dishonest_connections(connections, components):

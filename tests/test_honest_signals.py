@@ -151,3 +151,11 @@ def test_the_tuning_study_prunes_oracles_with_their_connections(fmus):
     dropped = prune(doc, ["tracker.p_tool_meas"])
     assert "rigid" not in dropped["components"] and dropped["oracles"] == []
     assert honest_warnings(dropped) == []                 # and it loads
+
+
+def test_a_run_folder_with_the_old_flat_metrics_still_loads(tmp_path):
+    from orchestration import Result
+    (tmp_path / "results.csv").write_text('"time","a.y"\n0.0,1.0\n0.1,2.0\n')
+    (tmp_path / "metrics.json").write_text('{"e_rmse": 0.5}\n')
+    r = Result.load(tmp_path)
+    assert r.metrics == {"e_rmse": 0.5} and r.against == {}

@@ -589,7 +589,8 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     described: dict[str, dict[str, Any]] = {}
     for spec in sc.metrics:
         try:
-            computed = _metrics.compute(spec, result.time, result[spec.estimate], result[spec.truth])
+            computed = _metrics.compute(spec, result.time, result[spec.estimate], result[spec.truth],
+                                        result[spec.truth_time] if spec.truth_time else None)
         except ValueError as exc:
             raise ScenarioError(f"metric '{spec.name}': {exc}") from None
         values.update(computed)

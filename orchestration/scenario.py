@@ -41,6 +41,8 @@ Format::
     after = 0.5                    # s: ignore the start (default 0)
     # metrics.json says what `truth` is: "against" = "truth" (plant, environment), "reference"
     # (a reference system such as the Tracker) or the providing component's role
+    truth_time = "tracker.t_meas"  # optional: the truth's sample times; compare only at fresh
+                                   # samples, the estimate interpolated to their time stamps
     # bandpass only: low = 3.0, high = 30.0, order = 4 (Hz, Hz, Butterworth order)
 
 Honest signals (:mod:`orchestration.roles`): a truth output (of the plant, the contact
@@ -148,6 +150,7 @@ class MetricSpec:
     high: float = 30.0
     order: int = 4
     against: str = "truth"   # what `truth` is: truth | reference | another role (roles.against)
+    truth_time: str | None = None   # the truth's sample time stamps (a held, skewed measurement)
 
 
 @dataclass
@@ -631,7 +634,8 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     metrics: list[MetricSpec] = []
     for i, m in enumerate(metrics_doc):
         where = f"{label}: [[metrics]] #{i + 1}"
-        _check_keys(where, m, {"kind", "name", "estimate", "truth", "after", "low", "high", "order"})
+        _check_keys(where, m, {"kind", "name", "estimate", "truth", "truth_time", "after", "low", "high",
+                               "order"})
         for key in ("kind", "estimate", "truth"):
             if key not in m:
                 raise ScenarioError(f"{where}: '{key}' is missing")
@@ -649,6 +653,14 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
         if sizes[0] != sizes[1]:
             raise ScenarioError(f"{where}: size mismatch: estimate {m['estimate']!r} has {sizes[0]} "
                                 f"element(s), truth {m['truth']!r} has {sizes[1]}")
+        truth_time = m.get("truth_time")
+        if truth_time is not None:
+            comp, var, group = _lookup(f"{where}: truth_time", components, truth_time)
+            if len(group) != 1 or comp.variables[group[0]].unit not in (None, "s"):
+                raise ScenarioError(f"{where}: truth_time {truth_time!r} must be a scalar time (s), "
+                                    "the sample time of the truth (e.g. tracker.t_meas)")
+            if f"{comp.name}.{var}" not in record:
+                record.append(f"{comp.name}.{var}")
         after = _number(f"{where}: after", m.get("after", 0.0), positive=False)
         low = _number(f"{where}: low", m.get("low", 3.0))
         high = _number(f"{where}: high", m.get("high", 30.0))
@@ -662,7 +674,7 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
             raise ScenarioError(f"{where}: order must be a positive integer")
         truth_comp = components[_split_ref(where, m["truth"])[0]]
         metrics.append(MetricSpec(m["kind"], mname, m["estimate"], m["truth"], after, low, high, order,
-                                  roles.against(truth_comp)))
+                                  roles.against(truth_comp), truth_time))
     names = [m.name for m in metrics]
     dup = {n for n in names if names.count(n) > 1}
     if dup:

@@ -159,3 +159,28 @@ def test_a_run_folder_with_the_old_flat_metrics_still_loads(tmp_path):
     (tmp_path / "metrics.json").write_text('{"e_rmse": 0.5}\n')
     r = Result.load(tmp_path)
     assert r.metrics == {"e_rmse": 0.5} and r.against == {}
+
+
+def test_metrics_at_the_references_own_sample_times(fmus, tmp_path):
+    """A 250 Hz tracker holds each sample for 4 ms: compared row by row the hold counts as an
+    error; with truth_time = "tracker.t_meas" only fresh samples count, each at its stamp, and
+    a noise- and skew-free tracker agrees with the truth exactly."""
+    doc = arm()
+    doc["components"]["tracker"]["parameters"] = {"noise": 0.0, "skew": 0.0, "sample_rate": 250.0}
+    doc["scenario"]["stop_time"] = 0.7          # the square path starts moving at 0.5 s
+    doc["metrics"] = [
+        {"kind": "max", "name": "held", "estimate": "plant.p_tool", "truth": "tracker.p_tool_meas"},
+        {"kind": "max", "name": "stamped", "estimate": "plant.p_tool", "truth": "tracker.p_tool_meas",
+         "truth_time": "tracker.t_meas"},
+    ]
+    with pytest.warns(CouplingWarning):
+        result = run(doc, out_dir=tmp_path)
+    assert result.metrics["held"] > 1e-6
+    assert result.metrics["stamped"] == 0.0
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["stamped"]["truth_time"] == "tracker.t_meas" and "truth_time" not in m["held"]
+    bad = arm()
+    bad["metrics"] = [{"kind": "max", "estimate": "plant.p_tool", "truth": "tracker.p_tool_meas",
+                       "truth_time": "tracker.p_tool_meas"}]
+    with pytest.raises(ScenarioError, match="truth_time"):
+        load_scenario(bad)

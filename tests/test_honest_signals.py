@@ -8,6 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import pythonfmu.builder  # noqa: F401 - at collection, before any FMU runs in this process: after
+# a run, `pythonfmu` resolves to an FMU's bundled copy, and build_all would then make FMUs
+# without binaries (the copy has no resources/binaries)
 
 from orchestration import CouplingWarning, HonestSignalWarning, ScenarioError, load_scenario, run
 from orchestration import roles

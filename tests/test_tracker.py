@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import pythonfmu.builder  # noqa: F401 - at collection, before any FMU runs in this process: after
+# a run, `pythonfmu` resolves to an FMU's bundled copy, and build_all would then make FMUs
+# without binaries (the copy has no resources/binaries)
 from numpy.testing import assert_allclose
 
 from fmu_host import Slave

@@ -14,8 +14,8 @@ from fmus.robot_plant.sensor_model import G, SensorChannels, imu_reading
 
 MEMS = ("16-bit MEMS IMU class (e.g. Bosch BMI160 / TDK ICM-20948 data sheets: +-16 g, "
         "+-2000 deg/s, 16-bit output)")
-CALIBRATION = ("assumed, left after a user calibration: within the sensitivity tolerances of MEMS "
-               "data sheets (BMI160 / ICM-20948: about 0.5-1.5 %)")
+CALIBRATION = ("assumed, no user calibration: within the sensitivity tolerances of MEMS data sheets "
+               "(BMI160 / ICM-20948 class: about 0.5-1.5 %)")
 MOUNTING = "assumed: mounting tolerance of a bracket on the tool, about 0.1-0.3 deg"
 ACC_RANGE = 16.0 * G
 GYRO_RANGE = math.radians(2000.0)

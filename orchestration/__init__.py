@@ -8,6 +8,8 @@ Python API::
 """
 from .master import CouplingWarning, RunError, run
 from .results import Result
+from .roles import HonestSignalWarning
 from .scenario import ScenarioError, load_scenario
 
-__all__ = ["run", "Result", "ScenarioError", "RunError", "CouplingWarning", "load_scenario"]
+__all__ = ["run", "Result", "ScenarioError", "RunError", "CouplingWarning", "HonestSignalWarning",
+           "load_scenario"]

@@ -586,16 +586,21 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     wall = time.perf_counter() - t0
     result = Result.load(out)
     values: dict[str, float] = {}
+    described: dict[str, dict[str, Any]] = {}
     for spec in sc.metrics:
         try:
-            values.update(_metrics.compute(spec, result.time, result[spec.estimate], result[spec.truth]))
+            computed = _metrics.compute(spec, result.time, result[spec.estimate], result[spec.truth],
+                                        result[spec.truth_time] if spec.truth_time else None)
         except ValueError as exc:
             raise ScenarioError(f"metric '{spec.name}': {exc}") from None
-    write_json(out / METRICS_NAME, values)
+        values.update(computed)
+        described.update(_metrics.entries(spec, computed))
+    write_json(out / METRICS_NAME, described)
     info.update(status="ok", wall_time_s=wall, real_time_factor=sc.stop_time / wall if wall > 0 else None,
                 warnings=notes)
     write_json(out / RUN_NAME, info)
     result.metrics = values
+    result.against = {name: e["against"] for name, e in described.items()}
     result.warnings = notes
     return result
 

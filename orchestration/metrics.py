@@ -5,6 +5,9 @@
 * :func:`bandpass_errors` -- max and mean of the error norm after a 3–30 Hz band-pass, as in
   Table I of the 2009 paper (Karlsson & Norrlöf / Henriksson et al., tool position estimation).
 * :func:`max_error` -- largest Euclidean error.
+
+A scenario's "truth" may be the plant's truth or a reference system's measurement (the papers'
+laser tracker, with its own noise, rate and time skew): :func:`entries` records which.
 """
 from __future__ import annotations
 
@@ -93,12 +96,34 @@ def bandpass_errors(estimate: np.ndarray, truth: np.ndarray, fs: float, low: flo
     return float(np.max(norm)), float(np.mean(norm))
 
 
-def compute(spec: Any, time: np.ndarray, estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+def at_sample_times(time: np.ndarray, estimate: np.ndarray, truth: np.ndarray, truth_time: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fresh samples of a held, time-stamped truth (a reference system's measurement) and
+    the estimate linearly interpolated to their stamps: ``(stamps, estimate, truth)``.
+
+    A sample is fresh where ``truth_time`` changes (and the first row); held repeats are
+    dropped, so the hold does not count as an error and the comparison is at the time the
+    measurement says it belongs to."""
+    time, truth_time = np.asarray(time, dtype=float), np.asarray(truth_time, dtype=float).reshape(-1)
+    fresh = np.r_[True, np.diff(truth_time) != 0.0]
+    stamps = truth_time[fresh]
+    est = np.asarray(estimate, dtype=float)
+    est = est.reshape(len(est), -1)
+    interp = np.column_stack([np.interp(stamps, time, est[:, j]) for j in range(est.shape[1])])
+    truth = np.asarray(truth, dtype=float)
+    return stamps, interp.reshape((len(stamps),) + np.shape(estimate)[1:]), truth[fresh]
+
+
+def compute(spec: Any, time: np.ndarray, estimate: np.ndarray, truth: np.ndarray,
+            truth_time: np.ndarray | None = None) -> dict[str, float]:
     """Evaluate one scenario metric spec (:class:`orchestration.scenario.MetricSpec`).
 
     Returns ``{name: value}`` for ``rmse`` and ``max``, ``{name_max: .., name_mean: ..}`` for
-    ``bandpass``. Samples with ``time < spec.after`` are left out.
+    ``bandpass``. Samples with ``time < spec.after`` are left out. With ``truth_time`` (the
+    truth's sample time stamps) only its fresh samples count (:func:`at_sample_times`).
     """
+    if truth_time is not None:
+        time, estimate, truth = at_sample_times(time, estimate, truth, truth_time)
     time = np.asarray(time, dtype=float)
     keep = time >= spec.after - 1e-12
     if spec.kind == "rmse":
@@ -112,4 +137,14 @@ def compute(spec: Any, time: np.ndarray, estimate: np.ndarray, truth: np.ndarray
     raise ValueError(f"unknown metric kind {spec.kind!r}")
 
 
-__all__ = ["rmse", "max_error", "bandpass_errors", "compute"]
+def entries(spec: Any, values: dict[str, float]) -> dict[str, dict[str, Any]]:
+    """The ``metrics.json`` entries of one spec's :func:`compute` values: each value with what
+    it compares (``estimate``, ``truth``) and whether that ``truth`` is the plant's truth or a
+    reference system's measurement (``against``: ``"truth"`` | ``"reference"`` | another role,
+    :func:`orchestration.roles.against`)."""
+    extra = {"truth_time": spec.truth_time} if spec.truth_time else {}
+    return {name: {"value": v, "kind": spec.kind, "estimate": spec.estimate, "truth": spec.truth,
+                   "against": spec.against, **extra} for name, v in values.items()}
+
+
+__all__ = ["rmse", "max_error", "bandpass_errors", "at_sample_times", "compute", "entries"]

@@ -9,7 +9,9 @@ Files in a run's folder:
     names are exactly the scalar names ``comp.var[i]`` (dots and brackets kept). Rows are
     flushed as the run goes, so a failing run keeps what it produced.
 ``metrics.json``
-    ``{metric name: value}`` (a band-pass metric gives ``name_max`` and ``name_mean``).
+    ``{metric name: {"value", "kind", "estimate", "truth", "against"}}`` (a band-pass metric
+    gives ``name_max`` and ``name_mean``); ``against`` is ``"truth"`` when ``truth`` is plant
+    truth, ``"reference"`` when it is a reference system's measurement (the Tracker).
 ``run.json``
     The resolved scenario, the overrides, package versions, wall time, status
     (``"ok"``/``"error"``) and the error message.
@@ -117,6 +119,7 @@ class Result:
     columns: list[str]
     data: np.ndarray                      # (n, len(columns))
     metrics: dict[str, float] = field(default_factory=dict)
+    against: dict[str, str] = field(default_factory=dict)    # metric name -> truth | reference | ...
     status: str = "ok"
     error: str | None = None
     warnings: list[str] = field(default_factory=list)
@@ -157,14 +160,18 @@ class Result:
         if not csv.is_file():
             raise FileNotFoundError(f"{out_dir}: no {CSV_NAME} (not a run folder)")
         columns, data = read_results_csv(csv)
-        metrics = {}
+        metrics, against = {}, {}
         if (out_dir / METRICS_NAME).is_file():
-            metrics = json.loads((out_dir / METRICS_NAME).read_text())
+            for name, e in json.loads((out_dir / METRICS_NAME).read_text()).items():
+                if isinstance(e, dict):
+                    metrics[name], against[name] = e["value"], e["against"]
+                else:                       # a run written before metrics said what they compare
+                    metrics[name] = e
         status, error, warns = "ok", None, []
         if (out_dir / RUN_NAME).is_file():
             info = json.loads((out_dir / RUN_NAME).read_text())
             status, error, warns = info.get("status", "ok"), info.get("error"), info.get("warnings", [])
-        return cls(out_dir, data[:, 0].copy(), columns, data[:, 1:], metrics, status, error, warns)
+        return cls(out_dir, data[:, 0].copy(), columns, data[:, 1:], metrics, against, status, error, warns)
 
 
 __all__ = ["CsvWriter", "Result", "read_results_csv", "write_json", "versions",

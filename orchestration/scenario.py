@@ -26,6 +26,8 @@ Format::
     k_hi = [4.0e5, 2.0e5]      # a list sets a vector parameter k_hi[1], k_hi[2]
 
     connections = ["plant.q_m -> encoder.q_m"]   # (top level) whole vectors or scalars
+    oracles = []   # (top level) connections that feed plant truth to an estimator or a
+                   # controller on purpose, e.g. ["plant.p_tool -> observer.p_tool"]
 
     [record]
     variables = ["plant.p_tool"]   # default: every connected output (whole vectors)
@@ -37,7 +39,18 @@ Format::
     estimate = "rigid.p_tool_hat"
     truth = "plant.p_tool"
     after = 0.5                    # s: ignore the start (default 0)
+    # metrics.json says what `truth` is: "against" = "truth" (plant, environment), "reference"
+    # (a reference system such as the Tracker) or the providing component's role
+    truth_time = "tracker.t_meas"  # optional: the truth's sample times; compare only at fresh
+                                   # samples, the estimate interpolated to their time stamps
     # bandpass only: low = 3.0, high = 30.0, order = 4 (Hz, Hz, Butterworth order)
+
+Honest signals (:mod:`orchestration.roles`): a truth output (of the plant, the contact
+environment or a force pulse) may feed only sensors, the environment, the plant and the
+reference system (Tracker); the MotionController may read the plant's q_m and dq_m (the drive's
+own motor feedback). Any other such connection gives an :class:`HonestSignalWarning` when the
+scenario is loaded, unless it is listed in ``oracles`` (each entry must be one of the
+``connections``, written the same way up to spaces, else :class:`ScenarioError`).
 
 Overrides (``--set``) are strings ``comp.param=value`` (value parsed as a TOML value, a vector as
 ``[1, 2]``), ``comp.param[2]=value`` and ``scenario.<key>=value`` for ``seed``, ``stop_time``,
@@ -49,10 +62,13 @@ import math
 import os
 import re
 import tomllib
+import warnings
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
+
+from . import roles
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_FMU_DIR = REPO / "dist" / "fmus"
@@ -133,6 +149,8 @@ class MetricSpec:
     low: float = 3.0
     high: float = 30.0
     order: int = 4
+    against: str = "truth"   # what `truth` is: truth | reference | another role (roles.against)
+    truth_time: str | None = None   # the truth's sample time stamps (a held, skewed measurement)
 
 
 @dataclass
@@ -151,6 +169,7 @@ class Scenario:
     metrics: list[MetricSpec]
     overrides: tuple[str, ...] = ()
     source: dict[str, Any] = field(default_factory=dict)   # the merged TOML document
+    oracles: list[str] = field(default_factory=list)        # connections marked as oracles
 
     @property
     def n_steps(self) -> int:
@@ -177,7 +196,7 @@ class Scenario:
             "components": {c.name: {"fmu": str(c.fmu), "model_identifier": c.model_identifier,
                                     "step": c.step, "parameters": c.parameters}
                            for c in self.components.values()},
-            "connections": [str(c) for c in self.connections],
+            "connections": [str(c) for c in self.connections], "oracles": self.oracles,
             "record": self.record, "record_interval": self.record_interval,
             "metrics": [vars(m) for m in self.metrics], "overrides": list(self.overrides),
         }
@@ -425,7 +444,7 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
         path = Path(source)
         doc = _read_toml(path)
         label, base_dir = str(path), path.resolve().parent
-    _check_keys(label, doc, {"scenario", "components", "connections", "record", "metrics"})
+    _check_keys(label, doc, {"scenario", "components", "connections", "oracles", "record", "metrics"})
     head = doc.get("scenario", {})
     _check_keys(f"{label}: [scenario]", head, _SCENARIO_KEYS)
     comps_doc = doc.get("components", {})
@@ -585,6 +604,7 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
             driven[key] = text
         connections.append(Connection(sc.name, svar, dc.name, dvar,
                                       tuple(zip(sgroup, dgroup)), text))
+    oracles = _check_honest_signals(label, doc.get("oracles", []), connections, components)
 
     # record
     rec = doc.get("record", {})
@@ -614,7 +634,8 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     metrics: list[MetricSpec] = []
     for i, m in enumerate(metrics_doc):
         where = f"{label}: [[metrics]] #{i + 1}"
-        _check_keys(where, m, {"kind", "name", "estimate", "truth", "after", "low", "high", "order"})
+        _check_keys(where, m, {"kind", "name", "estimate", "truth", "truth_time", "after", "low", "high",
+                               "order"})
         for key in ("kind", "estimate", "truth"):
             if key not in m:
                 raise ScenarioError(f"{where}: '{key}' is missing")
@@ -632,6 +653,14 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
         if sizes[0] != sizes[1]:
             raise ScenarioError(f"{where}: size mismatch: estimate {m['estimate']!r} has {sizes[0]} "
                                 f"element(s), truth {m['truth']!r} has {sizes[1]}")
+        truth_time = m.get("truth_time")
+        if truth_time is not None:
+            comp, var, group = _lookup(f"{where}: truth_time", components, truth_time)
+            if len(group) != 1 or comp.variables[group[0]].unit not in (None, "s"):
+                raise ScenarioError(f"{where}: truth_time {truth_time!r} must be a scalar time (s), "
+                                    "the sample time of the truth (e.g. tracker.t_meas)")
+            if f"{comp.name}.{var}" not in record:
+                record.append(f"{comp.name}.{var}")
         after = _number(f"{where}: after", m.get("after", 0.0), positive=False)
         low = _number(f"{where}: low", m.get("low", 3.0))
         high = _number(f"{where}: high", m.get("high", 30.0))
@@ -643,7 +672,9 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
                                     f"of the record interval, got low={low:g}, high={high:g}")
         if isinstance(order, bool) or not isinstance(order, int) or order < 1:
             raise ScenarioError(f"{where}: order must be a positive integer")
-        metrics.append(MetricSpec(m["kind"], mname, m["estimate"], m["truth"], after, low, high, order))
+        truth_comp = components[_split_ref(where, m["truth"])[0]]
+        metrics.append(MetricSpec(m["kind"], mname, m["estimate"], m["truth"], after, low, high, order,
+                                  roles.against(truth_comp), truth_time))
     names = [m.name for m in metrics]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
@@ -653,7 +684,37 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     return Scenario(path=path, name=name, description=description, stop_time=stop_time,
                     base_step=base_step, seed=int(seed), components=components,
                     connections=connections, record=record, record_interval=interval,
-                    metrics=metrics, overrides=overrides, source=doc)
+                    metrics=metrics, overrides=overrides, source=doc, oracles=oracles)
+
+
+def connection_key(text: str) -> str:
+    """A connection as ``"a.x -> b.y"``, whatever the spaces it was written with."""
+    return " -> ".join(part.strip() for part in text.split("->"))
+
+
+def _check_honest_signals(label: str, oracles: Any, connections: list[Connection],
+                          components: dict[str, Component]) -> list[str]:
+    """Warn once per connection that feeds plant truth to an estimator or controller and is
+    not listed in ``oracles``; an oracle that is not a connection is an error. Returns the
+    oracles as ``"a.x -> b.y"``."""
+    if not isinstance(oracles, list) or not all(isinstance(o, str) for o in oracles):
+        raise ScenarioError(f"{label}: 'oracles' must be a list of \"a.x -> b.y\" strings "
+                            "(put it before the first [table])")
+    written = {str(c) for c in connections}
+    marked = []
+    for text in oracles:
+        key = connection_key(text)
+        if text.count("->") != 1 or key not in written:
+            raise ScenarioError(f"{label}: oracle {text!r} is not one of the connections")
+        marked.append(key)
+    for c in roles.dishonest_connections(connections, components):
+        if str(c) not in marked:
+            dst = components[c.dst]
+            warnings.warn(f"{label}: connection '{c}' feeds plant truth into the "
+                          f"{roles.role(dst)} '{c.dst}' ({dst.model_identifier}); connect a "
+                          "sensor or an estimate, or mark it in oracles = [...]",
+                          roles.HonestSignalWarning, stacklevel=3)
+    return marked
 
 
 def _check_same_bundle(label: str, components: dict[str, Component]) -> None:
@@ -688,4 +749,5 @@ def _deepcopy(doc: Any) -> Any:
 
 
 __all__ = ["ScenarioError", "Scenario", "Component", "Connection", "MetricSpec", "VariableInfo",
-           "load_scenario", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables"]
+           "load_scenario", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
+           "connection_key"]

@@ -120,7 +120,8 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (
     run = RunArrays(np.array(times), columns, data, {}, wall, notes)
     for spec in sc.metrics:
         try:
-            run.metrics.update(_metrics.compute(spec, run.time, run[spec.estimate], run[spec.truth]))
+            run.metrics.update(_metrics.compute(spec, run.time, run[spec.estimate], run[spec.truth],
+                                                run[spec.truth_time] if spec.truth_time else None))
         except (ValueError, KeyError) as exc:
             raise ScenarioError(f"{sc.name}: metric '{spec.name}': {exc}") from None
     if variables is not None:

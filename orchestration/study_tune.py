@@ -37,6 +37,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .scenario import connection_key
 from .study import StudyError, add_executor_arguments, open_executor, simulate
 
 #: Default search ranges per estimator FMU type (model identifier), used when no --param is
@@ -121,6 +122,9 @@ def prune(doc: dict[str, Any], keep_refs: Sequence[str]) -> dict[str, Any]:
                 changed = True
     doc["components"] = {k: v for k, v in doc.get("components", {}).items() if k in need}
     doc["connections"] = [c for c, (s, d) in zip(conns, edges) if s in need and d in need]
+    if "oracles" in doc:        # an oracle whose connection was pruned would be a ScenarioError
+        kept = {connection_key(c) for c in doc["connections"]}
+        doc["oracles"] = [o for o in doc["oracles"] if isinstance(o, str) and connection_key(o) in kept]
     doc["metrics"] = []
     doc["record"] = {k: v for k, v in doc.get("record", {}).items() if k == "interval"}
     doc["record"]["variables"] = list(dict.fromkeys(keep_refs))

@@ -43,7 +43,8 @@ def test_run_writes_results_and_prints_metrics(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "toy: 201 rows" in out and "gain_error" in out
     metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
-    assert metrics["gain_error"] == pytest.approx(np.hypot(0.2, 0.4))     # |2 ys - ys| at t = 0.2
+    assert metrics["gain_error"]["value"] == pytest.approx(np.hypot(0.2, 0.4))     # |2 ys - ys| at t = 0.2
+    assert metrics["gain_error"]["against"] == "estimator"     # a toy FMU: neither plant nor reference
     info = json.loads((tmp_path / "o" / "run.json").read_text())
     assert info["overrides"] == ["g.gain=2"] and info["status"] == "ok"
 

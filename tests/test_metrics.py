@@ -48,3 +48,17 @@ def test_compute_maps_specs_and_applies_after():
     assert set(out) == {"bp_max", "bp_mean"}
     assert_allclose(out["bp_max"], 1e-3, rtol=0.03)
     assert_allclose(out["bp_mean"], 2e-3 / np.pi, rtol=0.03)    # mean of |sin|
+
+
+def test_at_sample_times_keeps_fresh_samples_at_their_stamps():
+    """A truth held for 3 rows and stamped one row late: the fresh rows only, the estimate
+    linearly interpolated to the stamps (here a ramp, so exactly the ramp at the stamp)."""
+    from orchestration.metrics import at_sample_times
+    t = np.arange(10) * 0.1
+    est = np.column_stack([2.0 * t, -t])
+    stamp = np.maximum(np.floor((t - 0.1 + 1e-9) / 0.3) * 0.3, 0.0)     # held, stamped late
+    truth = np.column_stack([2.0 * stamp, -stamp])
+    s, e, tr = at_sample_times(t, est, truth, stamp)
+    assert_allclose(s, [0.0, 0.3, 0.6])
+    assert_allclose(e, tr, atol=1e-12)
+    assert_allclose(e, np.column_stack([2.0 * s, -s]), atol=1e-12)

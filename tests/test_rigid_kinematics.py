@@ -17,11 +17,24 @@ def test_gravity_compensation_inverts_the_static_deflection() -> None:
     p = RobotParameters()
     for q in ([0.0, 0.0], [0.3, -0.2], [-0.4, 0.6]):
         x = dynamics.static_equilibrium(q, p)
-        assert_allclose(rk.arm_angles(x[2:4], p), q, atol=1e-12)
-        assert_allclose(rk.tool_position(x[2:4], p), kinematics.tool_position(q, p), atol=1e-12)
-        # without compensation the tool sags by millimetres under gravity
-        sag = np.hypot(*(rk.tool_position(x[2:4], p, False) - kinematics.tool_position(q, p)))
+        assert_allclose(rk.arm_angles(x[2:4], p, True), q, atol=1e-12)
+        assert_allclose(rk.tool_position(x[2:4], p, True), kinematics.tool_position(q, p), atol=1e-12)
+        # without compensation (the default, as in the papers) the tool sags by millimetres
+        sag = np.hypot(*(rk.tool_position(x[2:4], p) - kinematics.tool_position(q, p)))
         assert sag > 1e-3
+        assert_allclose(rk.arm_angles(x[2:4], p), x[2:4] / np.array(p.gear_ratio), rtol=1e-15)
+
+
+def test_compensation_uses_the_models_stiffness_not_the_plants() -> None:
+    """A model 20 % stiffer than the robot removes only about 1/1.2 of the true sag."""
+    true = RobotParameters()
+    model = RobotParameters(k_lo=tuple(1.2 * k for k in true.k_lo), k_hi=tuple(1.2 * k for k in true.k_hi))
+    q = [0.3, -0.2]
+    x = dynamics.static_equilibrium(q, true)
+    p_true = kinematics.tool_position(q, true)
+    sag = np.hypot(*(rk.tool_position(x[2:4], model) - p_true))
+    left = np.hypot(*(rk.tool_position(x[2:4], model, True) - p_true))
+    assert 0.1 * sag < left < 0.25 * sag
 
 
 @pytest.fixture(scope="module")
@@ -31,14 +44,16 @@ def fmu(tmp_path_factory):
     return dest / "RigidKinematics.fmu"
 
 
-def test_fmu_matches_the_model(fmu) -> None:
+@pytest.mark.parametrize("compensate", [False, True])
+def test_fmu_matches_the_model(fmu, compensate) -> None:
     p = RobotParameters()
     q_m = dynamics.static_equilibrium([0.2, 0.1], p)[2:4]
     res = fmpy.simulate_fmu(str(fmu), stop_time=0.01, step_size=1e-3,
-                            start_values={"q_m_meas[1]": q_m[0], "q_m_meas[2]": q_m[1]},
+                            start_values={"q_m_meas[1]": q_m[0], "q_m_meas[2]": q_m[1],
+                                          "gravity_compensation": compensate},
                             output=["p_tool_hat[1]", "p_tool_hat[2]", "q_a_hat[1]"])
-    assert_allclose([res["p_tool_hat[1]"][-1], res["p_tool_hat[2]"][-1]], rk.tool_position(q_m, p),
-                    atol=1e-12)
+    assert_allclose([res["p_tool_hat[1]"][-1], res["p_tool_hat[2]"][-1]],
+                    rk.tool_position(q_m, p, compensate), atol=1e-12)
     md = fmpy.read_model_description(str(fmu))
     for v in md.modelVariables:
         assert v.description, v.name

@@ -16,6 +16,9 @@ G = 9.81
 NAMES = ["Encoder", "Imu", "ForceTorqueSensor", "ContactEnvironment"]
 STOP, DT = 0.05, 1e-3
 N_ROWS = int(round(STOP / DT)) + 1
+# the sensors' default calibration errors switched off (ideal mounting and scale)
+IDEAL_IMU = {f"{v}[{i}]": 0.0 for v in ("mount_rpy", "acc_scale", "gyro_scale") for i in (1, 2, 3)}
+IDEAL_FTS = {f"{v}[{i}]": 0.0 for v in ("mount_rpy", "scale") for i in (1, 2, 3)}
 
 
 @pytest.fixture(scope="session")
@@ -55,14 +58,14 @@ def test_runs_standalone_with_default_inputs(fmu_dir, name):
         assert np.all(np.isfinite(r[col])), f"{name}.{col} not finite"
 
 
-def test_default_readings_at_rest(fmu_dir):
-    imu = sim(fmu_dir, "Imu")
+def test_ideal_readings_at_rest(fmu_dir):
+    imu = sim(fmu_dir, "Imu", **IDEAL_IMU)
     acc, gyro = columns(imu, "acc_s"), columns(imu, "gyro_s")
     assert_array_equal(acc[0], [0.0, 0.0, G])                    # valid right after initialisation
     # white noise 0.02 m/s2 plus a 200 Hz filter: 6 sigma of the unfiltered noise bounds it
     assert np.max(np.abs(acc - [0.0, 0.0, G])) < 6 * 0.02
     assert np.max(np.abs(gyro)) < 6 * 0.005
-    ft = sim(fmu_dir, "ForceTorqueSensor")
+    ft = sim(fmu_dir, "ForceTorqueSensor", **IDEAL_FTS)
     f = columns(ft, "f_s")
     res = 2 * 660.0 / 2 ** 16
     assert_allclose(f[0], [0.0, 0.0, 12.0 * G], atol=res / 2)
@@ -75,9 +78,26 @@ def test_default_readings_at_rest(fmu_dir):
     assert np.all(columns(env, "f_ext") == 0.0) and np.all(env["penetration"] == 0.0)
 
 
+def test_default_calibration_errors_at_rest(fmu_dir):
+    """By default the IMU and the force sensor are mounted slightly misaligned and have
+    scale-factor errors: at rest they read (1 + scale) R_mount^T (0, 0, g) (times m_tool)."""
+    from fmus.robot_plant.force_torque_sensor_fmu import ForceTorqueSensorParameters
+    from fmus.robot_plant.imu_fmu import ImuParameters
+    from fmus.robot_plant.sensor_model import rot_rpy
+    ip, fp = ImuParameters(), ForceTorqueSensorParameters()
+    quiet = dict(acc_noise=0.0, acc_bias_rw=0.0, acc_resolution=0.0, gyro_noise=0.0, gyro_bias_rw=0.0)
+    acc = columns(sim(fmu_dir, "Imu", **quiet), "acc_s")
+    expected = (1 + np.array(ip.acc_scale)) * (rot_rpy(ip.mount_rpy).T @ [0.0, 0.0, G])
+    assert_allclose(acc, np.tile(expected, (N_ROWS, 1)), atol=1e-12)
+    assert 0.01 < np.hypot(acc[0, 0], acc[0, 1]) < 0.1          # 0.1-0.3 deg of tilt: a few cm/s2
+    f = columns(sim(fmu_dir, "ForceTorqueSensor", noise=0.0, bias_rw=0.0, resolution=0.0), "f_s")
+    expected = (1 + np.array(fp.scale)) * (rot_rpy(fp.mount_rpy).T @ [0.0, 0.0, fp.m_tool * G])
+    assert_allclose(f, np.tile(expected, (N_ROWS, 1)), atol=1e-9)
+
+
 def test_imu_rotated_mount_noise_free(fmu_dir):
     quiet = dict(acc_noise=0.0, acc_bias_rw=0.0, gyro_noise=0.0, gyro_bias_rw=0.0)
-    r = sim(fmu_dir, "Imu", **quiet, **{"mount_rpy[1]": math.pi / 2})
+    r = sim(fmu_dir, "Imu", **quiet, **{**IDEAL_IMU, "mount_rpy[1]": math.pi / 2})
     assert_allclose(columns(r, "acc_s"), np.tile([0.0, G, 0.0], (N_ROWS, 1)), atol=1e-12)
 
 
@@ -174,7 +194,7 @@ def test_model_structure_dependencies(fmu_dir):
 
 def test_force_sensor_saturation_flag(fmu_dir):
     # the 12 kg tool weighs 117.7 N: a 50 N range saturates sensor z and sets the flag
-    r = sim(fmu_dir, "ForceTorqueSensor", f_range=50.0, noise=0.0, bias_rw=0.0)
+    r = sim(fmu_dir, "ForceTorqueSensor", f_range=50.0, noise=0.0, bias_rw=0.0, **IDEAL_FTS)
     f = columns(r, "f_s")
     res = 2 * 660.0 / 2 ** 16
     assert np.all(r["saturated"] == 1.0)

@@ -4,6 +4,13 @@ The arm angles a robot controller believes in are the motor angles over the gear
 ``q_a = q_m / r``, optionally corrected for the static gearbox deflection under gravity
 (``q_m / r = q_a + D``, ``tau_s(D) = G(q_a)``; 2012 paper eq. 16 without the dynamic terms), as
 industrial controllers do. The tool position is then the forward kinematics ``p(q_a)``.
+
+The compensation needs a gearbox stiffness, and it is the estimator's MODEL stiffness (its
+``k_lo``, ``k_hi``, ``delta`` parameters: the nominal robot, later an identified one), never the
+plant's by construction. It is off by default, as in the 2009 paper (Henriksson et al., "rigid
+robot kinematics" of the motor angles, Table I) and the 2012 paper (Axelsson et al., eq. 29,
+``T_tcp(q_m)``), whose baselines do not remove the gravity sag; a scenario that wants it says
+so (``gravity_compensation = true``) and which stiffness it uses.
 """
 from __future__ import annotations
 
@@ -20,12 +27,13 @@ from fmus.common.robot_params import RobotParameters
 class RigidKinematicsParameters(RobotParameters):
     """The estimator's model of the robot, and whether it removes the static gravity deflection."""
 
-    gravity_compensation: bool = param(True, "1", "subtract the static gearbox deflection under "
-                                       "gravity from q_m / r (as an industrial controller does)")
+    gravity_compensation: bool = param(False, "1", "subtract the static gearbox deflection under "
+                                       "gravity, computed with this model's stiffness, from q_m / r "
+                                       "(as an industrial controller does)",
+                                       source="off: the 2009 and 2012 papers' rigid-kinematics baseline")
 
 
-
-def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = True) -> np.ndarray:
+def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = False) -> np.ndarray:
     """Arm angles from motor angles: ``q_m / r``, minus the gravity deflection ``D(G(q_a))``.
 
     The fixed point ``q_a = q_m / r - D(G(q_a))`` contracts fast (``|dD/dq| ~ 1e-3``): each
@@ -45,6 +53,6 @@ def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = True) -
     return q
 
 
-def tool_position(q_m, robot: RobotParameters, gravity_compensation: bool = True) -> np.ndarray:
+def tool_position(q_m, robot: RobotParameters, gravity_compensation: bool = False) -> np.ndarray:
     """Tool position (world x, z) by rigid forward kinematics of the motor angles."""
     return kinematics.tool_position(arm_angles(q_m, robot, gravity_compensation), robot)

@@ -23,8 +23,11 @@ class ForceObserverParameters:
 
     observer: str = param("lowpass", "1", "which observer: static (eqs. 8-10), kalman (eqs. 11-19) "
                           "or lowpass (eqs. 27-35)", choices=fom.OBSERVER_KINDS)
-    m_tool: float = param(12.0, "kg", "tool mass between the force sensor and the tool tip",
-                          low=0.0, low_inclusive=False, source=f"{PAPER}, section III (12 kg grinding tool)")
+    m_tool: float = param(12.0, "kg", "tool mass between the force sensor and the tool tip, as the "
+                          "observer knows it: from a tool calibration (fmus.robot_plant.sensor_model."
+                          "calibrate_tool), not the true mass", low=0.0, low_inclusive=False,
+                          source=f"{PAPER}, section III (12 kg grinding tool); the contact scenarios "
+                          "use the calibrated 12.10 kg")
     k11: float = param(8.8, "Hz", "low-pass observer gain k11 (position innovation -> position), 1/s; "
                        "with k21 it sets the error dynamics s^2 + k11 s + k21 (eq. 28)", low=0.0,
                        low_inclusive=False, source=f"1 Hz, damping 0.7 (the paper's section V has 0.38)")

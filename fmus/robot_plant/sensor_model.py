@@ -279,6 +279,42 @@ def force_sensor_reading(f_ext_xz: Sequence[float], a_tool_xz: Sequence[float], 
     return rs.T @ (float(m_tool) * (_xz(a_tool_xz) - np.array([0.0, 0.0, -g])) - _xz(f_ext_xz))
 
 
+def calibrate_tool(phis: Sequence[float], readings: np.ndarray, g: float = G
+                   ) -> tuple[float, np.ndarray, float]:
+    """Tool mass and force-sensor bias from static wrist-sensor readings in a few tool angles.
+
+    At rest the sensor reads ``f_k = m u_k + b`` with ``u_k = Ry(phi_k)^T (0, 0, g)`` (the
+    impedance paper's eq. 1 with ``a = 0`` and no contact, :func:`force_sensor_reading`, for the
+    nominal mount) plus its bias ``b``. Stacking ``[u_k  I3] (m, b) = f_k`` over the poses gives a
+    linear least-squares problem; it needs at least two different angles. What the model leaves
+    out (the sensor's scale-factor error, its mounting error) goes into the estimates: that is
+    the calibration's error.
+
+    Parameters
+    ----------
+    phis
+        Tool angles of the poses (rad).
+    readings
+        (len(phis), 3) mean sensor reading in each pose (N).
+
+    Returns
+    -------
+    m, b, rms
+        Tool mass (kg), bias (3,) (N) and the RMS residual of the fit (N).
+    """
+    phis = np.asarray(phis, dtype=float)
+    f = np.asarray(readings, dtype=float).reshape(len(phis), 3)
+    if len(np.unique(np.round(phis, 12))) < 2:
+        raise ValueError("the tool calibration needs readings in at least two tool angles")
+    u = np.column_stack([-g * np.sin(phis), np.zeros_like(phis), g * np.cos(phis)])
+    A = np.zeros((3 * len(phis), 4))
+    A[:, 0] = u.reshape(-1)
+    A[:, 1:] = np.tile(np.eye(3), (len(phis), 1))
+    theta, *_ = np.linalg.lstsq(A, f.reshape(-1), rcond=None)
+    rms = float(np.sqrt(np.mean((A @ theta - f.reshape(-1)) ** 2)))
+    return float(theta[0]), theta[1:], rms
+
+
 # ---------------------------------------------------------------------------------------------
 # Environment
 # ---------------------------------------------------------------------------------------------
@@ -338,5 +374,6 @@ def hammer_force(t: float, times: Sequence[float], force_xz: Sequence[float], du
 
 
 __all__ = ["SensorChannels", "butterworth_coefficients", "butterworth_magnitude", "quantise",
-           "rot_y", "rot_rpy", "sensor_rotation", "imu_reading", "force_sensor_reading", "Wall",
+           "rot_y", "rot_rpy", "sensor_rotation", "imu_reading", "force_sensor_reading",
+           "calibrate_tool", "Wall",
            "penetration", "contact_force", "hammer_force", "G"]

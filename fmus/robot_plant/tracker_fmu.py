@@ -1,0 +1,66 @@
+"""FMU adapter of the reference measurement system, a laser tracker (math in
+:mod:`fmus.robot_plant.tracker_model`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from fmus.common.fmi import FlexFusionSlave
+from fmus.common.parameters import param
+from fmus.robot_plant.tracker_model import TrackerModel
+
+LEICA = ("Axelsson et al. 2012, section 5.1 and Henriksson et al. 2009, section IV: Leica laser "
+         "tracker, 1 kHz, accuracy 0.01 mm per metre of range")
+
+
+@dataclass(frozen=True)
+class TrackerParameters:
+    """Parameters of the Tracker FMU."""
+
+    noise: float = param(2e-5, "m", "white measurement noise std per axis and sample (0 = off)",
+                         low=0.0, source=f"{LEICA}: 0.02 mm at the robot's 1.5-2 m range (the IMU "
+                         "paper's LTD840: about 0.1 mm)")
+    sample_rate: float = param(1000.0, "Hz", "sample rate; the output holds the newest sample",
+                               low=0.0, low_inclusive=False, source=LEICA)
+    skew: float = param(1e-3, "s", "how far the tracker's clock lags the controller's: a sample "
+                        "stamped t_meas is the position at t_meas - skew (0 = synchronised)",
+                        low=0.0, high=1.0, source="Axelsson et al. 2012, section 5.1: the tracker is "
+                        "not synchronised with the robot's signals; assumed one 1 kHz sample")
+    seed: int = param(4, "1", "seed of the noise stream", low=0)
+
+
+class Tracker(FlexFusionSlave):
+    """Measured tool position ``p_tool_meas = p_tool(t_meas - skew) + noise``, sampled at
+    ``sample_rate`` and held; ``t_meas`` is the sample's time stamp on the controller's clock.
+
+    Timing: the input set before ``doStep(t, dt)`` is taken as the position at ``t + dt`` (a
+    Gauss-Seidel master, ours, steps the plant first); after initialisation the input is the
+    position at the start time. A Jacobi master (libcosim) hands over the position at ``t``:
+    the measurement is then one communication step older than its stamp says.
+    No direct feedthrough.
+    """
+
+    parameters_class = TrackerParameters
+    description = "Laser tracker (reference system): noisy, sampled, time-skewed tool position"
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.input("p_tool", 2, unit="m", description="true tool position, world x and z",
+                   start=(1.2, 0.9))
+        self.output("p_tool_meas", 2, unit="m", description="measured tool position, world x and z",
+                    start=(1.2, 0.9))
+        self.output("t_meas", unit="s", description="time stamp of the held measurement "
+                    "(controller clock)")
+        self.model: TrackerModel | None = None
+
+    def _publish(self) -> None:
+        self.p_tool_meas[:] = self.model.p_meas
+        self.t_meas = self.model.t_meas
+
+    def setup(self, p: TrackerParameters) -> None:
+        self.model = TrackerModel(p.noise, p.sample_rate, p.skew, seed=p.seed)
+        self.model.start(self._time, self.p_tool)
+        self._publish()
+
+    def step(self, t: float, dt: float) -> None:
+        self.model.update(t + dt, self.p_tool)
+        self._publish()

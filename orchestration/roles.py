@@ -1,0 +1,83 @@
+"""What each component is, by FMU model identifier, and the honest-signals rule built on it.
+
+The plant (and its environment) is the truth; everything else must see it only through
+sensors. A connection from a truth output into anything but a sensor, the environment, the
+plant itself or the reference measurement system is an oracle: :func:`dishonest_connections`
+finds them, and the scenario loader warns (:class:`HonestSignalWarning`) unless the scenario
+lists the connection under ``oracles``. The one exception is the drive's own motor feedback:
+the MotionController may read the plant's ``q_m`` and ``dq_m``.
+
+An FMU not in :data:`ROLES` (a user's own) counts as an estimator/controller.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Iterable
+
+if TYPE_CHECKING:
+    from .scenario import Component, Connection
+
+#: Role of each FlexFusion FMU, by model identifier.
+ROLES: dict[str, str] = {
+    "FlexibleRobot2DOF": "plant",
+    "ContactEnvironment": "environment",
+    "ForcePulse": "environment",
+    "Encoder": "sensor",
+    "Imu": "sensor",
+    "ForceTorqueSensor": "sensor",
+    "Tracker": "reference",
+    "MotionController": "controller",
+    "ImpedanceController": "controller",
+    "RigidKinematics": "estimator",
+    "EkfAccelerometer": "estimator",
+    "ParticleFilter": "estimator",
+    "EkfComplete": "estimator",
+    "EkfMotor": "estimator",
+    "EkfIntegrated": "estimator",
+    "AccelerationObserver": "estimator",
+    "ComplementaryFilter": "estimator",
+    "ImuEkf": "estimator",
+    "ForceObserver": "estimator",
+}
+#: Roles whose outputs are the truth.
+TRUTH_ROLES = frozenset({"plant", "environment"})
+#: Roles that may take a truth output as input.
+TRUTH_READERS = frozenset({"plant", "environment", "sensor", "reference"})
+#: The drive's own motor feedback: these plant outputs may feed the MotionController.
+DRIVE_FEEDBACK = frozenset({"q_m", "dq_m"})
+
+
+class HonestSignalWarning(UserWarning):
+    """A plant truth output feeds an estimator or controller (not marked as an oracle)."""
+
+
+def role(component: "Component") -> str:
+    """``plant``, ``environment``, ``sensor``, ``reference``, ``controller`` or ``estimator``
+    (also for an FMU this table does not know)."""
+    return ROLES.get(component.model_identifier, "estimator")
+
+
+def against(component: "Component") -> str:
+    """What a metric compares with when its ``truth`` variable comes from ``component``:
+    ``"truth"`` (plant or environment), ``"reference"`` (the reference measurement system), or
+    the component's role otherwise (e.g. ``"controller"`` for a tracking error)."""
+    r = role(component)
+    return "truth" if r in TRUTH_ROLES else r
+
+
+def is_honest(connection: "Connection", components: dict[str, "Component"]) -> bool:
+    """Whether a connection obeys the honest-signals rule (see the module docstring)."""
+    src, dst = components[connection.src], components[connection.dst]
+    if role(src) not in TRUTH_ROLES or role(dst) in TRUTH_READERS:
+        return True
+    return (role(src) == "plant" and connection.src_var in DRIVE_FEEDBACK
+            and dst.model_identifier == "MotionController")
+
+
+def dishonest_connections(connections: Iterable["Connection"], components: dict[str, "Component"]
+                          ) -> list["Connection"]:
+    """The connections that feed a truth output into an estimator or a controller."""
+    return [c for c in connections if not is_honest(c, components)]
+
+
+__all__ = ["ROLES", "TRUTH_ROLES", "TRUTH_READERS", "DRIVE_FEEDBACK", "HonestSignalWarning",
+           "role", "against", "is_honest", "dishonest_connections"]

@@ -319,7 +319,7 @@ class PlantChain:
         out[n:, n:] = np.diag(self.k.jm)
         return out
 
-    def linearised_modes(self, s, free: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    def linearised_modes(self, s, free: list[int], shapes: bool = False) -> tuple:
         """Natural frequencies [Hz] and damping ratios of the linearisation at the rest state
         ``s`` with only the position coordinates ``free`` (indices into the state) moving and the
         others clamped (constrained, e.g. motors locked or gearbox outputs held); ascending.
@@ -327,7 +327,9 @@ class PlantChain:
         ``M_ff x_f'' = -K_ff x_f - D_ff x_f'`` with ``M`` of :meth:`mass_matrix` and the generalised
         forces' Jacobians ``[K, D] = -M d(accelerations)/d(positions, rates)`` by central
         differences of :meth:`derivatives` (at rest the accelerations vanish, so ``M d acc`` is the
-        Jacobian of the forces).
+        Jacobian of the forces). With ``shapes``, also the mode shapes: the columns of a
+        ``(len(free), modes)`` array of the free positions (complex; of an undamped mode, real up to
+        a factor).
         """
         n2 = self.n + 2
         x0 = np.array(s, float)
@@ -345,11 +347,14 @@ class PlantChain:
         K, D = F[np.ix_(f, f)], F[np.ix_(f, [n2 + i for i in f])]
         m = len(f)
         A = np.block([[np.zeros((m, m)), np.eye(m)], [np.linalg.solve(Mff, K), np.linalg.solve(Mff, D)]])
-        lam = np.linalg.eigvals(A)
-        lam = lam[lam.imag >= 0]                    # one of each conjugate pair
+        lam, vec = np.linalg.eig(A)
+        keep = lam.imag >= 0                        # one of each conjugate pair
+        lam, vec = lam[keep], vec[:m, keep]
         wn = np.abs(lam)
         order = np.argsort(wn)
         zeta = -lam.real / np.where(wn > 0, wn, 1.0)
+        if shapes:
+            return wn[order] / (2 * np.pi), zeta[order], vec[:, order]
         return wn[order] / (2 * np.pi), zeta[order]
 
 

@@ -39,12 +39,13 @@ class PlantParameters(RobotAtInitialPose):
                         source="the ideal case of tests and of the papers' simulations")
     link_bending: bool = param(True, "1", "elastic non-actuated joint part-way along each link (link "
                                "and bearing bending beyond the gearbox)", source="[MWHB]")
-    bend_stiffness: tuple = param((3.0e6, 7.0e4), "N.m/rad", "stiffness of the bending joint of each link",
+    bend_stiffness: tuple = param((3.0e6, 5.0e4), "N.m/rad", "stiffness of the bending joint of each link",
                                   low=0.0, low_inclusive=False,
                                   source="[MWHB]: with the motors locked, a forearm bending mode at "
-                                  "35-38 Hz over the workspace, above the gearbox modes (benchmarks/plant.py)")
-    bend_damping: tuple = param((300.0, 8.0), "N.m.s/rad", "damping of the bending joint of each link",
-                                low=0.0, source="about 2 % of critical at the structural modes [MWHB]")
+                                  "33-41 Hz over the workspace, above the gearbox modes (benchmarks/plant.py)")
+    bend_damping: tuple = param((300.0, 10.0), "N.m.s/rad", "damping of the bending joint of each link",
+                                low=0.0, source="about 1 % of critical for the outer part on its joint "
+                                "(structural damping, [MWHB]); with the gearbox damping the bending mode has 6-13 %")
     bend_location: tuple = param((0.5, 0.5), "1", "position of the bending joint along each link, as a "
                                  "fraction of its length from the proximal axis", low=0.0, high=1.0,
                                  low_inclusive=False, high_inclusive=False, source="mid-link bending")

@@ -10,8 +10,11 @@ robot differs from it by
    that stand for link and bearing bending). Each link is split, at ``bend_location`` of its
    length, by a non-actuated rotational joint with a linear spring-damper: the arm becomes a
    planar chain of four bodies (inner upper arm, outer upper arm, inner forearm, outer forearm).
-   With the gearbox outputs held, the two outer parts vibrate on these springs at 20-40 Hz: a
-   mode that moves the tool without passing through the gearbox spring;
+   With the motors locked, the outer forearm (wrist, tool, payload) vibrates on its bending
+   joint at 33-41 Hz over the workspace, above the gearbox modes (8-19 Hz): a mode that moves
+   the tool with about two thirds of its strain energy in the bending joints, not in the gearbox
+   springs. The stiffer upper-arm bending lowers the gearbox modes a little and adds a local
+   mode of the light inner upper arm between its two springs (about 220 Hz, 15 % damped);
 2. **motor torque errors**: torque-constant error and cogging / commutation ripple, periodic in
    the motor angle: ``tau_applied = (1 + e_kt) tau_m + A sin(n q_m)`` (``tau_m``: the commanded
    torque, the plant's input, which the estimators receive);
@@ -42,8 +45,9 @@ with the generalised forces ``Q_j = g g_j sin psi_j + L_j (f_x cos psi_j - f_z s
 on body ``j``): the gearbox torque ``tau_s(D) + d D_dot`` of eq. 11, or ``-(k_b b + d_b b_dot)``
 at a bending joint. The motors follow eq. 10 with the applied torque of item 2.
 
-The hot path is plain-float Python like :class:`fmus.common.dynamics._Constants` (a 4x4 Cholesky
-solve written out in loops).
+The hot path is plain-float Python like :class:`fmus.common.dynamics._Constants`: for the
+four-body chain written out (an LDL^T solve of the 4x4 system), in loops for a chain of rigid
+links (``link_bending = false``).
 """
 from __future__ import annotations
 
@@ -234,7 +238,8 @@ class PlantChain:
     def outputs(self, s, fx: float, fz: float) -> tuple:
         """Every plant output at state ``s``, as plain floats: ``q_a, dq_a, ddq_a, q_m, dq_m`` (2
         each), ``p_tool, v_tool, a_tool`` (2 each), ``phi_tool, omega_tool``, ``p_sensor,
-        a_sensor`` (2 each), ``tau_s`` (2); the tool and sensor of the real (bent) robot."""
+        a_sensor`` (2 each), ``tau_s`` (2, the gearbox spring torque without damping); the tool and
+        sensor of the real (bent) robot."""
         n = self.n
         S, C, W, A, tj = self.arm(s, fx, fz)
         px = pz = vx = vz = ax = az = 0.0
@@ -255,9 +260,11 @@ class PlantChain:
         dq = (s[n + 2 + g1], s[n + 2 + g2])
         ddq = (A[g1] - (A[g1 - 1] if g1 else 0.0), A[g2] - A[g2 - 1])
         phi = sum(s[:n]) + self.offset_sum - HALF_PI
-        return (q + dq + ddq + tuple(s[n:n + 2]) + tuple(s[2 * n + 2:2 * n + 4])
+        k, qm1, qm2 = self.k, s[n], s[n + 1]
+        return (q + dq + ddq + (qm1, qm2) + tuple(s[2 * n + 2:2 * n + 4])
                 + (px, pz, vx, vz, ax, az, phi, w, px + rx, pz + rz,
-                   ax + a * ex - w * w * rx, az + a * ez - w * w * rz, tj[g1], tj[g2]))
+                   ax + a * ex - w * w * rx, az + a * ez - w * w * rz,
+                   k.spring(0, qm1 / k.r[0] - q[0]), k.spring(1, qm2 / k.r[1] - q[1])))
 
     # ---- analysis (numpy; not on the hot path) ---------------------------------------------
     def energy(self, s) -> float:

@@ -412,3 +412,63 @@ def test_fmu_rejects_a_step_too_coarse_at_the_first_step(fmu: Path, unzipped: st
         s.fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=5e-3)
     assert s.log.has("parameter 'substeps'", "Hz"), s.log
     s.fmu.freeInstance()
+
+
+# ---- the compliant tool (force paper's Optidrive) ---------------------------------------------
+COMPLIANT = replace(P, tool_compliance=1e-4)
+
+
+def test_compliant_tool_conserves_energy() -> None:
+    p = replace(CONSERVATIVE, tool_compliance=1e-4, tool_damping=0.0)
+    m = plant_dynamics.ExtendedRobotModel(p, (math.pi, -math.pi / 2), substeps=P.substeps)
+    x = m.x
+    x[4:6] += (0.05, -0.03)
+    x[6], x[8] = x[6] + 0.6, x[8] - 0.4
+    x[10:12] += R * np.array([0.6, -0.4])
+    x[14] += 0.3                          # the tool swings on its mount
+    m.x = x
+    E0 = m._k.energy(m.state)
+    drift = 0.0
+    for _ in range(5000):
+        m.step((0.0, 0.0), (0.0, 0.0), DT)
+        drift = max(drift, abs(m._k.energy(m.state) - E0))
+    assert drift / abs(E0) < 1e-6, drift / abs(E0)
+
+
+def test_compliant_tool_hangs_on_its_mount_and_the_wrist_force_is_the_mount_force() -> None:
+    """At rest the tool hangs m_t g c below the flange; in motion, m_t (a_tool - g_vec) - f_ext
+    (what the ForceTorqueSensor computes) is the force the mount exerts on the tool, -(k u + d u_dot)."""
+    rigid = plant_dynamics.ExtendedRobotModel(P, (0.3, 0.2))
+    model = plant_dynamics.ExtendedRobotModel(COMPLIANT, (0.3, 0.2))
+    chain = model._k
+    s = model.state
+    sag = P.tool_mass * P.g * COMPLIANT.tool_compliance
+    flange = chain.chain.outputs(s[:chain.size], 0.0, 0.0)
+    assert_allclose(np.array(model.outputs(0.0, 0.0)[10:12]) - flange[10:12], [0.0, -sag], atol=1e-15)
+    assert_allclose(model.outputs(0.0, 0.0)[14:16], 0.0, atol=1e-9)
+    # the tool's weight bends the robot a little more than without the mount
+    assert flange[11] < rigid.outputs(0.0, 0.0)[11] - 1e-5
+    rng = np.random.default_rng(4)
+    x = np.array(s)
+    x[chain.size:] += np.r_[rng.uniform(-1e-3, 1e-3, 2), rng.uniform(-0.1, 0.1, 2)]
+    x[10:12] += rng.uniform(-50.0, 50.0, 2)
+    f = np.array([40.0, -25.0])
+    out = chain.outputs(tuple(x), *f)
+    fl = chain.chain.outputs(tuple(x[:chain.size]), 0.0, 0.0)
+    u, u_dot = x[chain.size:chain.size + 2] - fl[10:12], x[chain.size + 2:] - fl[12:14]
+    wrist = P.tool_mass * (np.array(out[14:16]) - [0.0, -P.g]) - f
+    assert_allclose(wrist, -(u / COMPLIANT.tool_compliance + COMPLIANT.tool_damping * u_dot), rtol=1e-9)
+    assert_allclose(out[10:14], x[chain.size:], rtol=0, atol=0)
+
+
+def test_compliant_tool_fmu_runs(fmu: Path, unzipped: str) -> None:
+    s = Slave(fmu, {"tool_compliance": 1e-4, "q_a0[1]": 0.3, "q_a0[2]": 0.2}, unzip_dir=unzipped,
+              instance_name="plant", init=True)
+    model = plant_dynamics.ExtendedRobotModel(replace(COMPLIANT, q_a0=(0.3, 0.2)), (0.3, 0.2))
+    assert_allclose(s.get("p_tool", 2), model.outputs(0.0, 0.0)[10:12], rtol=0, atol=0)
+    s.set(f_ext=[30.0, 0.0])
+    for _ in range(50):
+        s.step(DT)
+        model.step((0.0, 0.0), (30.0, 0.0), DT)
+    assert_allclose(s.get("a_tool", 2), model.outputs(30.0, 0.0)[14:16], rtol=0, atol=0)
+    s.close()

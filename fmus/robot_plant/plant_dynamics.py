@@ -289,9 +289,10 @@ class PlantChain:
             pot += 0.5 * self.kinds[j][1] * s[j] ** 2
         return kin + pot
 
-    def static_equilibrium(self, q_a) -> tuple:
-        """The state at rest with the gearbox outputs at ``q_a``: bending joints and gearbox
-        springs carry gravity (fixed point over the bending angles, which are small)."""
+    def static_equilibrium(self, q_a, fx: float = 0.0, fz: float = 0.0) -> tuple:
+        """The state at rest with the gearbox outputs at ``q_a`` under the constant tool force
+        ``(fx, fz)``: bending joints and gearbox springs carry gravity and the force (fixed point
+        over the bending angles, which are small)."""
         n = self.n
         th = [0.0] * n
         for j, i in zip(self.gear_index, range(2)):
@@ -300,7 +301,8 @@ class PlantChain:
             psi, G = 0.0, []
             for j in range(n):
                 psi += th[j] + self.offsets[j]
-                G.append(self.grav[j] * math.sin(psi))
+                S, C = math.sin(psi), math.cos(psi)
+                G.append(self.grav[j] * S + self.L[j] * (fx * C - fz * S))
             # at rest Q_j = 0: the torque of joint j carries the gravity of everything beyond it
             tau = [-sum(G[j:]) for j in range(n)]
             old = list(th)
@@ -365,6 +367,77 @@ class PlantChain:
         return wn[order] / (2 * np.pi), zeta[order]
 
 
+class CompliantTool:
+    """The chain with a compliant tool (the force paper's Optidrive: a spring-damper between the
+    robot's flange and the tool): the tool mass ``m_t`` on an isotropic translational spring
+    ``k = 1 / tool_compliance`` and damper ``d_t`` at the chain's tool point (the flange).
+
+    State: the chain's, then the tool mass's world position and velocity ``(x_t, z_t, vx_t,
+    vz_t)``. With ``u = p_t - p_flange``, the spring-damper force ``F = k u + d_t u_dot`` pulls
+    the flange (the chain's tool force) and ``m_t a_t = f_ext - F + m_t g_vec`` moves the tool.
+    ``p_tool``, ``v_tool``, ``a_tool`` are the tool mass's motion; the tool angle, the
+    accelerometer and ``q_a`` stay on the robot (the tool mount does not rotate).
+    """
+
+    def __init__(self, p) -> None:
+        self.chain = chain = PlantChain(p)
+        self.n, self.k, self.gear_index = chain.n, chain.k, chain.gear_index
+        self.m_t, self.k_t, self.d_t = float(p.tool_mass), 1.0 / float(p.tool_compliance), float(p.tool_damping)
+        self.g = float(p.g)
+        self.size = 2 * chain.n + 4        # the chain's part of the state
+
+    def _force(self, s, flange: tuple) -> tuple[float, float]:
+        """The spring-damper force on the flange (``F``) from the chain outputs ``flange``."""
+        xt, zt, vxt, vzt = s[self.size:]
+        return (self.k_t * (xt - flange[10]) + self.d_t * (vxt - flange[12]),
+                self.k_t * (zt - flange[11]) + self.d_t * (vzt - flange[13]))
+
+    def derivatives(self, s, tau1: float, tau2: float, fx: float, fz: float) -> tuple:
+        c = self.chain
+        arm = s[:self.size]
+        Fx, Fz = self._force(s, c.outputs(arm, 0.0, 0.0))
+        _, _, vxt, vzt = s[self.size:]
+        return c.derivatives(arm, tau1, tau2, Fx, Fz) + (vxt, vzt, (fx - Fx) / self.m_t,
+                                                         (fz - Fz) / self.m_t - self.g)
+
+    def outputs(self, s, fx: float, fz: float) -> tuple:
+        c = self.chain
+        arm = s[:self.size]
+        Fx, Fz = self._force(s, c.outputs(arm, 0.0, 0.0))
+        out = c.outputs(arm, Fx, Fz)
+        xt, zt, vxt, vzt = s[self.size:]
+        return out[:10] + (xt, zt, vxt, vzt, (fx - Fx) / self.m_t, (fz - Fz) / self.m_t - self.g) + out[16:]
+
+    def energy(self, s) -> float:
+        """The chain's energy plus the tool's kinetic and gravity energy and the spring's."""
+        flange = self.chain.outputs(s[:self.size], 0.0, 0.0)
+        xt, zt, vxt, vzt = s[self.size:]
+        ux, uz = xt - flange[10], zt - flange[11]
+        return (self.chain.energy(s[:self.size]) + 0.5 * self.m_t * (vxt * vxt + vzt * vzt)
+                + self.m_t * self.g * zt + 0.5 * self.k_t * (ux * ux + uz * uz))
+
+    def static_equilibrium(self, q_a) -> tuple:
+        """At rest, the tool hanging on its spring ``m_t g / k`` below the flange."""
+        w = self.m_t * self.g
+        arm = self.chain.static_equilibrium(q_a, 0.0, -w)
+        x, z = self.chain.outputs(arm, 0.0, -w)[10:12]
+        return arm + (x, z - w / self.k_t, 0.0, 0.0)
+
+
+def highest_frequency(chain, s) -> float:
+    """Highest natural frequency [Hz], ``max |lambda| / 2 pi`` over the eigenvalues of the
+    linearisation of ``chain.derivatives`` at ``s`` (every coordinate free; central differences)."""
+    x0 = np.array(s, float)
+    A = np.empty((x0.size, x0.size))
+    for i in range(x0.size):
+        h = 1e-7 * max(1.0, abs(x0[i]))
+        e = np.zeros(x0.size)
+        e[i] = h
+        A[:, i] = (np.array(chain.derivatives(tuple(x0 + e), 0.0, 0.0, 0.0, 0.0))
+                   - np.array(chain.derivatives(tuple(x0 - e), 0.0, 0.0, 0.0, 0.0))) / (2 * h)
+    return float(np.abs(np.linalg.eigvals(A)).max() / (2 * np.pi))
+
+
 def _solve_spd(M: list, b: list) -> list:
     """``M x = b`` for a small symmetric positive definite ``M`` (Cholesky, plain floats)."""
     n = len(b)
@@ -418,13 +491,14 @@ class ExtendedRobotModel(dynamics.FlexibleRobotModel):
 
     def __init__(self, p, q_a0, substeps: int = 1) -> None:
         self.p = p
-        self._k = chain = PlantChain(p)
+        self._k = chain = CompliantTool(p) if p.tool_compliance > 0.0 else PlantChain(p)
+        self._chain = getattr(chain, "chain", chain)
         self._s = chain.static_equilibrium(q_a0)
         self.substeps = int(substeps)
         self.t = 0.0
         #: highest natural frequency [Hz] of the linearisation at the initial state (every
         #: coordinate free): what the integration step must resolve
-        self.highest_frequency = float(chain.linearised_modes(self._s, list(range(chain.n + 2)))[0].max())
+        self.highest_frequency = highest_frequency(chain, self._s)
         self._checked_dt = None
 
     def arm_acceleration(self, fx: float, fz: float) -> tuple[float, float]:
@@ -440,7 +514,7 @@ class ExtendedRobotModel(dynamics.FlexibleRobotModel):
 
     def applied_torques(self, tau1: float, tau2: float) -> tuple[float, float]:
         """Torques the motors apply now for the commands ``tau1, tau2``."""
-        n, s, k = self._k.n, self._s, self._k
+        n, s, k = self._k.n, self._s, self._chain
         return k.applied_torque(0, tau1, s[n]), k.applied_torque(1, tau2, s[n + 1])
 
     def check_step(self, dt: float) -> None:

@@ -71,3 +71,13 @@ class PlantParameters(RobotAtInitialPose):
     sensor_offset_error: tuple = param((3.0e-4, -2.0e-4), "m", "true accelerometer mount point minus "
                                        "the nominal sensor_offset (tool frame x, z)", low=-1e-2, high=1e-2,
                                        source="mounting tolerance of a few 0.1 mm, as [NB]'s tool errors")
+    tool_compliance: float = param(0.0, "m/N", "compliance of the tool mount (an Optidrive-like "
+                                   "spring-damper between the flange and the tool, isotropic in x, z); "
+                                   "0: a rigid tool (off)", low=0.0, high=1e-2,
+                                   source="force paper, section III: the Optidrive between the wrist "
+                                   "sensor and the grinding tool; off by default")
+    tool_mass: float = param(12.0, "kg", "tool mass on the compliant mount (used when tool_compliance > 0), "
+                             "in addition to m2", low=0.0, low_inclusive=False,
+                             source="force paper, section III: grinding tool of 12 kg")
+    tool_damping: float = param(100.0, "N.s/m", "damping of the compliant tool mount", low=0.0,
+                                source="about 15 % of critical at 1e-4 m/N and 12 kg")

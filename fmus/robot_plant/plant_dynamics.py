@@ -20,7 +20,10 @@ robot differs from it by
    torque, the plant's input, which the estimators receive);
 3. **static kinematic errors**: true link lengths ``l + dl``, arm-side joint zero offsets
    ``q_offset`` (the link's real direction is ``q_a + q_offset`` where ``q_a`` is the encoder's
-   arm angle) and an accelerometer mount error ``sensor_offset_error``.
+   arm angle) and an accelerometer mount error ``sensor_offset_error``;
+4. optionally (off by default), the force paper's **compliant tool** (:class:`CompliantTool`).
+
+``ideal = true`` bypasses all of it: :class:`IdealPlant` is today's 8-state plant.
 
 Coordinates. Body ``k`` of the chain is entered through joint ``k`` (relative angle ``theta_k``)
 and points along ``u(psi_k) = (sin psi_k, cos psi_k)`` (world x, z) with the absolute angle
@@ -341,16 +344,7 @@ class PlantChain:
         a factor).
         """
         n2 = self.n + 2
-        x0 = np.array(s, float)
-        J = np.empty((n2, 2 * n2))
-        for i in range(2 * n2):
-            h = 1e-7 * max(1.0, abs(x0[i]))
-            e = np.zeros(x0.size)
-            e[i] = h
-            fp = np.array(self.derivatives(tuple(x0 + e), 0.0, 0.0, 0.0, 0.0))
-            fm = np.array(self.derivatives(tuple(x0 - e), 0.0, 0.0, 0.0, 0.0))
-            J[:, i] = ((fp - fm) / (2 * h))[n2:]
-        F = self.mass_matrix(s) @ J
+        F = self.mass_matrix(s) @ jacobian(self, s)[n2:]
         f = list(free)
         Mff = self.mass_matrix(s)[np.ix_(f, f)]
         K, D = F[np.ix_(f, f)], F[np.ix_(f, [n2 + i for i in f])]
@@ -424,9 +418,8 @@ class CompliantTool:
         return arm + (x, z - w / self.k_t, 0.0, 0.0)
 
 
-def highest_frequency(chain, s) -> float:
-    """Highest natural frequency [Hz], ``max |lambda| / 2 pi`` over the eigenvalues of the
-    linearisation of ``chain.derivatives`` at ``s`` (every coordinate free; central differences)."""
+def jacobian(chain, s) -> np.ndarray:
+    """``d x_dot / d x`` of ``chain.derivatives`` at ``s`` with zero inputs (central differences)."""
     x0 = np.array(s, float)
     A = np.empty((x0.size, x0.size))
     for i in range(x0.size):
@@ -435,7 +428,13 @@ def highest_frequency(chain, s) -> float:
         e[i] = h
         A[:, i] = (np.array(chain.derivatives(tuple(x0 + e), 0.0, 0.0, 0.0, 0.0))
                    - np.array(chain.derivatives(tuple(x0 - e), 0.0, 0.0, 0.0, 0.0))) / (2 * h)
-    return float(np.abs(np.linalg.eigvals(A)).max() / (2 * np.pi))
+    return A
+
+
+def highest_frequency(chain, s) -> float:
+    """Highest natural frequency [Hz], ``max |lambda| / 2 pi`` over the eigenvalues of the
+    linearisation at ``s`` (every coordinate free)."""
+    return float(np.abs(np.linalg.eigvals(jacobian(chain, s))).max() / (2 * np.pi))
 
 
 def _solve_spd(M: list, b: list) -> list:
@@ -506,8 +505,7 @@ class ExtendedRobotModel(dynamics.FlexibleRobotModel):
         return self._k.outputs(self._s, fx, fz)[4:6]
 
     def spring_torques(self) -> tuple[float, float]:
-        k, s, n = self._k.k, self._s, self._k.n
-        return tuple(k.spring(i, s[n + i] / k.r[i] - s[j]) for i, j in enumerate(self._k.gear_index))
+        return self.outputs(0.0, 0.0)[22:24]
 
     def outputs(self, fx: float, fz: float) -> tuple:
         return self._k.outputs(self._s, fx, fz)
@@ -535,7 +533,7 @@ class ExtendedRobotModel(dynamics.FlexibleRobotModel):
                 f"does not resolve the plant's stiffest mode at {self.highest_frequency:.1f} Hz (RK4 needs "
                 f"2 pi f h <= 2 sqrt(2), below the Nyquist limit {0.5 / h:.1f} Hz); raise 'substeps' to at "
                 f"least {math.ceil(2 * math.pi * self.highest_frequency * dt / (2 * math.sqrt(2)))} or lower "
-                f"'bend_stiffness'")
+                f"'bend_stiffness' (or raise 'tool_compliance')")
         self._checked_dt = dt
 
 

@@ -73,7 +73,7 @@ class PlantParameters(RobotAtInitialPose):
                                        source="mounting tolerance of a few 0.1 mm, as [NB]'s tool errors")
     tool_compliance: float = param(0.0, "m/N", "compliance of the tool mount (an Optidrive-like "
                                    "spring-damper between the flange and the tool, isotropic in x, z); "
-                                   "0: a rigid tool (off)", low=0.0, high=1e-2,
+                                   "0: a rigid tool (off; ignored when ideal)", low=0.0, high=1e-2,
                                    source="force paper, section III: the Optidrive between the wrist "
                                    "sensor and the grinding tool; off by default")
     tool_mass: float = param(12.0, "kg", "tool mass on the compliant mount (used when tool_compliance > 0), "

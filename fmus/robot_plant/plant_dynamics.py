@@ -64,15 +64,35 @@ from fmus.common.parameters import ParameterError
 HALF_PI = 0.5 * math.pi
 
 
-def _split_link(l: float, m: float, c: float, I: float, s: float, mu: float) -> tuple[tuple, tuple]:
-    """Bodies ``(L, m, c, I)`` of a link split at ``s l``: the inner part a uniform rod with the
-    mass share ``mu``; the outer part carries the rest, with the link's total centre of mass and
-    inertia (so that the rigid chain is the link)."""
+def true_link(p, i: int) -> tuple[float, float, float, float]:
+    """``(L, m, c, I)`` of the rigid link ``i`` (0 or 1) of the real robot: true length ``l + dl``."""
+    if i == 0:
+        return float(p.l1 + p.dl[0]), float(p.m1), float(p.c1), float(p.I1)
+    return float(p.l2 + p.dl[1]), float(p.m2), float(p.c2), float(p.I2)
+
+
+def split_link(p, i: int) -> tuple[tuple, tuple]:
+    """Bodies ``(L, m, c, I)`` of link ``i`` (0 or 1) of the plant parameters ``p``, split at
+    ``s l`` (``s = bend_location``, ``l`` the true length): the inner part a uniform rod with the
+    mass share ``mu = bend_mass_fraction``; the outer part carries the rest, with the link's
+    total centre of mass and inertia (so that the rigid chain is the link).
+
+    Raises
+    ------
+    ParameterError
+        If the outer part would need a negative inertia.
+    """
+    l, m, c, I = true_link(p, i)
+    s, mu = float(p.bend_location[i]), float(p.bend_mass_fraction[i])
     Li, mi = s * l, mu * m
     ci, Ii = 0.5 * Li, mi * Li * Li / 12.0
     mo = m - mi
     co_abs = (m * c - mi * ci) / mo                 # from the link's proximal joint
     Io = I + m * c * c - (Ii + mi * ci * ci) - mo * co_abs * co_abs
+    if Io < 0.0:
+        raise ParameterError(
+            f"parameter 'bend_mass_fraction[{i + 1}]' = {mu} with 'bend_location[{i + 1}]' = {s}: the outer "
+            f"part of link {i + 1} would need a negative inertia ({Io:.3g} kg.m2); put more mass inside")
     return (Li, mi, ci, Ii), ((1.0 - s) * l, mo, co_abs - Li, Io)
 
 
@@ -90,24 +110,16 @@ class PlantChain:
         self.robot = p.robot()
         self.k = dynamics._Constants(self.robot)    # gearbox spring, motor and friction constants
         g = float(p.g)
-        links = [(p.l1 + p.dl[0], p.m1, p.c1, p.I1), (p.l2 + p.dl[1], p.m2, p.c2, p.I2)]
         bodies, kinds, offsets = [], [], []         # kinds: ("gear", axis) or ("bend", k_b, d_b)
-        for i, link in enumerate(links):
+        for i in range(2):
             offsets.append(float(p.q_offset[i]) + (HALF_PI if i == 1 else 0.0))
             kinds.append(("gear", i))
             if p.link_bending:
-                inner, outer = _split_link(*map(float, link), float(p.bend_location[i]),
-                                           float(p.bend_mass_fraction[i]))
-                if outer[3] < 0.0:
-                    raise ParameterError(
-                        f"parameter 'bend_mass_fraction[{i + 1}]' = {p.bend_mass_fraction[i]} with "
-                        f"'bend_location[{i + 1}]' = {p.bend_location[i]}: the outer part of link {i + 1} "
-                        f"would need a negative inertia ({outer[3]:.3g} kg.m2); put more mass inside")
-                bodies += [inner, outer]
+                bodies += split_link(p, i)
                 kinds.append(("bend", float(p.bend_stiffness[i]), float(p.bend_damping[i])))
                 offsets.append(0.0)
             else:
-                bodies.append(tuple(map(float, link)))
+                bodies.append(true_link(p, i))
         self.n = n = len(bodies)
         self.L = [b[0] for b in bodies]
         beyond = [sum(b[1] for b in bodies[k + 1:]) for k in range(n)]

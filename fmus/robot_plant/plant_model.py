@@ -81,3 +81,10 @@ class PlantParameters(RobotAtInitialPose):
                              source="force paper, section III: grinding tool of 12 kg")
     tool_damping: float = param(100.0, "N.s/m", "damping of the compliant tool mount", low=0.0,
                                 source="about 15 % of critical at 1e-4 m/N and 12 kg")
+
+    def check(self) -> None:
+        super().check()
+        if self.link_bending and not self.ideal:
+            from fmus.robot_plant.plant_dynamics import split_link
+            for i in range(2):
+                split_link(self, i)

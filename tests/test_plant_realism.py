@@ -142,7 +142,7 @@ def test_a_bending_mode_at_20_to_40_hz_beyond_the_gearbox(target) -> None:
     K_gear = dynamics.spring_stiffness(np.array(s[4:6]) / R - np.array(s[0:4:2]), P.robot())
     strain_gear = 0.5 * np.sum(K_gear * v[[0, 2]] ** 2)
     strain_bend = 0.5 * np.sum(as_array(P.bend_stiffness) * v[[1, 3]] ** 2)
-    assert strain_bend > 0.5 * (strain_bend + strain_gear), (strain_bend, strain_gear)   # measured 65-69 %
+    assert strain_bend > 0.8 * (strain_bend + strain_gear), (strain_bend, strain_gear)
     assert 0.005 < zeta[in_band[0]] < 0.1
     assert 6.0 < f[0] < 15.0
 
@@ -274,7 +274,7 @@ def test_kinematic_errors_move_tool_and_sensor_as_specified() -> None:
     ({"q_offset": (0.1, 0.0)}, "parameter 'q_offset[1]'"),
     ({"sensor_offset_error": (0.0, -0.05)}, "parameter 'sensor_offset_error[2]'"),
     ({"bend_location": (1.0, 0.5)}, "parameter 'bend_location[1]'"),
-    ({"bend_mass_fraction": (0.5, 0.6)}, "parameter 'bend_mass_fraction[2]'"),
+    ({"bend_mass_fraction": (0.5, 0.8)}, "parameter 'bend_mass_fraction[2]'"),
 ])
 def test_bad_parameters_are_rejected_naming_the_parameter(changes, fragment) -> None:
     with pytest.raises(ParameterError, match=re.escape(fragment)):
@@ -361,9 +361,10 @@ def test_realistic_fmu_is_the_plain_extended_model(fmu: Path, unzipped: str) -> 
     s.fmu.exitInitializationMode()
     p = PlantParameters(p_tool0=(1.1, 0.8))
     model = plant_dynamics.ExtendedRobotModel(p, p.initial_angles(), substeps=p.substeps)
-    # the real robot starts elsewhere than the nominal kinematics say: bending sag and errors
+    # the real robot starts elsewhere than the nominal kinematics say (bending sag and static
+    # errors, partly cancelling here: 0.07 mm); the ideal plant starts there to 1e-12 m
     offset = np.linalg.norm(s.get("p_tool", 2) - np.array([1.1, 0.8]))
-    assert 2e-4 < offset < 3e-3, offset
+    assert 1e-5 < offset < 2e-3, offset
     _run_against(s, model, 300)
     s.close()
 
@@ -396,7 +397,7 @@ def test_fmu_holds_still_only_with_the_torque_errors_compensated(fmu: Path, unzi
 @pytest.mark.parametrize("params, fragment", [
     ({"ripple_amplitude[1]": -0.1}, "parameter 'ripple_amplitude[1]'"),
     ({"bend_stiffness[2]": -1.0}, "parameter 'bend_stiffness[2]'"),
-    ({"bend_mass_fraction[2]": 0.6}, "parameter 'bend_mass_fraction[2]'"),
+    ({"bend_mass_fraction[2]": 0.8}, "parameter 'bend_mass_fraction[2]'"),
 ])
 def test_fmu_rejects_bad_parameters_naming_them(fmu: Path, unzipped: str, params: dict, fragment: str) -> None:
     s = Slave(fmu, params, unzip_dir=unzipped, instance_name="plant")

@@ -39,17 +39,19 @@ class PlantParameters(RobotAtInitialPose):
                         source="the ideal case of tests and of the papers' simulations")
     link_bending: bool = param(True, "1", "elastic non-actuated joint part-way along each link (link "
                                "and bearing bending beyond the gearbox)", source="[MWHB]")
-    bend_stiffness: tuple = param((3.0e6, 5.0e4), "N.m/rad", "stiffness of the bending joint of each link",
+    bend_stiffness: tuple = param((3.0e6, 2.4e5), "N.m/rad", "stiffness of the bending joint of each link",
                                   low=0.0, low_inclusive=False,
-                                  source="[MWHB]: with the motors locked, a forearm bending mode at "
-                                  "33-41 Hz over the workspace, above the gearbox modes (benchmarks/plant.py)")
-    bend_damping: tuple = param((300.0, 10.0), "N.m.s/rad", "damping of the bending joint of each link",
-                                low=0.0, source="about 1 % of critical for the outer part on its joint "
-                                "(structural damping, [MWHB]); with the gearbox damping the bending mode has 6-13 %")
-    bend_location: tuple = param((0.5, 0.5), "1", "position of the bending joint along each link, as a "
+                                  source="[MWHB]: with the motors locked, a bending mode of the wrist end "
+                                  "at 34-36 Hz over the workspace, above the gearbox modes (benchmarks/plant.py)")
+    bend_damping: tuple = param((300.0, 40.0), "N.m.s/rad", "damping of the bending joint of each link",
+                                low=0.0, source="about 2 % of critical for the outer part on its joint "
+                                "(structural damping, [MWHB])")
+    bend_location: tuple = param((0.5, 0.8), "1", "position of the bending joint along each link, as a "
                                  "fraction of its length from the proximal axis", low=0.0, high=1.0,
-                                 low_inclusive=False, high_inclusive=False, source="mid-link bending")
-    bend_mass_fraction: tuple = param((0.5, 0.3), "1", "share of each link's mass in its inner part "
+                                 low_inclusive=False, high_inclusive=False,
+                                 source="mid upper arm; the forearm bends near the wrist (its tube and the "
+                                 "wrist bearings), so the wrist, tool and payload vibrate")
+    bend_mass_fraction: tuple = param((0.5, 0.4), "1", "share of each link's mass in its inner part "
                                       "(a uniform rod up to the bending joint; the outer part has the rest "
                                       "and keeps the link's centre of mass and inertia)", low=0.0, high=1.0,
                                       low_inclusive=False, high_inclusive=False,

@@ -10,11 +10,12 @@ robot differs from it by
    that stand for link and bearing bending). Each link is split, at ``bend_location`` of its
    length, by a non-actuated rotational joint with a linear spring-damper: the arm becomes a
    planar chain of four bodies (inner upper arm, outer upper arm, inner forearm, outer forearm).
-   With the motors locked, the outer forearm (wrist, tool, payload) vibrates on its bending
-   joint at 33-41 Hz over the workspace, above the gearbox modes (8-19 Hz): a mode that moves
-   the tool with about two thirds of its strain energy in the bending joints, not in the gearbox
-   springs. The stiffer upper-arm bending lowers the gearbox modes a little and adds a local
-   mode of the light inner upper arm between its two springs (about 220 Hz, 15 % damped);
+   With the motors locked, the wrist end of the forearm (wrist, tool, payload) vibrates on its
+   bending joint at 34-36 Hz over the workspace, above the gearbox modes (8-19 Hz, almost
+   unchanged): a mode that moves the tool with 92-100 % of its strain energy in the bending
+   joints, not in the gearbox springs. The upper-arm bending, much stiffer than its gearbox,
+   adds a local mode of the light inner upper arm between its two springs (about 220 Hz, 15 %
+   damped). Gravity bends the links by about 0.2 mm at the tool;
 2. **motor torque errors**: torque-constant error and cogging / commutation ripple, periodic in
    the motor angle: ``tau_applied = (1 + e_kt) tau_m + A sin(n q_m)`` (``tau_m``: the commanded
    torque, the plant's input, which the estimators receive);

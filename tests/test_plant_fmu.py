@@ -70,7 +70,7 @@ def test_fmu_runs_standalone_and_the_arm_falls(fmu: Path) -> None:
 def test_gravity_holding_torque_keeps_it_at_rest(fmu: Path, unzipped: str) -> None:
     p = PlantParameters()
     q = np.array([0.5, 0.3])
-    s = Slave(fmu, {"q_a0[1]": q[0], "q_a0[2]": q[1]}, unzip_dir=unzipped, instance_name="plant")
+    s = Slave(fmu, {"q_a0[1]": q[0], "q_a0[2]": q[1], "ideal": True}, unzip_dir=unzipped, instance_name="plant")
     s.fmu.exitInitializationMode()
     tau = dynamics.gravity_torque(q, p) / as_array(p.gear_ratio)
     x_eq = dynamics.static_equilibrium(q, p)
@@ -89,7 +89,7 @@ def test_gravity_holding_torque_keeps_it_at_rest(fmu: Path, unzipped: str) -> No
 def test_fmu_outputs_equal_the_plain_model(fmu: Path, unzipped: str) -> None:
     p = PlantParameters(p_tool0=(1.2, 0.9))
     q0 = p.initial_angles()
-    s = Slave(fmu, {"p_tool0[1]": 1.2, "p_tool0[2]": 0.9}, unzip_dir=unzipped, instance_name="plant")
+    s = Slave(fmu, {"p_tool0[1]": 1.2, "p_tool0[2]": 0.9, "ideal": True}, unzip_dir=unzipped, instance_name="plant")
     s.fmu.exitInitializationMode()
     robot = p.robot()
     model = dynamics.FlexibleRobotModel(robot, q0, substeps=p.substeps)
@@ -118,7 +118,7 @@ def test_fmu_outputs_equal_the_plain_model(fmu: Path, unzipped: str) -> None:
 
 def test_accelerations_follow_f_ext_directly(fmu: Path, unzipped: str) -> None:
     """Direct feedthrough: a new f_ext changes ddq_a without a step."""
-    s = Slave(fmu, unzip_dir=unzipped, instance_name="plant")
+    s = Slave(fmu, {"ideal": True}, unzip_dir=unzipped, instance_name="plant")
     s.fmu.exitInitializationMode()
     robot = PlantParameters().robot()
     x = dynamics.static_equilibrium((0.0, 0.0), robot)

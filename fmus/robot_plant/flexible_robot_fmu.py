@@ -1,8 +1,9 @@
-"""FMU adapter of the flexible two-axis robot (2012 paper eqs. 10-11, 2009 paper eq. 2)."""
+"""FMU adapter of the flexible two-axis robot (2012 paper eqs. 10-11, 2009 paper eq. 2), with the
+realism of :mod:`fmus.robot_plant.plant_dynamics` unless ``ideal``."""
 from __future__ import annotations
 
-from fmus.common import dynamics, kinematics
 from fmus.common.fmi import FlexFusionSlave
+from fmus.robot_plant import plant_dynamics
 from fmus.robot_plant.plant_model import PlantParameters
 
 
@@ -13,6 +14,13 @@ class FlexibleRobot2DOF(FlexFusionSlave):
     that differs from the plant. The arm starts at rest in static equilibrium under gravity at
     ``q_a0``. Outputs at the end of a step use the state at that time and the inputs held over
     the step; the accelerations depend directly on ``f_ext``.
+
+    With ``ideal = false`` (the default) the plant has link bending, motor torque errors and
+    static kinematic errors that no estimator's model has; ``q_a`` stays the gearbox output angle
+    in the encoder's zero convention (``q_m / r - D``), while the tool and sensor outputs are
+    those of the real, bent robot. The integration step ``dt / substeps`` is checked against the
+    stiffest mode at the first ``doStep`` (the step size is not known before): a
+    ``ParameterError`` naming ``substeps`` ends the step.
     """
 
     parameters_class = PlantParameters
@@ -23,45 +31,44 @@ class FlexibleRobot2DOF(FlexFusionSlave):
         self.input("tau_m", 2, unit="N.m", description="motor torque, motor side")
         self.input("f_ext", 2, unit="N", description="external force on the tool, world x and z")
         acc = ("f_ext",)
-        self.output("q_a", 2, unit="rad", description="arm angle")
+        self.output("q_a", 2, unit="rad", description="arm angle at the gearbox output (q_m / r - deflection, encoder zero)")
         self.output("dq_a", 2, unit="rad/s", description="arm angular velocity")
         self.output("ddq_a", 2, unit="rad/s2", description="arm angular acceleration", depends_on=acc)
         self.output("q_m", 2, unit="rad", description="motor angle, motor side")
         self.output("dq_m", 2, unit="rad/s", description="motor angular velocity, motor side")
-        self.output("p_tool", 2, unit="m", description="tool position, world x and z")
+        self.output("p_tool", 2, unit="m", description="tool position of the real robot (bent, true geometry), world x and z")
         self.output("v_tool", 2, unit="m/s", description="tool velocity, world x and z")
         self.output("a_tool", 2, unit="m/s2", description="tool acceleration, world x and z", depends_on=acc)
-        self.output("phi_tool", unit="rad", description="tool angle about world y")
+        self.output("phi_tool", unit="rad", description="tool (flange) angle about world y of the real robot")
         self.output("omega_tool", unit="rad/s", description="tool angular rate about world y")
         self.output("p_sensor", 2, unit="m", description="accelerometer mount position, world x and z")
         self.output("a_sensor", 2, unit="m/s2", description="accelerometer mount acceleration, world x and z",
                     depends_on=acc)
         self.output("tau_s", 2, unit="N.m", description="gearbox spring torque, arm side")
+        self.output("tau_applied", 2, unit="N.m", description="motor torque applied at the end of the last "
+                    "step: (1 + torque_constant_error) tau_m + ripple, with the tau_m held over that step "
+                    "(diagnostic), motor side")
 
     def setup(self, params: PlantParameters) -> None:
-        self.robot = params.robot()
-        self.model = dynamics.FlexibleRobotModel(self.robot, params.initial_angles(), substeps=params.substeps)
+        self.model = plant_dynamics.plant_model(params)
         self.update_outputs()
+        self.update_applied_torque()
 
     def step(self, t: float, dt: float) -> None:
+        self.model.check_step(dt)
         self.model.step(self.tau_m, self.f_ext, dt)
         self.update_outputs()
+        self.update_applied_torque()
+
+    def update_applied_torque(self) -> None:
+        """The torque the motors apply at the end of the step, for the command held over it."""
+        self.tau_applied[0], self.tau_applied[1] = self.model.applied_torques(float(self.tau_m[0]),
+                                                                              float(self.tau_m[1]))
 
     def update_outputs(self) -> None:
         # plain floats throughout: this runs every step
-        p = self.robot
-        s = self.model.state
-        q, qm, dq, dqm = s[0:2], s[2:4], s[4:6], s[6:8]
-        ddq = self.model.arm_acceleration(float(self.f_ext[0]), float(self.f_ext[1]))
-        for out, values in ((self.q_a, q), (self.dq_a, dq), (self.ddq_a, ddq), (self.q_m, qm),
-                            (self.dq_m, dqm), (self.tau_s, self.model.spring_torques())):
-            out[0], out[1] = values
-        x, z, vx, vz, ax, az = kinematics.point_motion(q, dq, ddq, p, "tool")
-        self.p_tool[0], self.p_tool[1] = x, z
-        self.v_tool[0], self.v_tool[1] = vx, vz
-        self.a_tool[0], self.a_tool[1] = ax, az
-        x, z, _, _, ax, az = kinematics.point_motion(q, dq, ddq, p, "sensor")
-        self.p_sensor[0], self.p_sensor[1] = x, z
-        self.a_sensor[0], self.a_sensor[1] = ax, az
-        self.phi_tool = q[0] + q[1]
-        self.omega_tool = dq[0] + dq[1]
+        (self.q_a[0], self.q_a[1], self.dq_a[0], self.dq_a[1], self.ddq_a[0], self.ddq_a[1],
+         self.q_m[0], self.q_m[1], self.dq_m[0], self.dq_m[1], self.p_tool[0], self.p_tool[1],
+         self.v_tool[0], self.v_tool[1], self.a_tool[0], self.a_tool[1], self.phi_tool, self.omega_tool,
+         self.p_sensor[0], self.p_sensor[1], self.a_sensor[0], self.a_sensor[1], self.tau_s[0],
+         self.tau_s[1]) = self.model.outputs(float(self.f_ext[0]), float(self.f_ext[1]))

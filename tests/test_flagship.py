@@ -46,15 +46,25 @@ def test_imu_at_the_start_reads_gravity(result) -> None:
 def test_ekf_with_accelerometer_beats_rigid_kinematics_and_is_on_time(result) -> None:
     """The 2012 paper's EKF tracks the bending tool better than the motor angles alone, and its
     estimate belongs to the same time as the truth (no one-step offset: at 200 mm/s one step
-    is 0.2 mm)."""
+    is 0.2 mm).
+
+    The plant is the realistic one: its static kinematic errors (0.1-0.5 mm at the tool) are
+    unknown to both estimators and set a floor under both RMS errors (ideal plant: EKF 0.014 vs
+    rigid 0.103 mm; realistic: 0.11 vs 0.16 mm over 4 s). The bending the accelerometer sees
+    is in the 3-30 Hz band (2009 paper's Table I), where the EKF's peak error is a third of
+    rigid kinematics'."""
     after = result.time >= 0.5
     truth = result["plant.p_tool"]
     err = {n: np.hypot(*(result[f"{n}.p_tool_hat"] - truth).T)[after] for n in ("ekf", "rigid")}
     rms = {n: float(np.sqrt((e ** 2).mean())) for n, e in err.items()}
-    assert rms["ekf"] < 0.5 * rms["rigid"], rms
-    ekf = result["ekf.p_tool_hat"][after]
-    shifted = np.hypot(*(ekf[1:] - truth[after][:-1]).T)     # estimate vs the truth a step earlier
-    assert err["ekf"].mean() < 0.5 * shifted.mean()
+    assert rms["ekf"] < rms["rigid"], rms
+    band = {n: result.metrics[f"{n}_position_3_30Hz_max"] for n in ("ekf", "rigid")}
+    assert band["ekf"] < 0.5 * band["rigid"], band
+    # on time: the estimate is closest to the truth of its own step, not of a neighbouring one
+    # (the static error floor is the same for every lag, the path moves 0.2 mm per step)
+    ekf, truth = result["ekf.p_tool_hat"][after][2:-2], truth[after]
+    lag_error = {lag: np.hypot(*(ekf - truth[2 - lag:len(truth) - 2 - lag]).T).mean() for lag in range(-2, 3)}
+    assert min(lag_error, key=lag_error.get) == 0, lag_error
 
 
 def test_tracker_is_the_papers_reference_system(result) -> None:

@@ -28,10 +28,13 @@ Format::
     fmu = "FlexibleRobot2DOF"  # model identifier in dist/fmus (or $FLEXFUSION_FMU_DIR),
                                # or a path to a .fmu relative to this file
     step = 0.001               # communication step (default: base_step)
-    parameter_sets = ["identified_robot"]   # optional: sets applied in order (a later set wins);
-                               # the component's own parameters win over its sets
     [components.plant.parameters]
     k_hi = [4.0e5, 2.0e5]      # a list sets a vector parameter k_hi[1], k_hi[2]
+
+    [components.ekf]
+    fmu = "EkfComplete"
+    parameter_sets = ["identified_robot"]   # optional: sets applied in order (a later set wins);
+                               # the component's own parameters win over its sets
 
     connections = ["plant.q_m -> encoder.q_m"]   # (top level) whole vectors or scalars
 

@@ -287,7 +287,9 @@ def main(args: argparse.Namespace) -> int:
     if args.stop_time is not None:
         overrides.append(f"scenario.stop_time={args.stop_time}")
     out = Path(args.out)
-    command = " ".join(["flexfusion study identify", str(args.scenario), "--out", str(args.out)]
+    scenario = [] if Path(args.scenario) == DEFAULT_SCENARIO else [str(args.scenario)]
+    command = " ".join(["flexfusion study identify", *scenario, "--out", str(args.out)]
+                       + ([f"--include {args.include}"] if args.include else [])
                        + [f"--working-point {p}" for p in args.working_point or ()]
                        + [f"--{k.replace('_', '-')} {getattr(args, k)}" for k in ("amplitude", "stop_time")
                           if getattr(args, k) is not None]

@@ -53,10 +53,9 @@ import numpy as np
 from fmus.common import dynamics, kinematics
 from fmus.common.parameters import as_array, fields
 from fmus.common.robot_params import RobotParameters
-from fmus.robot_plant.motion_control_model import (MotionController, MotionControlModel,
-                                                   MotionControllerParameters, PidGains,
-                                                   build_trajectory)
-from fmus.robot_plant.sensor_model import butterworth_coefficients
+from fmus.robot_plant.motion_control_model import (MotionController, MotionControllerParameters,
+                                                   build_controller)
+from fmus.robot_plant.sensor_model import butterworth_coefficients, rot_rpy
 
 JOINT_PARAMETERS = ("k_lo", "k_hi", "d", "J_m", "f_v", "f_c")
 #: The base parameters of the rigid links (the combinations the model depends on).
@@ -138,6 +137,9 @@ class Experiment:
     the accelerometer's specific force (sensor frame). ``controller`` the controller's
     parameters (its settings, path and excitation); ``acc_cutoff``, ``acc_filter_order``,
     ``mount_rpy`` and ``g`` the accelerometer's data-sheet filter and its mounting.
+
+    The fit does not need ``tau_m``: the controller law that produced it is known and simulated
+    with the model (closed-loop output error); it is kept with the data, as in a real log.
     """
 
     name: str
@@ -155,19 +157,19 @@ class Experiment:
     def dt(self) -> float:
         return float(self.time[1] - self.time[0])
 
-    def control_model(self) -> MotionControlModel:
-        """The controller's reference table (built once per process and controller setting)."""
+    def controller_model(self) -> MotionController:
+        """The experiment's controller (reference table built once per process and setting),
+        to be copied: ``MotionController(c.model, c.excitation)`` starts a fresh run."""
         c = self.controller
-        model = _CONTROL_MODELS.get(c)
-        if model is None:
-            if len(_CONTROL_MODELS) >= 32:
-                _CONTROL_MODELS.clear()
-            gains = PidGains.from_values(c.kp, c.kd, c.ti, c.tau_max)
-            model = _CONTROL_MODELS[c] = MotionControlModel(build_trajectory(c), c.robot(), gains)
-        return model
+        ctrl = _CONTROLLERS.get(c)
+        if ctrl is None:
+            if len(_CONTROLLERS) >= 32:
+                _CONTROLLERS.clear()
+            ctrl = _CONTROLLERS[c] = build_controller(c)
+        return ctrl
 
 
-_CONTROL_MODELS: dict[MotionControllerParameters, MotionControlModel] = {}
+_CONTROLLERS: dict[MotionControllerParameters, MotionController] = {}
 
 
 def rest_state(q_m0: Sequence[float], p: RobotParameters) -> np.ndarray:
@@ -187,7 +189,6 @@ def rest_state(q_m0: Sequence[float], p: RobotParameters) -> np.ndarray:
 def specific_force(a_xz: np.ndarray, phi: np.ndarray, mount_rpy: Sequence[float], g: float) -> np.ndarray:
     """Accelerometer reading ``R_s^T (a - g_vec)`` in the sensor frame, vectorised over samples
     (n, 3): :func:`fmus.robot_plant.sensor_model.imu_reading` for arrays."""
-    from fmus.robot_plant.sensor_model import rot_rpy
     c, s = np.cos(phi), np.sin(phi)
     ax, azg = a_xz[:, 0], a_xz[:, 1] + g
     tool = np.stack([c * ax - s * azg, np.zeros_like(ax), s * ax + c * azg], axis=1)   # Ry(phi)^T v
@@ -208,7 +209,8 @@ def simulate(p: RobotParameters, exp: Experiment) -> tuple[np.ndarray, np.ndarra
     """
     dt = exp.dt
     n = len(exp.time) - 1
-    ctrl = MotionController(exp.control_model(), exp.controller.excitation())
+    template = exp.controller_model()
+    ctrl = MotionController(template.model, template.excitation)
     plant = dynamics.FlexibleRobotModel(p, np.zeros(2))
     plant.x = rest_state(exp.q_m[0], p)
     zero = np.zeros(2)

@@ -43,8 +43,6 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
-import numpy as np
-
 from . import identification as ident
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
 from .study_montecarlo import _dataclass_from_scalars

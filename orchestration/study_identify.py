@@ -55,7 +55,6 @@ SET_NAME = "identified_robot"
 #: zone and its gravity moment), the forearm near vertical (the elbow's soft zone), and the
 #: arm stretched out under full gravity load (high stiffness, large inertia).
 WORKING_POINTS: tuple[tuple[float, float], ...] = ((0.7, 1.3), (0.9, -0.6), (1.4, 0.3))
-RECORDED = ("controller.tau_m", "encoder.q_m_meas", "imu.acc_s")
 BIAS_LIMIT = 3.0          #: an error beyond this many standard deviations is called biased ...
 RESOLUTION = 1e-6         #: ... if it also exceeds the optimiser's resolution (relative; xtol 1e-8
                           #: in log space): noise-free data have std near rounding error
@@ -68,14 +67,21 @@ def _vector(value: Sequence[float]) -> str:
     return "[" + ", ".join(repr(float(v)) for v in value) + "]"
 
 
-def experiment_overrides(k: int, point: Sequence[float], amplitude: float | None) -> list[str]:
+def experiment_overrides(k: int, point: Sequence[float], amplitude: float | None, controller: str = "controller",
+                         plant: str = "plant") -> list[str]:
     """Overrides of experiment ``k`` at the working point ``point``: path start, initial pose,
-    its own excitation seed and noise seed."""
-    out = [f"controller.path_start={_vector(point)}", f"plant.p_tool0={_vector(point)}",
-           f"controller.excitation_seed={k}", f"scenario.seed={k + 1}"]
+    its own excitation seed and noise seed (``controller``, ``plant``: component names)."""
+    out = [f"{controller}.path_start={_vector(point)}", f"{plant}.p_tool0={_vector(point)}",
+           f"{controller}.excitation_seed={k}", f"scenario.seed={k + 1}"]
     if amplitude is not None:
-        out.append(f"controller.excitation_amplitude={_vector((amplitude, amplitude))}")
+        out.append(f"{controller}.excitation_amplitude={_vector((amplitude, amplitude))}")
     return out
+
+
+def recorded(sc: Any) -> list[str]:
+    """What the fit reads: the commanded torque, the encoder angles, the accelerometer."""
+    return [f"{_component(sc, fmu).name}.{var}" for fmu, var in
+            (("MotionController", "tau_m"), ("Encoder", "q_m_meas"), ("Imu", "acc_s"))]
 
 
 def _component(sc: Any, fmu: str) -> Any:
@@ -123,9 +129,11 @@ def run_experiments(scenario: str | Path, points: Sequence[Sequence[float]], exe
     from .scenario import load_scenario
     from .study_tune import load_document
     doc = load_document(scenario)
-    per_exp = [list(overrides) + experiment_overrides(k, pt, amplitude) for k, pt in enumerate(points)]
-    scenarios = [load_scenario(doc, ov) for ov in per_exp]       # bad input fails here, once
-    runs = map_jobs(simulate, [(doc, ov, RECORDED) for ov in per_exp], executor, star=True,
+    sc = load_scenario(doc, overrides)                        # bad input fails here, once
+    names = {"controller": _component(sc, "MotionController").name, "plant": _component(sc, "FlexibleRobot2DOF").name}
+    per_exp = [list(overrides) + experiment_overrides(k, pt, amplitude, **names) for k, pt in enumerate(points)]
+    scenarios = [load_scenario(doc, ov) for ov in per_exp]
+    runs = map_jobs(simulate, [(doc, ov, recorded(sc)) for ov in per_exp], executor, star=True,
                     desc="identification experiments", progress=progress)
     exps = [_experiment(f"working point {tuple(pt)}", sc, run) for pt, sc, run in zip(points, scenarios, runs)]
     return exps, scenarios[0]
@@ -335,5 +343,5 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=main)
 
 
-__all__ = ["identify", "run_experiments", "report", "write_include", "plant_truth", "noise_levels",
+__all__ = ["identify", "run_experiments", "experiment_overrides", "recorded", "report", "write_include", "plant_truth", "noise_levels",
            "WORKING_POINTS", "register"]

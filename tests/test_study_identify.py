@@ -34,8 +34,8 @@ def test_model_simulation_reproduces_the_fmu_experiment():
     """With the plant's own parameters and noise-free sensors, the fit's closed-loop simulation
     (controller, plant timing, accelerometer filter) is the co-simulation to rounding error."""
     overrides = NOISE_FREE + study_identify.experiment_overrides(0, (0.9, -0.6), 0.5) + ["scenario.stop_time=0.6"]
-    run = simulate(SCENARIO, overrides, variables=study_identify.RECORDED)
     sc = load_scenario(SCENARIO, overrides)
+    run = simulate(SCENARIO, overrides, variables=study_identify.recorded(sc))
     exp = study_identify._experiment("x", sc, run)
     true, _ = study_identify.plant_truth(sc)
     q_m, acc = ident.simulate(true, exp)

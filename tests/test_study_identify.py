@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from fmus.common.robot_params import RobotParameters
 from orchestration import identification as ident
 from orchestration import study_identify
 from orchestration.cli import main
@@ -181,3 +182,24 @@ def test_parameter_set_errors_in_includes_and_overrides(tmp_path):
     write(tmp_path, "", "inc.toml")
     with pytest.raises(ScenarioError, match=r"unknown parameter set 'nope'"):
         load_scenario(path, ["parameter_sets.nope.gain=1"])
+
+
+def test_report_says_which_estimates_are_biased_and_why():
+    """An error beyond 3 std is biased; on a plant marked non-ideal the reason names the
+    unmodelled dynamics; an undetermined parameter (infinite std) is said to be so."""
+    true = RobotParameters()
+    values = dict(zip(ident.NAMES, ident.parameter_values(true)))
+    std = {n: 1e-3 * v for n, v in values.items()}
+    values["k_lo[1]"] *= 1.01                                   # 10 std off
+    values["d[2]"] *= 1.002                                     # 2 std off: not biased
+    std["f_v[1]"] = float("inf")
+    fit = ident.Fit(ident.robot_from_values(list(values.values()), true), values, std, 1.0, 1.0, 100, 3, True, "")
+    rep = study_identify.report(fit, true, ideal=False)
+    assert rep["biased"] == ["k_lo[1]"] and rep["plant"]["unmodelled_dynamics"] is True
+    assert "dynamics the model lacks" in rep["parameters"]["k_lo[1]"]["reason"]
+    assert_allclose(rep["parameters"]["k_lo[1]"]["error_in_std"], 10.0, rtol=1e-6)
+    assert rep["parameters"]["d[2]"]["biased"] is False
+    assert rep["parameters"]["f_v[1]"]["std"] is None and "not determined" in rep["parameters"]["f_v[1]"]["reason"]
+    json.dumps(rep)                                              # JSON-able (no inf, no numpy types)
+    rep = study_identify.report(fit, true, ideal=None)
+    assert rep["plant"]["unmodelled_dynamics"] is False and "insufficient" in rep["parameters"]["k_lo[1]"]["reason"]

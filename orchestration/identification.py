@@ -22,13 +22,19 @@ this formulation:
   linearisation per working point, which the gearbox's nonlinear (soft near zero torque)
   spring and the Coulomb friction violate - exactly the parameters we must fit here.
 * Moberg, Wernholt, Hanssen & Brogardh (2014, "Modeling and parameter estimation of robot
-  manipulators using extended flexible joint models", J. Dyn. Sys. Meas. Control) refine the
-  frequency-domain estimate by a time-domain nonlinear fit of the full model, the approach used
-  here directly. Because the rigid-body mode of the arm is only marginally stable without
-  feedback, the model is simulated with the known feedback (closed-loop output error, as in
-  their experiments on a controlled robot) rather than open loop from the measured torque.
-* Output error is consistent for white measurement noise and gives the uncertainty from the
-  Jacobian at the optimum, ``cov = s^2 (J^T J)^-1`` (Ljung 1999, ch. 9).
+  manipulators using extended flexible joint models", J. Dyn. Sys. Meas. Control) fit
+  *extended* flexible-joint models (elasticity beyond the gearbox); the estimators' model here
+  is the basic one, so on a plant with such extra elasticity the fit is biased - reported, not
+  hidden. A time-domain nonlinear fit of the whole model over several working points (here)
+  uses the nonlinear spring and friction as they are instead of linearising them per working
+  point. Because the rigid-body mode of the arm is only marginally stable without feedback, the
+  model is simulated with the known feedback (closed-loop output error; Ljung 1999, on
+  identification in closed loop) rather than open loop from the measured torque.
+* Output error is consistent when the measurement noise is white and does not enter the loop
+  (true here: the drive feeds back its own motor angle, the encoder and accelerometer only
+  measure), and gives the uncertainty from the Jacobian at the optimum,
+  ``cov = s^2 (J^T J)^-1`` (Ljung 1999, ch. 9). On a plant with dynamics the model lacks the
+  estimates are biased and the covariance does not cover that bias.
 
 **Parameters.** Fitted, per joint (log-scale, so relative errors): gearbox stiffness ``k_lo``,
 ``k_hi``, damping ``d``, motor inertia ``J_m``, friction ``f_v``, ``f_c``. Of the rigid links

@@ -71,8 +71,9 @@ def main() -> None:
         rep = study_identify.identify(study_identify.DEFAULT_SCENARIO, Path(tmp), ex, progress=False)
         wall = time.perf_counter() - t0
     worst = max(abs(p["relative_error"]) for p in rep["parameters"].values())
-    print(f"study identify on {args.workers} workers: {wall:.1f} s (experiments "
-          f"{rep['experiments']['wall_time_experiments']:.1f} s, fit {wall - rep['experiments']['wall_time_experiments']:.1f} s), "
+    t_exp = rep["experiments"]["wall_time_experiments"]
+    print(f"study identify on {args.workers} workers: {wall:.1f} s (experiments {t_exp:.1f} s, "
+          f"fit {wall - t_exp:.1f} s), "
           f"{rep['fit']['nfev']} residual evaluations, s^2 = {rep['fit']['s2']:.3g}, "
           f"largest relative error {worst:.2e}, biased: {', '.join(rep['biased']) or 'none'}")
 

@@ -43,6 +43,8 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
+from fmus.common.parameters import ParameterError, validate
+
 from . import identification as ident
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
 from .study_montecarlo import _dataclass_from_scalars
@@ -130,7 +132,8 @@ def run_experiments(scenario: str | Path, points: Sequence[Sequence[float]], exe
     from .study_tune import load_document
     doc = load_document(scenario)
     sc = load_scenario(doc, overrides)                        # bad input fails here, once
-    names = {"controller": _component(sc, "MotionController").name, "plant": _component(sc, "FlexibleRobot2DOF").name}
+    names = {"controller": _component(sc, "MotionController").name,
+             "plant": _component(sc, "FlexibleRobot2DOF").name}
     per_exp = [list(overrides) + experiment_overrides(k, pt, amplitude, **names) for k, pt in enumerate(points)]
     scenarios = [load_scenario(doc, ov) for ov in per_exp]
     runs = map_jobs(simulate, [(doc, ov, recorded(sc)) for ov in per_exp], executor, star=True,
@@ -264,7 +267,6 @@ def identify(scenario: str | Path, out: Path, executor: Any, *, points: Sequence
                           "wall_time_experiments": t_exp}
     rep["wall_time"] = wall
     json_path.write_text(json.dumps(rep, indent=1))
-    from fmus.common.parameters import ParameterError, validate
     try:
         validate(fit.robot)
     except ParameterError as exc:
@@ -311,6 +313,13 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
+    return value
+
+
 def parse_point(text: str) -> tuple[float, float]:
     """``X,Z`` -> ``(X, Z)``."""
     try:
@@ -333,7 +342,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--amplitude", type=float, default=None, help="multisine RMS per joint, N m "
                    "(default: the scenario's)")
     p.add_argument("--stop-time", type=float, default=None, help="length of each experiment (s)")
-    p.add_argument("--max-nfev", type=int, default=40, help="residual evaluations of the optimiser "
+    p.add_argument("--max-nfev", type=_positive, default=40, help="residual evaluations of the optimiser "
                    "(default 40)")
     p.add_argument("--include", default=None, metavar="FILE",
                    help="include file to write (default DIR/identified_robot.toml)")
@@ -343,5 +352,5 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=main)
 
 
-__all__ = ["identify", "run_experiments", "experiment_overrides", "recorded", "report", "write_include", "plant_truth", "noise_levels",
-           "WORKING_POINTS", "register"]
+__all__ = ["identify", "run_experiments", "experiment_overrides", "recorded", "report", "write_include",
+           "plant_truth", "noise_levels", "WORKING_POINTS", "register"]

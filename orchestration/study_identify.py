@@ -191,13 +191,24 @@ def report(fit: ident.Fit, true: Any, ideal: bool | None) -> dict[str, Any]:
                            "torque-constant and kinematic errors): estimates are biased" if unmodelled else
                            "the plant has no dynamics beyond the model's structure")},
         "fit": {"converged": fit.converged, "message": fit.message, "cost": fit.cost, "s2": fit.s2,
-                "n_residuals": fit.n_residuals, "nfev": fit.nfev},
+                "n_residuals": fit.n_residuals, "nfev": fit.nfev,
+                "correlated": _correlated(fit.correlation)},
         "parameters": params,
         "derived": derived,
         "fixed": fixed,
         "biased": [n for n, p in params.items() if p["biased"]],
         "identified_robot": fitted_phys,
     }
+
+
+def _correlated(corr: Any, limit: float = 0.9) -> list[list[Any]]:
+    """Pairs of fitted parameters whose estimates correlate beyond ``limit`` (nearly the same
+    information in the data), with the correlation."""
+    if corr is None:
+        return []
+    n = len(ident.NAMES)
+    return [[ident.NAMES[i], ident.NAMES[j], float(corr[i, j])] for i in range(n) for j in range(i + 1, n)
+            if abs(corr[i, j]) > limit and abs(corr[i, j]) != float("inf")]
 
 
 def write_include(path: Path, fit: ident.Fit, header: str) -> Path:

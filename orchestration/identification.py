@@ -163,7 +163,7 @@ class Experiment:
     def dt(self) -> float:
         return float(self.time[1] - self.time[0])
 
-    def controller_model(self) -> MotionController:
+    def built_controller(self) -> MotionController:
         """The experiment's controller (reference table built once per process and setting),
         to be copied: ``MotionController(c.model, c.excitation)`` starts a fresh run."""
         c = self.controller
@@ -215,7 +215,7 @@ def simulate(p: RobotParameters, exp: Experiment) -> tuple[np.ndarray, np.ndarra
     """
     dt = exp.dt
     n = len(exp.time) - 1
-    template = exp.controller_model()
+    template = exp.built_controller()
     ctrl = MotionController(template.model, template.excitation)
     plant = dynamics.FlexibleRobotModel(p, np.zeros(2))
     plant.x = rest_state(exp.q_m[0], p)
@@ -277,11 +277,6 @@ def experiment_residual(theta: Sequence[float], exp: Experiment, nominal: RobotP
             return np.full(5 * n, np.nan)
     return np.concatenate([((exp.q_m[1:] - q_m[1:]) / noise.q_m).ravel(),
                            ((exp.acc[1:] - acc[1:]) / noise.acc).ravel()])
-
-
-def _residual_job(theta: Sequence[float], exp: Experiment, nominal: RobotParameters,
-                  noise: NoiseLevels) -> np.ndarray:
-    return experiment_residual(theta, exp, nominal, noise)
 
 
 Mapper = Callable[[Callable[..., Any], list[tuple]], list[Any]]
@@ -366,7 +361,7 @@ def fit(experiments: Sequence[Experiment], nominal: RobotParameters, *, noise: N
     def residual(x: np.ndarray) -> np.ndarray:
         if best["f"] is not None and np.array_equal(best["x"], x):
             return best["f"]
-        parts = map_fn(_residual_job, [(x, e, nominal, noise) for e in exps])
+        parts = map_fn(experiment_residual, [(x, e, nominal, noise) for e in exps])
         f = np.concatenate(parts)
         nfev[0] += 1
         cost = 0.5 * float(f @ f) if np.all(np.isfinite(f)) else math.inf
@@ -387,7 +382,7 @@ def fit(experiments: Sequence[Experiment], nominal: RobotParameters, *, noise: N
             xk = np.array(x)
             xk[k] += diff_step
             jobs += [(xk, e, nominal, noise) for e in exps]
-        parts = map_fn(_residual_job, jobs)
+        parts = map_fn(experiment_residual, jobs)
         m = len(exps)
         cols = [(np.concatenate(parts[k * m:(k + 1) * m]) - f0) / diff_step for k in range(len(x))]
         last_jac.update(x=np.array(x), J=np.column_stack(cols))

@@ -13,10 +13,16 @@ Format::
     stop_time = 10.0           # s
     base_step = 0.001          # s; every communication step is an integer multiple of it
     seed = 1                   # seeds every component that declares an Integer parameter `seed`
-    include = ["tuned.toml"]   # optional: [components.X.parameters] of these files are merged
-                               # in (relative to this file; an included value wins over this
-                               # file's, an override given on the command line wins over both)
+    include = ["tuned.toml"]   # optional: [components.X.parameters] and [parameter_sets.S] of
+                               # these files are merged in (relative to this file; an included
+                               # value wins over this file's, an override given on the command
+                               # line wins over both)
     # parameters named *_file (e.g. csv_file) are paths relative to the file that sets them
+
+    [parameter_sets.identified_robot]   # a named parameter set (here or in an included file)
+    k_lo = [3.9e5, 1.2e5]      # applied to every component that lists the set and whose FMU
+    J_m = [5.1e-3, 4.0e-3]     # declares the parameter (others ignore it); a key no such
+                               # component declares is an error
 
     [components.plant]
     fmu = "FlexibleRobot2DOF"  # model identifier in dist/fmus (or $FLEXFUSION_FMU_DIR),
@@ -24,6 +30,11 @@ Format::
     step = 0.001               # communication step (default: base_step)
     [components.plant.parameters]
     k_hi = [4.0e5, 2.0e5]      # a list sets a vector parameter k_hi[1], k_hi[2]
+
+    [components.ekf]
+    fmu = "EkfComplete"
+    parameter_sets = ["identified_robot"]   # optional: sets applied in order (a later set wins);
+                               # the component's own parameters win over its sets
 
     connections = ["plant.q_m -> encoder.q_m"]   # (top level) whole vectors or scalars
     oracles = []   # (top level) connections that feed plant truth to an estimator or a
@@ -54,7 +65,10 @@ scenario is loaded, unless it is listed in ``oracles`` (each entry must be one o
 
 Overrides (``--set``) are strings ``comp.param=value`` (value parsed as a TOML value, a vector as
 ``[1, 2]``), ``comp.param[2]=value`` and ``scenario.<key>=value`` for ``seed``, ``stop_time``,
-``base_step``, ``name`` and ``description``.
+``base_step``, ``name`` and ``description``. A parameter set is changed with
+``parameter_sets.S.param=value`` or replaced as a whole with ``parameter_sets.S={...}``
+(``parameter_sets.S={}`` empties it: its components keep their FMU defaults), and a
+component's list of sets with ``comp.parameter_sets=["S"]``.
 """
 from __future__ import annotations
 
@@ -444,7 +458,8 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
         path = Path(source)
         doc = _read_toml(path)
         label, base_dir = str(path), path.resolve().parent
-    _check_keys(label, doc, {"scenario", "components", "connections", "oracles", "record", "metrics"})
+    _check_keys(label, doc, {"scenario", "components", "connections", "oracles", "record", "metrics",
+                             "parameter_sets"})
     head = doc.get("scenario", {})
     _check_keys(f"{label}: [scenario]", head, _SCENARIO_KEYS)
     comps_doc = doc.get("components", {})
@@ -456,13 +471,19 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
         if isinstance(ctab, dict) and isinstance(ctab.get("parameters"), dict):
             resolve_file_parameters(ctab["parameters"], base_dir)
 
-    # includes: their [components.X.parameters] are merged over this file's
+    sets = _parameter_sets(label, doc.get("parameter_sets", {}), base_dir)
+
+    # includes: their [components.X.parameters] and [parameter_sets.S] are merged over this file's
     includes = head.get("include", [])
     if isinstance(includes, str):
         includes = [includes]
     for inc in includes:
         inc_path = base_dir / inc
         inc_doc = _read_toml(inc_path)
+        _check_keys(str(inc_path), inc_doc, {"components", "parameter_sets"})
+        for sname, table in _parameter_sets(str(inc_path), inc_doc.get("parameter_sets", {}),
+                                            inc_path.resolve().parent).items():
+            sets.setdefault(sname, {}).update(table)
         for cname, ctab in inc_doc.get("components", {}).items():
             if cname not in comps_doc:
                 raise ScenarioError(f"{inc_path}: unknown component '{cname}' (not in {label})")
@@ -483,9 +504,22 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
                                     "seed, stop_time, base_step, name, description)")
             head[pname] = value
             continue
+        if cname == "parameter_sets":
+            sname, _, key = pname.partition(".")
+            if sname not in sets:
+                raise ScenarioError(f"{where}: unknown parameter set '{sname}' (defined: "
+                                    f"{', '.join(sets) or 'none'})")
+            if not key:
+                sets[sname] = _parameter_sets(where, {sname: value}, base_dir)[sname]
+            else:
+                sets[sname][key if index is None else f"{key}[{index}]"] = value
+            continue
         if cname not in comps_doc:
             raise ScenarioError(f"{where}: unknown component '{cname}' (components: "
                                 f"{', '.join(comps_doc)})")
+        if pname == "parameter_sets" and index is None:
+            comps_doc[cname]["parameter_sets"] = value
+            continue
         params = comps_doc[cname].setdefault("parameters", {})
         if index is None:
             params[pname] = value
@@ -493,7 +527,55 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
             params[f"{pname}[{index}]"] = value
     head.pop("include", None)
     doc["scenario"] = head
+    doc["parameter_sets"] = sets
     return doc, path, label, base_dir
+
+
+def _parameter_sets(where: str, table: Any, base_dir: Path) -> dict[str, dict[str, Any]]:
+    """The ``[parameter_sets.S]`` tables of a file, checked to be tables (copies, ``*_file``
+    values made relative to ``base_dir``)."""
+    if not isinstance(table, dict):
+        raise ScenarioError(f"{where}: 'parameter_sets' must be a table of [parameter_sets.NAME] tables")
+    out = {}
+    for sname, params in table.items():
+        if not isinstance(params, dict):
+            raise ScenarioError(f"{where}: [parameter_sets.{sname}] must be a table of parameter values")
+        out[sname] = dict(params)
+        resolve_file_parameters(out[sname], base_dir)
+    return out
+
+
+def _set_parameters(where: str, comp: Component, names: Any, sets: dict[str, dict[str, Any]],
+                    users: dict[str, list[Component]]) -> dict[str, ParamValue]:
+    """The values the component's parameter sets give it (later sets win), restricted to the
+    parameters its FMU declares; records the component in ``users`` per set."""
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise ScenarioError(f"{where}: 'parameter_sets' must be a list of set names, got {names!r}")
+    out: dict[str, ParamValue] = {}
+    for sname in names:
+        if sname not in sets:
+            raise ScenarioError(f"{where}: unknown parameter set '{sname}' (defined: "
+                                f"{', '.join(sets) or 'none'})")
+        users.setdefault(sname, []).append(comp)
+        declared = {k: v for k, v in sets[sname].items() if _declares(comp, k)}
+        out.update(_flatten_parameters(f"{where}: parameter set '{sname}'", comp, declared))
+    return out
+
+
+def _declares(comp: Component, name: str) -> bool:
+    """Whether the component's FMU has the parameter ``name`` (a scalar or a whole vector)."""
+    group = comp.group(name)
+    return bool(group) and comp.variables[group[0]].causality == "parameter"
+
+
+def _check_set_keys(label: str, sets: dict[str, dict[str, Any]], users: dict[str, list[Component]]) -> None:
+    """A key of a used set that none of its components declares is a typo: reject it."""
+    for sname, comps in users.items():
+        unused = [k for k in sets[sname] if not any(_declares(c, k) for c in comps)]
+        if unused:
+            raise ScenarioError(f"{label}: parameter set '{sname}': {', '.join(repr(k) for k in unused)} "
+                                f"is a parameter of none of the components that use the set "
+                                f"({', '.join(c.name for c in comps)})")
 
 
 def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] = ()) -> Scenario:
@@ -530,6 +612,8 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ScenarioError(f"{label}: [scenario] seed must be an integer, got {seed!r}")
 
+    sets = doc["parameter_sets"]
+    set_users: dict[str, list[Component]] = {}
     components: dict[str, Component] = {}
     for cname, ctab in comps_doc.items():
         where = f"{label}: component '{cname}'"
@@ -538,7 +622,7 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
         if isinstance(ctab, dict) and "connections" in ctab:
             raise ScenarioError(f"{where}: 'connections' ended up inside [components.{cname}]: "
                                 "put the top-level connections = [...] before the first [table]")
-        _check_keys(where, ctab, {"fmu", "step", "parameters"})
+        _check_keys(where, ctab, {"fmu", "step", "parameters", "parameter_sets"})
         if "fmu" not in ctab:
             raise ScenarioError(f"{where}: 'fmu' is missing")
         fmu = _resolve_fmu(where, ctab["fmu"], base_dir)
@@ -554,12 +638,14 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
         params = ctab.get("parameters", {})
         if not isinstance(params, dict):
             raise ScenarioError(f"{where}: [parameters] must be a table")
-        comp.parameters = _flatten_parameters(where, comp, params)
+        comp.parameters = _set_parameters(where, comp, ctab.get("parameter_sets", []), sets, set_users)
+        comp.parameters.update(_flatten_parameters(where, comp, params))
         seed_info = variables.get("seed")
         if seed_info is not None and seed_info.causality == "parameter" and "seed" not in comp.parameters:
             comp.parameters["seed"] = _coerce(f"{where}: parameter 'seed'", seed_info,
                                               stable_seed(seed, cname))
         components[cname] = comp
+    _check_set_keys(label, sets, set_users)
 
     # connections
     conn_doc = doc.get("connections", [])

@@ -316,3 +316,27 @@ def test_closed_loop_is_stable_and_damped(params, robot) -> None:
     # ... which stay lightly damped, between 8 and 30 Hz (the plant's own structural damping)
     flex = ~servo & (zeta < 0.5)
     assert flex.sum() == 4 and np.all((freq[flex] > 8.0) & (freq[flex] < 30.0)) and zeta[flex].min() > 0.02
+
+
+def test_identification_multisine_excitation(params) -> None:
+    """RMS = amplitude per joint, every line inside the band on the period's grid, independent
+    phases per joint, added to the PID torque (and nothing when the amplitude is zero)."""
+    ex = mcm.Multisine((0.5, 2.0), (3.0, 12.0), 1.0, seed=4)
+    t = np.arange(4000) / 4000.0                       # one period
+    u = np.array([ex(tk) for tk in t])
+    assert_allclose(np.sqrt(np.mean(u ** 2, axis=0)), [0.5, 2.0], rtol=1e-9)
+    spec = np.abs(np.fft.rfft(u, axis=0))
+    lines = np.flatnonzero(spec[:, 0] > 1e-6 * spec[:, 0].max())
+    assert lines.tolist() == list(range(3, 13))
+    assert abs(np.corrcoef(u[:, 0], u[:, 1])[0, 1]) < 0.3
+    with pytest.raises(ParameterError, match="excitation_band"):
+        mcm.Multisine((1.0, 1.0), (0.2, 0.4), 1.0, seed=0)
+    with pytest.raises(ParameterError, match="excitation_band"):
+        replace(params, excitation_band=(5.0, 2.0))
+    assert params.excitation() is None
+    excited = replace(params, excitation_amplitude=(0.5, 2.0), excitation_band=(3.0, 12.0), excitation_seed=4)
+    a, b = mcm.build_controller(params), mcm.build_controller(excited)
+    row = a.model.sample(0.37)
+    qm, dqm = row[mcm.COLUMNS["q_m_ref"]], row[mcm.COLUMNS["dq_m_ref"]]     # on the path: no saturation
+    assert_allclose(b.evaluate(0.37, qm, dqm, np.zeros(2)) - a.evaluate(0.37, qm, dqm, np.zeros(2)),
+                    ex(0.37), atol=1e-12)

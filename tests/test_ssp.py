@@ -228,3 +228,19 @@ def test_coupled_mass_springs_agree_within_the_coupling_error_and_converge_toget
     assert np.max(np.abs(rich_lc - rich_ours)) < 0.01 * diff[1]
     assert np.max(np.abs(rich_lc - exact)) < 0.02 * err_lc[1]
     assert np.max(np.abs(rich_ours - exact)) < 0.02 * err_ours[1]
+
+
+def test_parameters_from_a_parameter_set_are_bound(tmp_path):
+    """A named parameter set (orchestration/scenario.py) is resolved before the export: the
+    package binds the values the components got from it."""
+    text = CHAIN.replace('[components.src]', '[parameter_sets.model]\nslope = 3.5\ngain = 7.0\n\n[components.src]')
+    text = text.replace('fmu = "Source"\nstep = 0.004', 'fmu = "Source"\nstep = 0.004\nparameter_sets = ["model"]')
+    text = text.replace('fmu = "Gain"', 'fmu = "Gain"\nparameter_sets = ["model"]')
+    path = write(tmp_path, text)
+    with zipfile.ZipFile(export(tmp_path, path)) as z:
+        root = ET.fromstring(z.read("SystemStructure.ssd"))
+    bound = {(c.get("name"), p.get("name")): float(p[0].get("value"))
+             for c in root.iter(f"{{{NS['ssd']}}}Component") for p in c.iter(f"{{{NS['ssv']}}}Parameter")
+             if p[0].tag.endswith("Real")}
+    assert bound[("slow", "slope")] == 3.5 and bound[("src", "slope")] == 2.0
+    assert bound[("g", "gain")] == 3.0            # the component's own value wins over the set

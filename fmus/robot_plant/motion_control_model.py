@@ -27,6 +27,10 @@ What a real robot controller does, in three layers (the MotionController FMU is 
    rigid (motor + reflected arm) inertia - well below the 8-15 Hz gearbox resonances, as on a
    real robot, so the arm's flexible modes are excited by the path and lightly damped.
 
+4. **Identification excitation** (optional, :class:`Multisine`): a random-phase multisine
+   torque added to the PID output before the torque limit, as a robot controller's
+   identification mode does (Wernholt & Gunnarsson 2008; Moberg et al. 2014).
+
 At run time everything is one linear interpolation in the precomputed table (a few
 microseconds).
 
@@ -407,8 +411,9 @@ class MotionController:
     the next interval), then :meth:`advance` to integrate the error over that interval.
     """
 
-    def __init__(self, model: MotionControlModel) -> None:
+    def __init__(self, model: MotionControlModel, excitation: "Multisine | None" = None) -> None:
         self.model = model
+        self.excitation = excitation
         g = model.gains
         self.kp, self.kd, self.tau_max = g.kp, g.kd, g.tau_max
         self.kpi = g.kp * np.where(g.ti > 0, 1.0 / np.where(g.ti > 0, g.ti, 1.0), 0.0)  # kp/ti or 0
@@ -450,6 +455,8 @@ class MotionController:
         u = row[_TFF] + self.kp * e + self.kd * (row[_DQM] - dq_m)
         if self._has_integral:
             u += self.kpi * self.integral
+        if self.excitation is not None:
+            u += self.excitation(t)
         if (np.abs(u) > self.tau_max).any():
             tau = np.minimum(np.maximum(u, -self.tau_max), self.tau_max)
             self._windup = np.sign(u - tau)
@@ -467,6 +474,39 @@ class MotionController:
         else:
             grow = self._windup * self.error > 0
             self.integral += np.where(grow, 0.0, self.error * dt)
+
+
+class Multisine:
+    """Periodic random-phase multisine torque per joint, the excitation of a robot's
+    identification experiment (Pintelon & Schoukens, *System Identification: A Frequency Domain
+    Approach*, ch. 2; used for industrial robots by Wernholt & Gunnarsson 2008, "Estimation of
+    nonlinear effects in frequency domain identification of industrial robots").
+
+    ``u_j(t) = A_j sqrt(2 / N) sum_k cos(2 pi f_k t + phi_jk)``, ``f_k = k / T`` for the ``N``
+    harmonics of the period ``T`` in the band ``[f_lo, f_hi]``; the phases ``phi_jk`` are
+    uniform, independent per joint (uncorrelated inputs), from ``seed``. The RMS of ``u_j`` is
+    ``A_j``.
+
+    Raises
+    ------
+    ParameterError
+        If the band holds no harmonic of the period.
+    """
+
+    def __init__(self, amplitude: Sequence[float], band: Sequence[float], period: float, seed: int) -> None:
+        k = np.arange(math.ceil(band[0] * period - 1e-9), math.floor(band[1] * period + 1e-9) + 1)
+        k = k[k > 0]
+        if k.size == 0:
+            raise ParameterError(f"parameter 'excitation_band' = {tuple(band)} Hz holds no harmonic of "
+                                 f"the excitation period {period:g} s")
+        self.omega = 2.0 * math.pi * k / period
+        rng = np.random.default_rng([int(seed), 0x6d73])
+        self.phase = rng.uniform(0.0, 2.0 * math.pi, (2, k.size))
+        self.gain = np.asarray(amplitude, dtype=float).reshape(2, 1) * math.sqrt(2.0 / k.size)
+
+    def __call__(self, t: float) -> np.ndarray:
+        """The excitation torque [N m, motor side] at ``t``."""
+        return (self.gain * np.cos(self.omega * t + self.phase)).sum(axis=1)
 
 
 # ---- parameters and assembly -------------------------------------------------------------------
@@ -497,12 +537,30 @@ class MotionControllerParameters(RobotParameters):
     ti: tuple = param(DEFAULT_TI, "s", "PID integral time (0: no integral action)", low=0.0)
     tau_max: tuple = param((60.0, 60.0), "N.m", "motor torque limit, motor side", low=0.0,
                            low_inclusive=False)
+    excitation_amplitude: tuple = param((0.0, 0.0), "N.m", "RMS of the identification multisine "
+                                        "torque added to the PID output, motor side (0: off)", low=0.0)
+    excitation_band: tuple = param((1.0, 40.0), "Hz", "frequency band (low, high) of the multisine",
+                                   low=0.0, source="covers the 8-15 Hz locked-motor modes and the "
+                                   "4 Hz servo loop")
+    excitation_period: float = param(1.0, "s", "period of the multisine (its frequency resolution is "
+                                     "1 / period)", low=0.0, low_inclusive=False)
+    excitation_seed: int = param(0, "1", "seed of the multisine's random phases", low=0)
 
 
     def check(self) -> None:
         super().check()
         if self.path == "csv" and not self.csv_file.strip():
             raise ParameterError("parameter 'csv_file' must name a waypoint file when path = 'csv'")
+        if not self.excitation_band[0] < self.excitation_band[1]:
+            raise ParameterError(f"parameter 'excitation_band' = {tuple(self.excitation_band)}: "
+                                 "low must be below high")
+
+    def excitation(self) -> Multisine | None:
+        """The identification excitation, or None when its amplitude is zero."""
+        if not any(self.excitation_amplitude):
+            return None
+        return Multisine(self.excitation_amplitude, self.excitation_band, self.excitation_period,
+                         self.excitation_seed)
 
     @property
     def start(self) -> tuple[float, float] | None:
@@ -544,4 +602,4 @@ def build_controller(params: MotionControllerParameters) -> MotionController:
         names = "'csv_file'" if params.path == "csv" else "'path'"
         raise ParameterError(f"parameter {names} = '{params.csv_file if params.path == 'csv' else params.path}'"
                              f" with 'path_start' = {start}: {exc}") from None
-    return MotionController(model)
+    return MotionController(model, params.excitation())

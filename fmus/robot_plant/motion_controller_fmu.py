@@ -21,7 +21,9 @@ class MotionController(FlexFusionSlave):
     feed-forward, and the arm references including the jerk (the 2012 paper's EKF input). The
     robot parameters are the controller's own model of the robot: set them differently from the
     plant's to study model errors. The torque is computed from the measurement at the start of
-    each communication step and held over it.
+    each communication step and held over it. Identification mode: ``excitation_amplitude`` > 0
+    adds a random-phase multisine torque (``excitation_band``, ``excitation_period``,
+    ``excitation_seed``) to the PID output.
     """
 
     parameters_class = MotionControllerParameters

@@ -1,0 +1,437 @@
+"""Grey-box identification of the flexible-joint model from closed-loop experiments.
+
+The estimators' model is the 8-state flexible-joint model of :mod:`fmus.common.dynamics`
+(Axelsson 2012, eqs. 10-11; Henriksson 2009, eq. 2). Its parameters come, as on a real robot,
+"from a separate identification procedure" (Henriksson 2009, section IV, citing Wernholt &
+Moberg 2008): an experiment with the robot's own controller in the loop, a multisine torque
+added to the controller output around working points, measured through what a real
+identification has - the commanded motor torque, the motor encoders and a tool accelerometer.
+
+**Method: closed-loop output error in the time domain.** For a parameter vector ``theta`` each
+experiment is simulated with the *same known controller* (the robot's
+:class:`~fmus.robot_plant.motion_control_model.MotionController`: its reference table,
+feed-forward, PID and the multisine excitation, all the controller's own, known settings) in a
+loop with the model, and ``scipy.optimize.least_squares`` minimises the whitened differences
+between the measured and the simulated encoder angles and accelerometer readings (the
+accelerometer's data-sheet anti-aliasing filter applied to the simulated specific force). Why
+this formulation:
+
+* Wernholt & Gunnarsson (2008) and Wernholt & Moberg (2008, "Frequency-domain gray-box
+  identification of industrial robots") identify in the frequency domain from nonparametric
+  FRFs at several working points; that needs periodic steady state, long experiments and a
+  linearisation per working point, which the gearbox's nonlinear (soft near zero torque)
+  spring and the Coulomb friction violate - exactly the parameters we must fit here.
+* Moberg, Wernholt, Hanssen & Brogardh (2014, "Modeling and parameter estimation of robot
+  manipulators using extended flexible joint models", J. Dyn. Sys. Meas. Control) fit
+  *extended* flexible-joint models (elasticity beyond the gearbox); the estimators' model here
+  is the basic one, so on a plant with such extra elasticity the fit is biased - reported, not
+  hidden. A time-domain nonlinear fit of the whole model over several working points (here)
+  uses the nonlinear spring and friction as they are instead of linearising them per working
+  point. Because the rigid-body mode of the arm is only marginally stable without feedback, the
+  model is simulated with the known feedback (closed-loop output error; Ljung 1999, on
+  identification in closed loop) rather than open loop from the measured torque.
+* Output error is consistent when the measurement noise is white and does not enter the loop
+  (true here: the drive feeds back its own motor angle, the encoder and accelerometer only
+  measure), and gives the uncertainty from the Jacobian at the optimum,
+  ``cov = s^2 (J^T J)^-1`` (Ljung 1999, ch. 9). On a plant with dynamics the model lacks the
+  estimates are biased and the covariance does not cover that bias.
+
+**Parameters.** Fitted, per joint (log-scale, so relative errors): gearbox stiffness ``k_lo``,
+``k_hi``, damping ``d``, motor inertia ``J_m``, friction ``f_v``, ``f_c``. Of the rigid links
+only four combinations enter the model (:class:`dynamics._Constants`): ``a`` and ``c`` of the
+inertia matrix, the forearm's first moment ``m2 c2`` (both ``e = m2 l1 c2`` and
+``g2 = g m2 c2``) and the shoulder's gravity moment ``m1 c1 + m2 l1``; these four base
+parameters are fitted and mapped to one consistent :class:`RobotParameters` with the masses
+``m1``, ``m2``, the lengths, gear ratios, spring softening width ``delta``, friction smoothing
+``w_c``, accelerometer offset and gravity fixed at their nominal CAD / data-sheet values
+(:data:`FIXED`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from fmus.common import dynamics, kinematics
+from fmus.common.parameters import as_array, fields
+from fmus.common.robot_params import RobotParameters
+from fmus.robot_plant.motion_control_model import (MotionController, MotionControllerParameters,
+                                                   build_controller)
+from fmus.robot_plant.sensor_model import butterworth_coefficients, rot_rpy
+
+JOINT_PARAMETERS = ("k_lo", "k_hi", "d", "J_m", "f_v", "f_c")
+#: The base parameters of the rigid links (the combinations the model depends on).
+BASE_PARAMETERS = ("inertia_a", "inertia_c", "moment_m2c2", "moment_g1")
+#: Fitted parameters, in the order of ``theta`` (``theta = log(value)``).
+NAMES = tuple(f"{n}[{j}]" for n in JOINT_PARAMETERS for j in (1, 2)) + BASE_PARAMETERS
+#: Parameters held at their nominal CAD / data-sheet value (not identifiable from these
+#: experiments, or known better from elsewhere: kinematic calibration, gear data sheets).
+FIXED = ("l1", "l2", "m1", "m2", "gear_ratio", "delta", "w_c", "sensor_offset", "g")
+
+#: The starting point of the fit: what one knows before the experiment - DESIGN.md's ranges
+#: (stiffness 1e5-1e6 N m/rad, motor inertia about 5e-3 kg m^2, Moberg & Ohr's friction
+#: orders) and a CAD model of uniform links without payload (``c = l / 2``, ``I = m l^2 / 12``).
+INITIAL_GUESS = {"k_lo": (3.0e5, 1.0e5), "k_hi": (6.0e5, 3.0e5), "d": (1000.0, 200.0),
+                 "J_m": (4e-3, 4e-3), "f_v": (2e-3, 2e-3), "f_c": (0.3, 0.3)}
+
+
+class IdentificationError(RuntimeError):
+    """The fit did not converge; ``best`` is the best :class:`Fit` found (or None)."""
+
+    def __init__(self, message: str, best: "Fit | None" = None) -> None:
+        super().__init__(message)
+        self.best = best
+
+
+# ---------------------------------------------------------------------------------------------
+# parameters <-> theta
+# ---------------------------------------------------------------------------------------------
+def base_parameters(p: RobotParameters) -> dict[str, float]:
+    """The rigid links' base parameters of ``p`` (see the module docstring)."""
+    k = dynamics._Constants(p)
+    return {"inertia_a": k.a, "inertia_c": k.c, "moment_m2c2": p.m2 * p.c2,
+            "moment_g1": p.m1 * p.c1 + p.m2 * p.l1}
+
+
+def parameter_values(p: RobotParameters) -> np.ndarray:
+    """The fitted quantities of ``p`` in the order of :data:`NAMES`."""
+    joint = [float(getattr(p, n)[j]) for n in JOINT_PARAMETERS for j in (0, 1)]
+    base = base_parameters(p)
+    return np.array(joint + [base[n] for n in BASE_PARAMETERS])
+
+
+def robot_from_values(values: Sequence[float], nominal: RobotParameters) -> RobotParameters:
+    """The :class:`RobotParameters` with the fitted ``values`` (order :data:`NAMES`), the
+    :data:`FIXED` ones from ``nominal``: ``c2 = (m2 c2) / m2``, ``I2 = c - m2 c2^2``,
+    ``c1 = (m1 c1 + m2 l1 - m2 l1) / m1``, ``I1 = a - m1 c1^2 - I2 - m2 (l1^2 + c2^2)``.
+
+    Not validated (a trial point of the optimiser may have ``I1 < 0``: the model only sees the
+    base parameters); :func:`fmus.common.parameters.validate` the final result.
+    """
+    v = [float(x) for x in values]
+    joint = {n: (v[2 * i], v[2 * i + 1]) for i, n in enumerate(JOINT_PARAMETERS)}
+    a, c, m2c2, mg1 = v[2 * len(JOINT_PARAMETERS):]
+    m1, m2, l1 = nominal.m1, nominal.m2, nominal.l1
+    c2 = m2c2 / m2
+    i2 = c - m2 * c2 ** 2
+    c1 = (mg1 - m2 * l1) / m1
+    i1 = a - m1 * c1 ** 2 - i2 - m2 * (l1 ** 2 + c2 ** 2)
+    return dataclasses.replace(nominal, c1=c1, c2=c2, I1=i1, I2=i2, **joint)
+
+
+def initial_guess(nominal: RobotParameters) -> np.ndarray:
+    """:data:`INITIAL_GUESS` and the uniform-link CAD model, in the order of :data:`NAMES`."""
+    cad = dataclasses.replace(nominal, c1=nominal.l1 / 2, c2=nominal.l2 / 2,
+                              I1=nominal.m1 * nominal.l1 ** 2 / 12, I2=nominal.m2 * nominal.l2 ** 2 / 12,
+                              **INITIAL_GUESS)
+    return parameter_values(cad)
+
+
+# ---------------------------------------------------------------------------------------------
+# experiments and their simulation
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Experiment:
+    """One identification experiment: the known settings and the measured signals.
+
+    ``time`` (n+1,) from 0 with the step ``dt`` of controller, plant and sensors; ``tau_m``
+    (n+1, 2) the commanded motor torque, ``q_m`` (n+1, 2) the encoder readings, ``acc`` (n+1, 3)
+    the accelerometer's specific force (sensor frame). ``controller`` the controller's
+    parameters (its settings, path and excitation); ``acc_cutoff``, ``acc_filter_order``,
+    ``mount_rpy`` and ``g`` the accelerometer's data-sheet filter and its mounting.
+
+    The fit does not need ``tau_m``: the controller law that produced it is known and simulated
+    with the model (closed-loop output error); it is kept with the data, as in a real log.
+    """
+
+    name: str
+    time: np.ndarray
+    tau_m: np.ndarray
+    q_m: np.ndarray
+    acc: np.ndarray
+    controller: MotionControllerParameters
+    acc_cutoff: float = 200.0
+    acc_filter_order: int = 2
+    mount_rpy: tuple = (0.0, 0.0, 0.0)
+    g: float = 9.81
+
+    @property
+    def dt(self) -> float:
+        return float(self.time[1] - self.time[0])
+
+    def built_controller(self) -> MotionController:
+        """The experiment's controller (reference table built once per process and setting),
+        to be copied: ``MotionController(c.model, c.excitation)`` starts a fresh run."""
+        c = self.controller
+        ctrl = _CONTROLLERS.get(c)
+        if ctrl is None:
+            if len(_CONTROLLERS) >= 32:
+                _CONTROLLERS.clear()
+            ctrl = _CONTROLLERS[c] = build_controller(c)
+        return ctrl
+
+
+_CONTROLLERS: dict[MotionControllerParameters, MotionController] = {}
+
+
+def rest_state(q_m0: Sequence[float], p: RobotParameters) -> np.ndarray:
+    """The state at rest whose motor angles are ``q_m0``: arm angles with
+    ``tau_s(q_m0 / r - q_a) = G(q_a)`` (fixed point; the deflection is small)."""
+    qm = np.asarray(q_m0, dtype=float)
+    r = as_array(p.gear_ratio)
+    q_a = qm / r
+    for _ in range(30):
+        q_new = qm / r - dynamics.spring_deflection(dynamics.gravity_torque(q_a, p), p)
+        if np.max(np.abs(q_new - q_a)) < 1e-14:
+            break
+        q_a = q_new
+    return np.concatenate([q_a, qm, np.zeros(4)])
+
+
+def specific_force(a_xz: np.ndarray, phi: np.ndarray, mount_rpy: Sequence[float], g: float) -> np.ndarray:
+    """Accelerometer reading ``R_s^T (a - g_vec)`` in the sensor frame, vectorised over samples
+    (n, 3): :func:`fmus.robot_plant.sensor_model.imu_reading` for arrays."""
+    c, s = np.cos(phi), np.sin(phi)
+    ax, azg = a_xz[:, 0], a_xz[:, 1] + g
+    tool = np.stack([c * ax - s * azg, np.zeros_like(ax), s * ax + c * azg], axis=1)   # Ry(phi)^T v
+    return tool @ rot_rpy(mount_rpy)                                                    # R_mount^T
+
+
+def simulate(p: RobotParameters, exp: Experiment) -> tuple[np.ndarray, np.ndarray]:
+    """Encoder angles (n+1, 2) and accelerometer readings (n+1, 3) the model ``p`` predicts for
+    the experiment, in closed loop with the experiment's controller.
+
+    The timing is the co-simulation master's (Gauss-Seidel; the plant, whose outputs have no
+    direct feedthrough, steps first): the plant integrates over ``[t, t + dt)`` (RK4) with the
+    torque the controller computed at ``t``, then the controller reads the motor angle and speed
+    at ``t + dt``, integrates its error over the step and computes the torque of ``t + dt``;
+    the sensors sample the plant at ``t + dt``, the accelerometer's anti-aliasing filter starting
+    in steady state at its first input. ``tests/test_study_identify.py`` checks the result
+    against the FMUs.
+    """
+    dt = exp.dt
+    n = len(exp.time) - 1
+    template = exp.built_controller()
+    ctrl = MotionController(template.model, template.excitation)
+    plant = dynamics.FlexibleRobotModel(p, np.zeros(2))
+    plant.x = rest_state(exp.q_m[0], p)
+    zero = np.zeros(2)
+    states = np.empty((n + 1, 8))
+    acc = np.empty((n + 1, 2))
+    s = plant.state
+    states[0] = s
+    acc[0] = kinematics.point_motion(s[0:2], s[4:6], plant.arm_acceleration(0.0, 0.0), p, "sensor")[4:6]
+    tau = ctrl.evaluate(0.0, np.array(s[2:4]), np.array(s[6:8]), zero)
+    for i in range(n):
+        plant.step(tau, zero, dt)
+        s = plant.state
+        states[i + 1] = s
+        acc[i + 1] = kinematics.point_motion(s[0:2], s[4:6], plant.arm_acceleration(0.0, 0.0), p, "sensor")[4:6]
+        qm, dqm = np.array(s[2:4]), np.array(s[6:8])
+        ctrl.evaluate(i * dt, qm, dqm, zero)
+        ctrl.advance(dt)
+        tau = ctrl.evaluate((i + 1) * dt, qm, dqm, zero)
+    ideal = specific_force(acc, states[:, 0] + states[:, 1], exp.mount_rpy, exp.g)
+    if exp.acc_cutoff > 0.0:
+        from scipy.signal import lfilter, lfilter_zi
+        b, a = butterworth_coefficients(exp.acc_cutoff, dt, exp.acc_filter_order)
+        filtered, _ = lfilter(b, a, ideal[1:], axis=0, zi=lfilter_zi(b, a)[:, None] * ideal[1])
+        ideal = np.vstack([ideal[:1], filtered])
+    return states[:, 2:4], ideal
+
+
+# ---------------------------------------------------------------------------------------------
+# the residual and the fit
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class NoiseLevels:
+    """Standard deviations that whiten the residual: the sensors' data-sheet noise and
+    quantisation (``sqrt(noise^2 + resolution^2 / 12)``), never estimated from the plant."""
+
+    q_m: float = 3.5e-5       # rad: Encoder noise 2e-5 and 16-bit resolution 9.6e-5
+    acc: float = 0.02         # m/s^2: Imu noise 0.02 and resolution 4.8e-3
+
+    @classmethod
+    def of_sensors(cls, encoder_noise: float, encoder_resolution: float, acc_noise: float,
+                   acc_resolution: float) -> "NoiseLevels":
+        """From sensor data-sheet values (a level of zero is floored at 1e-9 of the unit)."""
+        return cls(max(math.hypot(encoder_noise, encoder_resolution / math.sqrt(12)), 1e-9),
+                   max(math.hypot(acc_noise, acc_resolution / math.sqrt(12)), 1e-9))
+
+
+def experiment_residual(theta: Sequence[float], exp: Experiment, nominal: RobotParameters,
+                        noise: NoiseLevels) -> np.ndarray:
+    """Whitened output errors of one experiment at ``theta = log(values)`` (order :data:`NAMES`):
+    encoder angles over ``noise.q_m``, accelerometer over ``noise.acc``, samples 1..n.
+    Non-finite if the model's simulation diverges."""
+    p = robot_from_values(np.exp(np.asarray(theta, dtype=float)), nominal)
+    with np.errstate(all="ignore"):
+        try:
+            q_m, acc = simulate(p, exp)
+        except (OverflowError, ValueError, ZeroDivisionError, FloatingPointError):
+            n = len(exp.time) - 1
+            return np.full(5 * n, np.nan)
+    return np.concatenate([((exp.q_m[1:] - q_m[1:]) / noise.q_m).ravel(),
+                           ((exp.acc[1:] - acc[1:]) / noise.acc).ravel()])
+
+
+Mapper = Callable[[Callable[..., Any], list[tuple]], list[Any]]
+
+
+def _serial_map(fn: Callable[..., Any], jobs: list[tuple]) -> list[Any]:
+    return [fn(*job) for job in jobs]
+
+
+@dataclass
+class Fit:
+    """Result of :func:`fit`: ``robot`` the identified parameters; per name of :data:`NAMES`
+    ``values`` and ``std`` (one standard deviation, from ``s^2 (J^T J)^-1``); ``s2`` the
+    residual variance factor (about 1 when the noise levels are right and the model fits),
+    ``cost`` half the sum of squared whitened residuals, ``n_residuals``, ``nfev`` residual
+    evaluations, ``converged`` and the optimiser's ``message``."""
+
+    robot: RobotParameters
+    values: dict[str, float]
+    std: dict[str, float]
+    s2: float
+    cost: float
+    n_residuals: int
+    nfev: int
+    converged: bool
+    message: str
+    correlation: np.ndarray | None = None
+
+
+def _covariance(jac: np.ndarray, s2: float, rcond: float = 1e-10) -> np.ndarray:
+    """``s2 (J^T J)^-1`` by the SVD of ``J``; a direction the data do not determine (singular
+    value below ``rcond`` times the largest) gets an infinite variance, not the pseudo-inverse's
+    zero."""
+    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+    ok = sv > rcond * sv[0]
+    cov = s2 * (vt[ok].T / sv[ok] ** 2) @ vt[ok]
+    if not ok.all():
+        null = np.abs(vt[~ok]).max(axis=0) > 1e-6
+        cov[null, :] = cov[:, null] = np.inf
+    return cov
+
+
+def fit(experiments: Sequence[Experiment], nominal: RobotParameters, *, noise: NoiseLevels = NoiseLevels(),
+        theta0: Sequence[float] | None = None, max_nfev: int = 40, map_fn: Mapper | None = None,
+        diff_step: float = 1e-6, xtol: float = 1e-8, ftol: float = 1e-8,
+        progress: Callable[[float], None] | None = None) -> Fit:
+    """Closed-loop output-error fit of the flexible-joint model (module docstring).
+
+    Parameters
+    ----------
+    experiments
+        The measured experiments.
+    nominal
+        The nominal (CAD / data-sheet) parameters: source of :data:`FIXED`.
+    noise
+        Measurement noise levels that whiten the residual.
+    theta0
+        Starting ``log`` values (order :data:`NAMES`); default :func:`initial_guess`.
+    max_nfev
+        Limit of residual evaluations of the optimiser (Jacobians not counted).
+    map_fn
+        ``map_fn(fn, jobs) -> results`` running ``fn(*job)`` (e.g. on a study executor);
+        default serial. The residual maps over experiments, the Jacobian (forward
+        differences of step ``diff_step`` in ``log`` space) over experiments x parameters.
+    progress
+        Called with the cost after each residual evaluation.
+
+    Raises
+    ------
+    IdentificationError
+        If the optimiser stops at ``max_nfev`` or the residual is not finite at the start or at
+        the end; ``best`` holds the best fit seen.
+    """
+    from scipy.optimize import least_squares
+
+    map_fn = map_fn or _serial_map
+    exps = list(experiments)
+    x0 = np.log(initial_guess(nominal)) if theta0 is None else np.asarray(theta0, dtype=float)
+    best: dict[str, Any] = {"cost": math.inf, "x": x0.copy(), "f": None}
+    nfev = [0]
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        if best["f"] is not None and np.array_equal(best["x"], x):
+            return best["f"]
+        parts = map_fn(experiment_residual, [(x, e, nominal, noise) for e in exps])
+        f = np.concatenate(parts)
+        nfev[0] += 1
+        cost = 0.5 * float(f @ f) if np.all(np.isfinite(f)) else math.inf
+        if cost < best["cost"]:
+            best.update(cost=cost, x=np.array(x), f=f)
+        if progress is not None:
+            progress(cost)
+        return f
+
+    last_jac: dict[str, Any] = {"x": None, "J": None}
+
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        if last_jac["x"] is not None and np.array_equal(last_jac["x"], x):
+            return last_jac["J"]
+        f0 = residual(x)
+        jobs = []
+        for k in range(len(x)):
+            xk = np.array(x)
+            xk[k] += diff_step
+            jobs += [(xk, e, nominal, noise) for e in exps]
+        parts = map_fn(experiment_residual, jobs)
+        m = len(exps)
+        cols = [(np.concatenate(parts[k * m:(k + 1) * m]) - f0) / diff_step for k in range(len(x))]
+        last_jac.update(x=np.array(x), J=np.column_stack(cols))
+        return last_jac["J"]
+
+    def result(x: np.ndarray, f: np.ndarray, converged: bool, message: str) -> Fit:
+        values = np.exp(x)
+        jac = jacobian(x)
+        n_res, n_par = len(f), len(x)
+        s2 = float(f @ f) / max(n_res - n_par, 1)
+        cov = _covariance(jac, s2)
+        std_log = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        d = np.where((std_log > 0) & np.isfinite(std_log), std_log, 1.0)
+        return Fit(robot=robot_from_values(values, nominal),
+                   values=dict(zip(NAMES, map(float, values))),
+                   std=dict(zip(NAMES, map(float, values * std_log))),     # delta method
+                   s2=s2, cost=0.5 * float(f @ f), n_residuals=n_res, nfev=nfev[0],
+                   converged=converged, message=message, correlation=cov / np.outer(d, d))
+
+    f0 = residual(x0)
+    if not np.all(np.isfinite(f0)):
+        raise IdentificationError("the residual is not finite at the initial guess (the model "
+                                  "diverges in the experiment's closed loop)", None)
+    res = least_squares(residual, x0, jac=jacobian, method="trf", x_scale=1.0, max_nfev=max_nfev,
+                        xtol=xtol, ftol=ftol, gtol=1e-12)
+    x, f = best["x"], best["f"]
+    if f is None or not np.all(np.isfinite(f)):
+        raise IdentificationError("the residual is not finite at the end of the fit", None)
+    if res.status == 0:
+        fit_so_far = result(x, f, False, res.message)
+        raise IdentificationError(f"the identification did not converge within {max_nfev} residual "
+                                  f"evaluations (cost {best['cost']:.6g}); best fit so far kept",
+                                  fit_so_far)
+    return result(x, f, True, res.message)
+
+
+# ---------------------------------------------------------------------------------------------
+# report
+# ---------------------------------------------------------------------------------------------
+def physical_parameters(p: RobotParameters) -> dict[str, Any]:
+    """Every field of the :class:`RobotParameters` part of ``p`` (vectors as lists)."""
+    out: dict[str, Any] = {}
+    for f in fields(RobotParameters):
+        v = getattr(p, f.name)
+        out[f.name] = [float(x) for x in v] if isinstance(v, tuple) else float(v)
+    return out
+
+
+__all__ = ["Experiment", "Fit", "IdentificationError", "NoiseLevels", "NAMES", "FIXED",
+           "BASE_PARAMETERS", "JOINT_PARAMETERS", "INITIAL_GUESS", "base_parameters",
+           "parameter_values", "robot_from_values", "initial_guess", "rest_state",
+           "specific_force", "simulate", "experiment_residual", "fit", "physical_parameters"]

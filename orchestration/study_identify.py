@@ -1,0 +1,367 @@
+"""Identification of the estimators' robot model from experiments on the simulated plant.
+
+As on a real robot (Henriksson 2009, section IV: the observers' model parameters "come from a
+separate identification procedure"; Wernholt & Moberg 2008), the study
+
+1. runs the experiment scenario (``identify_experiment.toml``: the plant FMU with the motion
+   controller in identification mode - a multisine torque added to its output - the Encoder and
+   the Imu) at several working points, one run each on the study executor;
+2. fits the 8-state flexible-joint model to what a real identification sees - the commanded
+   motor torque's known controller law, the encoder angles and the accelerometer - by
+   closed-loop output error (:mod:`orchestration.identification`, which also says why), the
+   residual of each experiment and the Jacobian columns evaluated on the same executor;
+3. reports the fitted values beside the plant's true ones (read from the scenario: the
+   simulation's privilege, used for the report only, never in the fit), with one standard
+   deviation from ``s^2 (J^T J)^-1`` and whether each is biased (error beyond 3 std), in
+   ``identify.json``;
+4. writes the identified :class:`RobotParameters` as the parameter set ``identified_robot``
+   (``[parameter_sets.identified_robot]``, see :mod:`orchestration.scenario`) of an include
+   file that the paper scenarios use.
+
+The plant is whatever the scenario (and ``--set plant.<param>=...``) makes it: on a plant with
+dynamics the model lacks (parameter ``ideal = false`` where the plant has it), the estimates
+are biased and ``identify.json`` says so.
+
+CLI::
+
+    flexfusion study identify [SCENARIO] --out DIR [--working-point X,Z ...] [--amplitude A]
+        [--stop-time S] [--max-nfev N] [--include FILE] [--set COMP.PARAM=VALUE ...]
+        [--workers K | --scheduler ADDR]
+
+writes ``DIR/identify.json`` and the include file (default ``DIR/identified_robot.toml``). A
+fit that does not converge ends in one ``error:`` line (exit 2) with the best fit so far in
+``DIR/identify.json``.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+from fmus.common.parameters import ParameterError, validate
+
+from . import identification as ident
+from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
+from .study_montecarlo import _dataclass_from_scalars
+
+SCENARIOS = Path(__file__).resolve().parent / "scenarios"
+DEFAULT_SCENARIO = SCENARIOS / "identify_experiment.toml"
+SET_NAME = "identified_robot"
+
+#: Working points (tool x, z in m): the shoulder's gravity torque near zero (its soft spring
+#: zone and its gravity moment), the forearm near vertical (the elbow's soft zone), and the
+#: arm stretched out under full gravity load (high stiffness, large inertia).
+WORKING_POINTS: tuple[tuple[float, float], ...] = ((0.7, 1.3), (0.9, -0.6), (1.4, 0.3))
+BIAS_LIMIT = 3.0          #: an error beyond this many standard deviations is called biased ...
+RESOLUTION = 1e-6         #: ... if it also exceeds the optimiser's resolution (relative; xtol 1e-8
+                          #: in log space): noise-free data have std near rounding error
+
+
+# ---------------------------------------------------------------------------------------------
+# experiments
+# ---------------------------------------------------------------------------------------------
+def _vector(value: Sequence[float]) -> str:
+    return "[" + ", ".join(repr(float(v)) for v in value) + "]"
+
+
+def experiment_overrides(k: int, point: Sequence[float], amplitude: float | None, controller: str = "controller",
+                         plant: str = "plant") -> list[str]:
+    """Overrides of experiment ``k`` at the working point ``point``: path start, initial pose,
+    its own excitation seed and noise seed (``controller``, ``plant``: component names)."""
+    out = [f"{controller}.path_start={_vector(point)}", f"{plant}.p_tool0={_vector(point)}",
+           f"{controller}.excitation_seed={k}", f"scenario.seed={k + 1}"]
+    if amplitude is not None:
+        out.append(f"{controller}.excitation_amplitude={_vector((amplitude, amplitude))}")
+    return out
+
+
+def recorded(sc: Any) -> list[str]:
+    """What the fit reads: the commanded torque, the encoder angles, the accelerometer."""
+    return [f"{_component(sc, fmu).name}.{var}" for fmu, var in
+            (("MotionController", "tau_m"), ("Encoder", "q_m_meas"), ("Imu", "acc_s"))]
+
+
+def _component(sc: Any, fmu: str) -> Any:
+    found = [c for c in sc.components.values() if c.model_identifier == fmu]
+    if len(found) != 1:
+        raise StudyError(f"scenario '{sc.name}' needs exactly one {fmu} component, found {len(found)}")
+    return found[0]
+
+
+def _experiment(name: str, sc: Any, run: Any) -> ident.Experiment:
+    """The :class:`~orchestration.identification.Experiment` of one run: the controller's and
+    the accelerometer's settings from the scenario, the recorded signals."""
+    from fmus.robot_plant.imu_fmu import ImuParameters
+    from fmus.robot_plant.motion_control_model import MotionControllerParameters
+    ctrl, imu, enc = (_component(sc, f) for f in ("MotionController", "Imu", "Encoder"))
+    for c in (ctrl, imu, enc):
+        if c.step != sc.base_step:
+            raise StudyError(f"component '{c.name}': the identification needs every component at the "
+                             f"base step {sc.base_step:g} s, not {c.step:g} s")
+    for c in (imu, enc):
+        if c.parameters.get("sample_rate", 0.0):
+            raise StudyError(f"component '{c.name}': the identification needs sample_rate = 0 "
+                             "(a sample every step)")
+    imu_p = _dataclass_from_scalars(ImuParameters, imu.parameters)
+    return ident.Experiment(
+        name, run.time, run[f"{ctrl.name}.tau_m"], run[f"{enc.name}.q_m_meas"], run[f"{imu.name}.acc_s"],
+        _dataclass_from_scalars(MotionControllerParameters, ctrl.parameters),
+        acc_cutoff=imu_p.acc_cutoff, acc_filter_order=imu_p.filter_order, mount_rpy=imu_p.mount_rpy, g=imu_p.g)
+
+
+def noise_levels(sc: Any) -> ident.NoiseLevels:
+    """Whitening levels from the sensors' data-sheet settings in the scenario."""
+    from fmus.robot_plant.encoder_fmu import EncoderParameters
+    from fmus.robot_plant.imu_fmu import ImuParameters
+    enc = _dataclass_from_scalars(EncoderParameters, _component(sc, "Encoder").parameters)
+    imu = _dataclass_from_scalars(ImuParameters, _component(sc, "Imu").parameters)
+    return ident.NoiseLevels.of_sensors(enc.noise, enc.resolution, imu.acc_noise, imu.acc_resolution)
+
+
+def run_experiments(scenario: str | Path, points: Sequence[Sequence[float]], executor: Any, *,
+                    overrides: Sequence[str] = (), amplitude: float | None = None,
+                    progress: bool = True) -> tuple[list[ident.Experiment], Any]:
+    """Run the experiment at every working point; returns the experiments and the loaded
+    scenario of the first (for the sensors' and the plant's settings)."""
+    from .scenario import load_scenario
+    from .study_tune import load_document
+    doc = load_document(scenario)
+    sc = load_scenario(doc, overrides)                        # bad input fails here, once
+    names = {"controller": _component(sc, "MotionController").name,
+             "plant": _component(sc, "FlexibleRobot2DOF").name}
+    per_exp = [list(overrides) + experiment_overrides(k, pt, amplitude, **names) for k, pt in enumerate(points)]
+    scenarios = [load_scenario(doc, ov) for ov in per_exp]
+    runs = map_jobs(simulate, [(doc, ov, recorded(sc)) for ov in per_exp], executor, star=True,
+                    desc="identification experiments", progress=progress)
+    exps = [_experiment(f"working point {tuple(pt)}", sc, run) for pt, sc, run in zip(points, scenarios, runs)]
+    return exps, scenarios[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# report
+# ---------------------------------------------------------------------------------------------
+def plant_truth(sc: Any) -> tuple[Any, bool | None]:
+    """The plant's robot parameters and its ``ideal`` flag (None: the plant has no such
+    parameter, i.e. no unmodelled dynamics) - for the report only."""
+    from fmus.robot_plant.plant_model import PlantParameters
+    plant = _component(sc, "FlexibleRobot2DOF")
+    params = _dataclass_from_scalars(PlantParameters, plant.parameters)
+    ideal = getattr(params, "ideal", None) if "ideal" in plant.variables else None
+    return params.robot(), ideal
+
+
+def report(fit: ident.Fit, true: Any, ideal: bool | None) -> dict[str, Any]:
+    """``identify.json``'s content: per fitted parameter the fitted and true value, std,
+    relative error and whether it is biased (with the reason); the fixed parameters; the fit."""
+    unmodelled = ideal is False
+    true_values = dict(zip(ident.NAMES, ident.parameter_values(true)))
+    params: dict[str, Any] = {}
+    for name in ident.NAMES:
+        v, t, s = fit.values[name], float(true_values[name]), fit.std[name]
+        z = abs(v - t) / s if s > 0 else math.inf
+        biased = bool(not z <= BIAS_LIMIT and abs(v / t - 1.0) > RESOLUTION)
+        if not math.isfinite(s):
+            biased, z, s = False, None, None
+            reason = "not determined by these experiments (infinite std): add a working point that excites it"
+        elif biased:
+            reason = f"error {z:.1f} std (> {BIAS_LIMIT:g})"
+            reason += (": the plant has dynamics the model lacks (ideal = false)" if unmodelled else
+                       ": the model matches the plant's structure; the excitation or the noise model "
+                       "is insufficient")
+        elif z <= BIAS_LIMIT:
+            reason = f"error {z:.1f} std, within {BIAS_LIMIT:g}"
+        else:
+            reason = f"error {abs(v / t - 1.0):.1e} relative, below the fit's resolution {RESOLUTION:g}"
+        params[name] = {"fitted": v, "true": t, "std": s, "relative_error": v / t - 1.0,
+                        "relative_std": None if s is None else s / v, "error_in_std": z,
+                        "biased": biased, "reason": reason}
+    fitted_phys = ident.physical_parameters(fit.robot)
+    true_phys = ident.physical_parameters(true)
+    derived = {n: {"fitted": fitted_phys[n], "true": true_phys[n]} for n in ("c1", "c2", "I1", "I2")}
+    fixed = {n: {"value": fitted_phys[n], "true": true_phys[n], "equal_to_true": fitted_phys[n] == true_phys[n],
+                 "reason": "fixed at the nominal CAD / data-sheet value (not fitted)"} for n in ident.FIXED}
+    return {
+        "plant": {"ideal": ideal, "unmodelled_dynamics": unmodelled,
+                  "note": ("the plant has dynamics the model lacks (elastic mode, torque ripple, "
+                           "torque-constant and kinematic errors): estimates are biased" if unmodelled else
+                           "the plant has no dynamics beyond the model's structure")},
+        "fit": {"converged": fit.converged, "message": fit.message, "cost": fit.cost, "s2": fit.s2,
+                "n_residuals": fit.n_residuals, "nfev": fit.nfev,
+                "correlated": _correlated(fit.correlation)},
+        "parameters": params,
+        "derived": derived,
+        "fixed": fixed,
+        "biased": [n for n, p in params.items() if p["biased"]],
+        "identified_robot": fitted_phys,
+    }
+
+
+def _correlated(corr: Any, limit: float = 0.9) -> list[list[Any]]:
+    """Pairs of fitted parameters whose estimates correlate beyond ``limit`` (nearly the same
+    information in the data), with the correlation."""
+    if corr is None:
+        return []
+    n = len(ident.NAMES)
+    return [[ident.NAMES[i], ident.NAMES[j], float(corr[i, j])] for i in range(n) for j in range(i + 1, n)
+            if abs(corr[i, j]) > limit and abs(corr[i, j]) != float("inf")]
+
+
+def write_include(path: Path, fit: ident.Fit, header: str) -> Path:
+    """The identified parameters as ``[parameter_sets.identified_robot]`` of an include file."""
+    from .study_tune import _toml_value
+    lines = [f"# {line}".rstrip() for line in header.splitlines()]
+    lines.append(f"[parameter_sets.{SET_NAME}]")
+    fitted = {n.split("[")[0] for n in ident.NAMES} | {"c1", "c2", "I1", "I2"}
+    for name, value in ident.physical_parameters(fit.robot).items():
+        note = "identified" if name in fitted else "nominal (fixed)"
+        lines.append(f"{name} = {_toml_value(value)}   # {note}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _summary(rep: dict[str, Any]) -> str:
+    rows = [f"{'parameter':<14}{'fitted':>13}{'true':>13}{'rel. err':>10}{'rel. std':>10}  biased"]
+    for name, p in rep["parameters"].items():
+        rel_std = "inf" if p["relative_std"] is None else f"{p['relative_std']:.1e}"
+        rows.append(f"{name:<14}{p['fitted']:>13.6g}{p['true']:>13.6g}{p['relative_error']:>+10.2e}"
+                    f"{rel_std:>10}  {'yes' if p['biased'] else 'no'}")
+    return "\n".join(rows)
+
+
+# ---------------------------------------------------------------------------------------------
+# the study
+# ---------------------------------------------------------------------------------------------
+def identify(scenario: str | Path, out: Path, executor: Any, *, points: Sequence[Sequence[float]] = WORKING_POINTS,
+             overrides: Sequence[str] = (), amplitude: float | None = None, max_nfev: int = 40,
+             include: Path | None = None, command: str = "", progress: bool = True) -> dict[str, Any]:
+    """Run the experiments, fit, write ``out/identify.json`` and the include file.
+
+    Raises
+    ------
+    StudyError
+        If the fit does not converge (``identify.json`` then holds the best fit so far) or the
+        identified parameters are not physically consistent.
+    """
+    t0 = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    exps, sc = run_experiments(scenario, points, executor, overrides=overrides, amplitude=amplitude,
+                               progress=progress)
+    t_exp = time.perf_counter() - t0
+    nominal = exps[0].controller.robot()          # the controller's own (CAD) model of the robot
+
+    def map_fn(fn: Any, jobs: list[tuple]) -> list[Any]:
+        return map_jobs(fn, jobs, executor, star=True, progress=False)
+
+    def show(cost: float) -> None:
+        if progress:
+            print(f"  residual evaluation: cost {cost:.6g}", file=sys.stderr)
+
+    true, ideal = plant_truth(sc)
+    json_path = out / "identify.json"
+    try:
+        fit = ident.fit(exps, nominal, noise=noise_levels(sc), max_nfev=max_nfev, map_fn=map_fn, progress=show)
+    except ident.IdentificationError as exc:
+        rep = report(exc.best, true, ideal) if exc.best is not None else {"fit": {"converged": False}}
+        rep["error"] = str(exc)
+        json_path.write_text(json.dumps(rep, indent=1))
+        raise StudyError(f"{exc} (written to {json_path})") from None
+    wall = time.perf_counter() - t0
+    rep = report(fit, true, ideal)
+    rep["experiments"] = {"working_points": [list(map(float, p)) for p in points],
+                          "duration": float(exps[0].time[-1]), "overrides": list(overrides),
+                          "wall_time_experiments": t_exp}
+    rep["wall_time"] = wall
+    json_path.write_text(json.dumps(rep, indent=1))
+    try:
+        validate(fit.robot)
+    except ParameterError as exc:
+        raise StudyError(f"the identified parameters are not physically consistent: {exc} "
+                         f"(fit written to {json_path})") from None
+    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    biased = ", ".join(rep["biased"]) or "none"
+    worst = max(abs(p["relative_error"]) for p in rep["parameters"].values())
+    header = (f"Robot model identified on the simulated plant by:\n  {command or 'flexfusion study identify'}\n"
+              f"on {date}: {len(exps)} experiments of {exps[0].time[-1]:g} s at the working points "
+              f"{', '.join(str(tuple(p)) for p in points)};\n"
+              f"closed-loop output error, s^2 = {fit.s2:.3g}, {fit.nfev} residual evaluations, "
+              f"{wall:.0f} s; largest relative error against the plant {worst:.2e}; biased: {biased}.\n"
+              f"Plant: {rep['plant']['note']}.\n"
+              f"Scenarios use it with include = [\"identified_robot.toml\"] and, per component,\n"
+              f"parameter_sets = [\"{SET_NAME}\"]. To give every estimator its FMU defaults (the\n"
+              f"nominal values, those of the default plant) instead: --set parameter_sets.{SET_NAME}={{}}\n"
+              f"(or per component --set COMP.parameter_sets=[]).\n")
+    write_include(include or out / f"{SET_NAME}.toml", fit, header + "\n" + _summary(rep) + "\n")
+    return rep
+
+
+def main(args: argparse.Namespace) -> int:
+    points = [parse_point(p) for p in args.working_point] if args.working_point else list(WORKING_POINTS)
+    overrides = list(args.set or [])
+    if args.stop_time is not None:
+        overrides.append(f"scenario.stop_time={args.stop_time}")
+    out = Path(args.out)
+    scenario = [] if Path(args.scenario) == DEFAULT_SCENARIO else [str(args.scenario)]
+    command = " ".join(["flexfusion study identify", *scenario, "--out", str(args.out)]
+                       + ([f"--include {args.include}"] if args.include else [])
+                       + [f"--working-point {p}" for p in args.working_point or ()]
+                       + [f"--{k.replace('_', '-')} {getattr(args, k)}" for k in ("amplitude", "stop_time")
+                          if getattr(args, k) is not None]
+                       + [f"--set {o}" for o in args.set or ()])
+    with open_executor(args.workers, args.scheduler) as ex:
+        rep = identify(args.scenario, out, ex, points=points, overrides=overrides, amplitude=args.amplitude,
+                       max_nfev=args.max_nfev, include=Path(args.include) if args.include else None,
+                       command=command, progress=not args.no_progress)
+    print(_summary(rep))
+    print(f"s^2 = {rep['fit']['s2']:.3g}; {rep['fit']['nfev']} residual evaluations; "
+          f"{rep['wall_time']:.1f} s; plant: {rep['plant']['note']}")
+    print(f"written: {out / 'identify.json'}, {args.include or out / (SET_NAME + '.toml')}")
+    return 0
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
+    return value
+
+
+def parse_point(text: str) -> tuple[float, float]:
+    """``X,Z`` -> ``(X, Z)``."""
+    try:
+        x, z = (float(v) for v in text.split(","))
+    except ValueError:
+        raise StudyError(f"--working-point {text!r}: expected X,Z in metres, e.g. 0.7,1.3") from None
+    return x, z
+
+
+def register(subparsers: Any) -> None:
+    """Add ``flexfusion study identify``."""
+    p = subparsers.add_parser("identify", help="identify the estimators' robot model on the plant "
+                              "(closed-loop output error; writes identify.json and an include file)",
+                              description=__doc__.split("\n\n")[0])
+    p.add_argument("scenario", nargs="?", default=str(DEFAULT_SCENARIO),
+                   help="experiment scenario (default: scenarios/identify_experiment.toml)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--working-point", action="append", metavar="X,Z",
+                   help="tool position of an experiment (repeatable; default: three points)")
+    p.add_argument("--amplitude", type=float, default=None, help="multisine RMS per joint, N m "
+                   "(default: the scenario's)")
+    p.add_argument("--stop-time", type=float, default=None, help="length of each experiment (s)")
+    p.add_argument("--max-nfev", type=_positive, default=40, help="residual evaluations of the optimiser "
+                   "(default 40)")
+    p.add_argument("--include", default=None, metavar="FILE",
+                   help="include file to write (default DIR/identified_robot.toml)")
+    p.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE",
+                   help="override in every experiment, e.g. plant.ideal=true (repeatable)")
+    add_executor_arguments(p)
+    p.set_defaults(func=main)
+
+
+__all__ = ["identify", "run_experiments", "experiment_overrides", "recorded", "report", "write_include",
+           "plant_truth", "noise_levels", "WORKING_POINTS", "register"]

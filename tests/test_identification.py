@@ -1,0 +1,147 @@
+"""Identification math (orchestration/identification.py), without FMUs: the base-parameter map,
+the accelerometer model, the rest state, and the closed-loop output-error fit on data of a plant
+with no unmodelled dynamics (the model itself; the FMU chain is checked in
+test_study_identify.py)."""
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from fmus.common import dynamics, kinematics
+from fmus.common.robot_params import RobotParameters
+from fmus.robot_plant.motion_control_model import MotionControllerParameters
+from fmus.robot_plant.sensor_model import imu_reading
+from orchestration import identification as ident
+
+CSV = Path(__file__).resolve().parent.parent / "orchestration" / "scenarios" / "paths" / "identify_moves.csv"
+TRUE = RobotParameters()
+#: two short experiments: the shoulder's and the elbow's gravity torque near zero (soft zones)
+POINTS = ((0.7, 1.3), (0.9, -0.6))
+DURATION = 0.8
+
+
+def make_experiments(p: RobotParameters, noise: ident.NoiseLevels | None = None, seed: int = 0,
+                     duration: float = DURATION) -> list[ident.Experiment]:
+    """Experiments on the model ``p`` itself (no unmodelled dynamics), optionally with white
+    measurement noise of the given levels."""
+    n = int(round(duration / 1e-3))
+    t = np.arange(n + 1) * 1e-3
+    rng = np.random.default_rng(seed)
+    exps = []
+    for k, point in enumerate(POINTS):
+        ctrl = MotionControllerParameters(path="csv", csv_file=str(CSV), path_start=point,
+                                          excitation_amplitude=(0.5, 0.5), excitation_seed=k)
+        x0 = dynamics.static_equilibrium(kinematics.inverse_kinematics(np.array(point), p), p)
+        exp = ident.Experiment(f"wp{k}", t, np.zeros((n + 1, 2)), np.tile(x0[2:4], (n + 1, 1)),
+                               np.zeros((n + 1, 3)), ctrl)
+        exp.q_m, exp.acc = ident.simulate(p, exp)
+        if noise is not None:
+            exp.q_m = exp.q_m + noise.q_m * rng.standard_normal(exp.q_m.shape)
+            exp.acc = exp.acc + noise.acc * rng.standard_normal(exp.acc.shape)
+        exps.append(exp)
+    return exps
+
+
+@pytest.fixture(scope="module")
+def clean_experiments():
+    return make_experiments(TRUE)
+
+
+def test_base_parameters_map_back_to_the_same_robot():
+    p = dataclasses.replace(TRUE, c1=0.4, c2=0.65, I1=7.0, I2=11.0, k_lo=(3e5, 1e5))
+    q = ident.robot_from_values(ident.parameter_values(p), TRUE)
+    for name in ("c1", "c2", "I1", "I2", "k_lo", "k_hi", "d", "J_m", "f_v", "f_c"):
+        assert_allclose(getattr(q, name), getattr(p, name), rtol=1e-12, err_msg=name)
+    # the model depends on the base parameters only: same derivatives
+    x = np.array([0.3, 0.5, 61.0, 80.0, 0.2, -0.4, 30.0, -50.0])
+    assert_allclose(dynamics.derivatives(x, (1.0, -2.0), (0.0, 0.0), q),
+                    dynamics.derivatives(x, (1.0, -2.0), (0.0, 0.0), p), rtol=1e-12)
+
+
+def test_specific_force_is_the_imu_reading():
+    rng = np.random.default_rng(1)
+    a, phi = rng.normal(0, 5, (6, 2)), rng.uniform(-2, 2, 6)
+    mount = (0.1, -0.2, 0.3)
+    expected = [imu_reading(a[i], phi[i], 0.0, mount, 9.81)[0] for i in range(6)]
+    assert_allclose(ident.specific_force(a, phi, mount, 9.81), expected, atol=1e-12)
+
+
+def test_rest_state_is_the_static_equilibrium():
+    x = dynamics.static_equilibrium((0.4, 0.7), TRUE)
+    assert_allclose(ident.rest_state(x[2:4], TRUE), x, atol=1e-12)
+
+
+def test_noise_free_fit_recovers_the_parameters_within_1_percent(clean_experiments):
+    """From 15 % off, two experiments of 0.8 s (the study's default start, the CAD guess, is
+    exercised by test_study_identify.py)."""
+    true = ident.parameter_values(TRUE)
+    start = true * (1.0 + 0.15 * np.resize([1, -1, -1, 1], true.size))
+    fit = ident.fit(clean_experiments, TRUE, theta0=np.log(start))
+    assert fit.converged
+    got = np.array([fit.values[n] for n in ident.NAMES])
+    assert_allclose(got, true, rtol=0.01)
+    assert_allclose(ident.parameter_values(fit.robot), true, rtol=0.01)
+    assert fit.cost < 1e-6
+
+
+def test_reported_std_covers_the_error_with_noise():
+    """White noise at the sensors' levels: s^2 about 1, every error within 4 std, and the std
+    small enough to mean something (a test that fails if the covariance is mis-scaled)."""
+    noise = ident.NoiseLevels()
+    exps = make_experiments(TRUE, noise, seed=3)
+    true = ident.parameter_values(TRUE)
+    fit = ident.fit(exps, TRUE, noise=noise, theta0=np.log(true))
+    got = np.array([fit.values[n] for n in ident.NAMES])
+    std = np.array([fit.std[n] for n in ident.NAMES])
+    assert 0.9 < fit.s2 < 1.1
+    z = np.abs(got - true) / std
+    assert np.all(z < 4.0), dict(zip(ident.NAMES, z.round(2)))
+    assert np.all(std / true < 0.02), dict(zip(ident.NAMES, (std / true).round(4)))
+    assert np.any(got != true)
+
+
+def test_undetermined_parameter_gets_infinite_std():
+    """A parameter the residual does not depend on (e.g. the elbow's ``k_lo`` in an experiment
+    that never reaches its soft zone) gets an infinite std, not the pseudo-inverse's zero."""
+    jac = np.zeros((5, 3))
+    jac[:, 0] = 1.0
+    jac[:, 1] = np.arange(5)
+    cov = ident._covariance(jac, 1.0)
+    assert np.isinf(cov[2, 2]) and np.isfinite(cov[0, 0]) and np.isfinite(cov[1, 1])
+
+
+def test_non_convergence_keeps_the_best_fit(clean_experiments):
+    with pytest.raises(ident.IdentificationError, match="did not converge within 2") as info:
+        ident.fit(clean_experiments[:1], TRUE, max_nfev=2)
+    best = info.value.best
+    assert best is not None and not best.converged and math.isfinite(best.cost)
+    start_cost = 0.5 * np.sum(ident.experiment_residual(np.log(ident.initial_guess(TRUE)),
+                                                        clean_experiments[0], TRUE, ident.NoiseLevels()) ** 2)
+    assert best.cost < start_cost
+
+
+def test_non_finite_residual_is_an_error(clean_experiments):
+    theta = np.log(ident.initial_guess(TRUE))
+    theta[ident.NAMES.index("J_m[1]")] = math.log(1e-300)          # the model blows up
+    with pytest.raises(ident.IdentificationError, match="not finite"):
+        ident.fit(clean_experiments[:1], TRUE, theta0=theta)
+
+
+def test_unmodelled_dynamics_bias_the_fit_beyond_its_std():
+    """A plant whose gearbox softens over a wider zone than the model's fixed ``delta`` (a
+    structure the model cannot represent, standing in for the realistic plant's extra dynamics):
+    the fit converges, but s^2 grows (about 200) and errors exceed 3 std - what identify.json
+    calls biased."""
+    noise = ident.NoiseLevels()
+    plant = dataclasses.replace(TRUE, delta=(8e-4, 8e-4))
+    exps = make_experiments(plant, noise, seed=5)
+    true = ident.parameter_values(plant)
+    fit = ident.fit(exps, TRUE, noise=noise, theta0=np.log(true))
+    z = np.abs(np.array([fit.values[n] for n in ident.NAMES]) - true) / np.array([fit.std[n] for n in ident.NAMES])
+    assert fit.s2 > 1.5
+    assert np.sum(z > 3.0) >= 2, dict(zip(ident.NAMES, z.round(1)))

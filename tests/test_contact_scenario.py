@@ -4,7 +4,6 @@ readings through the sensor, observer and controller FMUs."""
 from __future__ import annotations
 
 import argparse
-import tomllib
 
 import numpy as np
 import pytest
@@ -15,6 +14,7 @@ from fmu_host import Slave
 from fmus.force_observer import impedance_math as imp
 from orchestration import study_contact as sc
 from orchestration.build import build_all
+from orchestration.scenario import scenario_document
 from orchestration.study import map_jobs, open_executor, simulate
 
 FMUS = ["FlexibleRobot2DOF", "MotionController", "Encoder", "Imu", "ForceTorqueSensor",
@@ -53,7 +53,7 @@ def metrics(runs, setup):
 
 
 def test_the_two_scenarios_differ_only_in_the_fed_back_force():
-    docs = {k: tomllib.loads(p.read_text()) for k, p in sc.SCENARIO_FILES.items()}
+    docs = {k: scenario_document(p) for k, p in sc.SCENARIO_FILES.items()}
     conns = {k: set(d["connections"]) for k, d in docs.items()}
     assert conns["observer"] - conns["raw"] == {"observer.f_contact_hat -> impedance.f_contact_hat"}
     assert conns["raw"] - conns["observer"] == {"observer.f_raw -> impedance.f_contact_hat"}
@@ -92,7 +92,7 @@ def test_reference_with_the_offset_would_be_an_algebraic_loop(fmu_dir, monkeypat
     from orchestration.scenario import ScenarioError, load_scenario
 
     monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
-    doc = tomllib.loads(sc.SCENARIO_FILES["observer"].read_text())
+    doc = scenario_document(sc.SCENARIO_FILES["observer"])
     doc["connections"] = [c.replace("path.p_ref", "controller.p_ref") for c in doc["connections"]]
     with pytest.raises(ScenarioError, match="algebraic loop"):
         plan(load_scenario(doc))

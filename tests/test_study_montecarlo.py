@@ -252,7 +252,7 @@ def test_section4_bound_validation_and_the_papers_construction(section4):
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="not reproduced: the paper's 'RMSE close to the CRLB' with and without "
-                   "accelerometer; 6 runs give 1.40x (with) and 0.55x (without): the paper-construction bound "
+                   "accelerometer; 100 runs give 1.45x (with) and 0.58x (without): the paper-construction bound "
                    "takes the filter's Q while the plant has no process noise, and the motor velocity as a "
                    "noise-free input")
 def test_section4_ekf_within_1_5x_of_the_crlb_with_and_without_accelerometer(section4):

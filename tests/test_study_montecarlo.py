@@ -280,7 +280,7 @@ def test_particle_filter_scenario_gives_fig4(tmp_path):
         assert_allclose(v["position_ratio"], d["summary"][name]["rmse_position"]
                         / d["summary"]["ekf_acc"]["rmse_position"])
     fig4 = [f for f in d["findings"] if f["claim"].startswith("Fig. 4")]
-    assert len(fig4) == 1 and "pf_alg1" in fig4[0]["ours"]      # only Algorithm 1 is the paper's PF
+    assert len(fig4) == 2 and all(f["ours"].startswith("pf_alg1:") for f in fig4)   # Algorithm 1 only
 
 
 @pytest.mark.slow

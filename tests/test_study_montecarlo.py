@@ -29,13 +29,15 @@ def small(tmp_path_factory):
     return out, data
 
 
+#: Table 1 of Axelsson, Karlsson, Norrlöf (2012), transcribed here independently of the study's copy.
+TABLE1_TEXT = {"accelerometer": {"position": 1.25e-5, "velocity": 7.57e-5, "acceleration": 1.23e-3},
+               "no_accelerometer": {"position": 2.18e-5, "velocity": 4.08e-4, "acceleration": 3.91e-3}}
+
+
 def test_paper_values_are_the_papers_text():
-    """The numbers the study compares with, transcribed here independently from the paper
-    (Axelsson, Karlsson, Norrlöf 2012): Table 1 and its caption (500 runs), eq. 26, Fig. 4's
-    caption (20 runs)."""
-    table1 = {"accelerometer": {"position": 1.25e-5, "velocity": 7.57e-5, "acceleration": 1.23e-3},
-              "no_accelerometer": {"position": 2.18e-5, "velocity": 4.08e-4, "acceleration": 3.91e-3}}
-    assert study_montecarlo.PAPER_TABLE1 == table1
+    """The numbers the study compares with are the paper's: Table 1 and its caption (500 runs),
+    eq. 26, Fig. 4's caption (20 runs)."""
+    assert study_montecarlo.PAPER_TABLE1 == TABLE1_TEXT
     assert study_montecarlo.PAPER_TABLE1_RUNS == 500 and study_montecarlo.PAPER_FIG4_RUNS == 20
     assert (study_montecarlo.PAPER_Q_JERK, study_montecarlo.PAPER_R_MOTOR, study_montecarlo.PAPER_R_ACC) \
         == (4e-6, 1e-6, 1e-4)
@@ -88,7 +90,7 @@ def test_study_json_schema(small):
     for k in ("matched_acc", "matched_motor", "overtuned_acc", "overtuned_motor"):
         assert set(v[k]) >= {"rmse", "crlb_true_q", "crlb_filter_q"}
     t1 = saved["table1"]
-    assert t1["paper_runs"] == 500 and t1["runs"] == 3
+    assert t1["paper"] == TABLE1_TEXT and t1["paper_runs"] == 500 and t1["runs"] == 3
     for key in ("accelerometer_over_paper", "no_accelerometer_over_paper", "ratio_without_over_with"):
         assert set(t1[key]) == set(study_montecarlo.GROUPS)
     assert_allclose(t1["accelerometer_over_paper"]["position"],

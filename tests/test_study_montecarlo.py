@@ -24,8 +24,111 @@ pytestmark = pytest.mark.skipif(not (DEFAULT_FMU_DIR / "EkfAccelerometer.fmu").e
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     out = tmp_path_factory.mktemp("mc1")
-    data = study_montecarlo.run_study(SCENARIO, 3, out, SHORT, workers=1, progress=False, after=0.2)
+    data = study_montecarlo.run_study(SCENARIO, 3, out, SHORT, workers=1, progress=False, after=0.2,
+                                      sweep=(1.0,), sweep_runs=2, validation_runs=3)
     return out, data
+
+
+#: Table 1 of Axelsson, Karlsson, Norrlöf (2012), transcribed here independently of the study's copy.
+TABLE1_TEXT = {"accelerometer": {"position": 1.25e-5, "velocity": 7.57e-5, "acceleration": 1.23e-3},
+               "no_accelerometer": {"position": 2.18e-5, "velocity": 4.08e-4, "acceleration": 3.91e-3}}
+
+
+def test_paper_values_are_the_papers_text():
+    """The numbers the study compares with are the paper's: Table 1 and its caption (500 runs),
+    eq. 26, Fig. 4's caption (20 runs)."""
+    assert study_montecarlo.PAPER_TABLE1 == TABLE1_TEXT
+    assert study_montecarlo.PAPER_TABLE1_RUNS == 500 and study_montecarlo.PAPER_FIG4_RUNS == 20
+    assert (study_montecarlo.PAPER_Q_JERK, study_montecarlo.PAPER_R_MOTOR, study_montecarlo.PAPER_R_ACC) \
+        == (4e-6, 1e-6, 1e-4)
+
+
+def test_scenario_reads_eq26_motor_side():
+    """Eq. 26's R with the motor angle motor side (eqs. 15-16): the encoder's standard deviation
+    is sqrt(1e-6) rad, the EKFs' r_motor 1e-6 rad^2, the accelerometer 0.01 m/s^2 and 1e-4."""
+    from orchestration.scenario import load_scenario
+    for name in ("axelsson2012.toml", "axelsson2012_pf.toml"):
+        sc = load_scenario(SCENARIO.with_name(name))
+        assert_allclose(sc.components["encoder"].parameters["noise"] ** 2, study_montecarlo.PAPER_R_MOTOR)
+        assert_allclose(sc.components["imu"].parameters["acc_noise"] ** 2, study_montecarlo.PAPER_R_ACC)
+        filters = [c for c in sc.components.values() if c.model_identifier in study_montecarlo.FILTER_FMUS]
+        assert filters
+        for c in filters:
+            assert c.parameters["r_motor"] == study_montecarlo.PAPER_R_MOTOR
+            assert c.parameters["r_acc"] == study_montecarlo.PAPER_R_ACC
+
+
+def test_pf_scenario_is_algorithm_1_with_labelled_variants():
+    from orchestration.scenario import load_scenario
+    sc = load_scenario(SCENARIO.with_name("axelsson2012_pf.toml"))
+    pf = {n: c.parameters for n, c in sc.components.items() if c.model_identifier == "ParticleFilter"}
+    assert (pf["pf_alg1"]["proposal"], pf["pf_alg1"]["resampling"], pf["pf_alg1"]["bandwidth"]) \
+        == ("prior", "always", 0.0)
+    assert pf["pf_regularised"]["bandwidth"] > 0 and pf["pf_regularised"]["proposal"] == "prior"
+    assert pf["pf_ekf_proposal"]["proposal"] == "ekf" and pf["pf_ekf_proposal"]["bandwidth"] == 0.0
+
+
+def test_study_json_schema(small):
+    """The sweep (with the paper's Q as its own row), the consistency figures, the CRLB
+    validation, Table 1 with ratios, the findings and the wall time are in study.json."""
+    out, _ = small
+    saved = json.loads((out / "study.json").read_text())
+    sw = saved["q_jerk_sweep"]
+    assert [r["q_jerk"] for r in sw["rows"]] == [4e-6, 1.0]
+    assert sw["rows"][0]["label"].startswith("paper") and sw["rows"][1]["label"] == ""
+    assert sw["selected_q_jerk"] in (4e-6, 1.0) and sw["runs_per_value"] == 2
+    for row in sw["rows"]:
+        assert set(row["filters"]) == {"ekf_acc", "ekf_motor"}
+        for e in row["filters"].values():
+            assert e["anees"] > 0 and 0 <= e["anees_fraction_in_band"] <= 1
+            lo, hi = e["anees_band_95"]
+            assert lo < 6 < hi
+    for name in ("ekf_acc", "ekf_motor"):
+        assert saved["summary"][name]["anees"] > 0
+    v = saved["crlb_validation"]
+    assert v["runs"] == 3 and v["q_true"] == 1.0
+    for k in ("matched_acc", "matched_motor", "overtuned_acc", "overtuned_motor"):
+        assert set(v[k]) >= {"rmse", "crlb_true_q", "crlb_filter_q"}
+    t1 = saved["table1"]
+    assert t1["paper"] == TABLE1_TEXT and t1["paper_runs"] == 500 and t1["runs"] == 3
+    for key in ("accelerometer_over_paper", "no_accelerometer_over_paper", "ratio_without_over_with"):
+        assert set(t1[key]) == set(study_montecarlo.GROUPS)
+    assert_allclose(t1["accelerometer_over_paper"]["position"],
+                    t1["accelerometer"]["position"] / 1.25e-5, rtol=1e-12)
+    assert saved["findings"]
+    for f in saved["findings"]:
+        assert set(f) == {"claim", "ours", "reproduced", "why"} and f["reproduced"] in ("yes", "no")
+    w = saved["wall_time_s"]
+    assert w["jobs"] == 3 + 2 * 2 and w["total"] >= w["runs_and_sweep"] > 0
+    assert "not a lower bound" in saved["crlb_note"]
+
+
+def test_nees_of_a_known_case():
+    """NEES = e^T P^-1 e with P unpacked from the EKF's P_x (lower triangle row by row)."""
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((4, 6, 6))
+    P = A @ np.swapaxes(A, 1, 2) + 6 * np.eye(6)
+    e = rng.standard_normal((4, 6))
+    packed = P[:, np.tril_indices(6)[0], np.tril_indices(6)[1]]
+    assert packed.shape == (4, 21)
+    assert_allclose(study_montecarlo.nees(e, packed), [ei @ np.linalg.solve(Pi, ei) for ei, Pi in zip(e, P)],
+                    rtol=1e-12)
+
+
+def test_sweep_row_of_the_scenario_value_repeats_the_main_runs(small):
+    """The sweep's q_jerk = 1 row (seeds 1-2) and the main runs (q_jerk = 1 in the scenario,
+    seeds 1-3) share seeds 1-2: the filters see the same data, so recomputing the main runs'
+    summary from those two seeds gives the sweep row's numbers."""
+    _, data = small
+    sc, filters, plant = study_montecarlo._scenario_parts(str(SCENARIO), SHORT)
+    runs = [study_montecarlo.run_one(str(SCENARIO), SHORT + [f"scenario.seed={s}"], filters, plant,
+                                     filters[0].ratio) for s in (1, 2)]
+    keep = runs[0]["time"] >= 0.2
+    summary, _ = study_montecarlo._summarise(runs, filters, keep)
+    row = data["q_jerk_sweep"]["rows"][1]["filters"]
+    for name in ("ekf_acc", "ekf_motor"):
+        assert_allclose(row[name]["rmse_position"], summary[name]["rmse_position"], rtol=1e-12)
+        assert_allclose(row[name]["anees"], summary[name]["anees"], rtol=1e-12)
 
 
 def test_small_study_writes_json_and_figure(small):
@@ -64,7 +167,7 @@ def test_same_numbers_with_two_workers_and_through_the_cli(small, tmp_path, caps
     _, one = small
     code = cli.main(["study", "montecarlo", str(SCENARIO), "--runs", "3", "--out", str(tmp_path),
                      "--workers", "2", "--no-progress", "--after", "0.2", "--no-plots",
-                     "--set", SHORT[0]])
+                     "--sweep-runs", "0", "--validation-runs", "0", "--set", SHORT[0]])
     assert code == 0
     assert "ekf_acc" in capsys.readouterr().out
     two = json.loads((tmp_path / "study.json").read_text())
@@ -84,7 +187,8 @@ def test_same_numbers_on_a_dask_local_cluster(small, tmp_path):
     pytest.importorskip("distributed")
     _, one = small
     dask = study_montecarlo.run_study(SCENARIO, 3, tmp_path, SHORT, workers=2, scheduler="local",
-                                      progress=False, after=0.2, plots=False)
+                                      progress=False, after=0.2, plots=False, sweep_runs=0,
+                                      validation_runs=0)
     assert dask["summary"] == one["summary"]
     for name in one["summary"]:
         for g in study_montecarlo.GROUPS:
@@ -98,53 +202,101 @@ def test_bad_arguments_are_study_errors(tmp_path):
         study_montecarlo.run_study(SCENARIO, 1, tmp_path, SHORT, after=5.0)
     with pytest.raises(study.StudyError, match="no_such"):
         study_montecarlo.run_study(SCENARIO, 1, tmp_path, ["no_such.x=1"])
+    with pytest.raises(study.StudyError, match="sweep"):
+        study_montecarlo.run_study(SCENARIO, 1, tmp_path, SHORT, sweep=(0.0,))
+    with pytest.raises(study.StudyError, match="sweep-runs"):
+        study_montecarlo.run_study(SCENARIO, 1, tmp_path, SHORT, sweep_runs=-1)
 
 
 @pytest.fixture(scope="module")
-def study_100(tmp_path_factory):
-    return study_montecarlo.run_study(SCENARIO, 100, tmp_path_factory.mktemp("mc100"), progress=False)["summary"]
+def section4(tmp_path_factory):
+    """Reduced size of the README figure (100 runs, full sweep): 30 runs, a 3-value sweep of 6 runs
+    each, 30 validation runs (about 3 min on 2 workers)."""
+    return study_montecarlo.run_study(SCENARIO, 30, tmp_path_factory.mktemp("mc30"), workers=2,
+                                      progress=False, plots=False, sweep=(0.1, 1.0, 10.0), sweep_runs=6,
+                                      validation_runs=30)
 
 
 @pytest.mark.slow
-def test_section4_accelerometer_gains_over_100_runs(study_100):
-    """Table 1's finding: the accelerometer lowers the angle RMSE by >= 30 %, the velocity RMSE
-    by >= 3x and the acceleration RMSE by >= 2x (paper: 43 %, 5.4x, 3.2x)."""
-    acc, mot = study_100["ekf_acc"], study_100["ekf_motor"]
-    assert acc["rmse_position"] <= 0.7 * mot["rmse_position"]
-    assert mot["rmse_velocity"] >= 3.0 * acc["rmse_velocity"]
-    assert mot["rmse_acceleration"] >= 2.0 * acc["rmse_acceleration"]
+def test_section4_accelerometer_lowers_every_rmse(section4):
+    """Table 1's direction, which we reproduce: the accelerometer lowers the angle, velocity and
+    acceleration RMSE (measured with 100 runs: 1.1x, 1.5x, 1.5x; the paper 1.74x, 5.4x, 3.2x, so
+    the magnitudes are NOT reproduced, see the findings)."""
+    r = section4["table1"]["ratio_without_over_with"]
+    assert r["position"] > 1.03
+    assert r["velocity"] > 1.3 and r["acceleration"] > 1.3
 
 
 @pytest.mark.slow
-def test_section4_ekf_attains_its_own_models_bound_with_the_accelerometer(study_100):
-    """The bound of DESIGN.md (the models the EKF uses): the EKF with accelerometer is within
-    1.5x of it and not below it."""
-    acc = study_100["ekf_acc"]
-    assert acc["ekf_model_bound_position"] <= acc["rmse_position"] <= 1.5 * acc["ekf_model_bound_position"]
+def test_section4_q_jerk_is_the_consistent_choice(section4):
+    """The scenario's q_jerk is the sweep's consistency choice, both EKFs' ANEES is within a
+    factor 1.5 of 6 there, and the paper's literal Q (eq. 26) is grossly overconfident here."""
+    sw = section4["q_jerk_sweep"]
+    assert sw["selected_q_jerk"] == 1.0 == sw["scenario_q_jerk"]["ekf_acc"] == sw["scenario_q_jerk"]["ekf_motor"]
+    for name in ("ekf_acc", "ekf_motor"):
+        assert 4.0 <= section4["summary"][name]["anees"] <= 9.0
+    paper = next(r for r in sw["rows"] if r["q_jerk"] == study_montecarlo.PAPER_Q_JERK)
+    assert all(e["anees"] > 100 for e in paper["filters"].values())
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="not reached: 20 runs give 3.5x (with) and 5.5x (without "
-                   "accelerometer) the paper's physical-model CRLB, which takes the motor velocity "
-                   "as exactly known, and the motor-only EKF is 0.90x its own model's bound (the "
-                   "plant's jerk deviations are smaller than q_jerk assumes)")
-def test_section4_ekf_within_1_5x_of_the_crlb_with_and_without_accelerometer(study_100):
-    """The issue's criterion on the paper's bound (eqs. 21-25), with and without accelerometer."""
-    for f in (study_100["ekf_acc"], study_100["ekf_motor"]):
-        assert f["crlb_position"] <= f["rmse_position"] <= 1.5 * f["crlb_position"]
-        assert f["ekf_model_bound_position"] <= f["rmse_position"]
+def test_section4_bound_validation_and_the_papers_construction(section4):
+    """With the process noise the bound assumes, the matched EKF sits on the bound (within the
+    Monte Carlo spread of 30 runs); on the section-4 plant (no process noise) the paper's
+    construction with the filter's Q is beaten by the motor-only EKF: it is no bound there."""
+    v = section4["crlb_validation"]
+    for k in ("matched_acc", "matched_motor"):
+        assert_allclose(v[k]["rmse"]["position"], v[k]["crlb_true_q"]["position"], rtol=0.06)
+    for k in ("overtuned_acc", "overtuned_motor"):
+        assert v[k]["rmse"]["position"] >= 0.95 * v[k]["crlb_true_q"]["position"]
+    assert section4["summary"]["ekf_motor"]["rmse_over_crlb_position"] < 1.0
 
 
-@pytest.mark.skipif(not (DEFAULT_FMU_DIR / "ParticleFilter.fmu").exists(), reason="needs ParticleFilter.fmu")
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="not reproduced: the paper's 'RMSE close to the CRLB' with and without "
+                   "accelerometer; 100 runs give 1.45x (with) and 0.58x (without): the paper-construction bound "
+                   "takes the filter's Q while the plant has no process noise, and the motor velocity as a "
+                   "noise-free input")
+def test_section4_ekf_within_1_5x_of_the_crlb_with_and_without_accelerometer(section4):
+    """The paper's Fig. 3 claim on its bound (eqs. 21-25), with and without accelerometer."""
+    for name in ("ekf_acc", "ekf_motor"):
+        assert 1.0 <= section4["summary"][name]["rmse_over_crlb_position"] <= 1.5
+
+
+PF_SCENARIO = SCENARIO.with_name("axelsson2012_pf.toml")
+PF_NAMES = ("pf_alg1", "pf_regularised", "pf_ekf_proposal")
+needs_pf = pytest.mark.skipif(not (DEFAULT_FMU_DIR / "ParticleFilter.fmu").exists(),
+                              reason="needs ParticleFilter.fmu")
+
+
+@needs_pf
 def test_particle_filter_scenario_gives_fig4(tmp_path):
-    pf = SCENARIO.with_name("axelsson2012_pf.toml")
-    d = study_montecarlo.run_study(pf, 2, tmp_path, ["scenario.stop_time=0.2", "pf_prior.n_particles=100",
-                                                     "pf_ekf.n_particles=100"],
-                                   workers=1, progress=False, after=0.05)
+    d = study_montecarlo.run_study(PF_SCENARIO, 2, tmp_path, ["scenario.stop_time=0.2"]
+                                   + [f"{n}.n_particles=100" for n in PF_NAMES],
+                                   workers=1, progress=False, after=0.05, sweep_runs=0, validation_runs=0)
     assert (tmp_path / "fig4.png").stat().st_size > 0
-    assert set(d["pf_vs_ekf"]) == {"pf_prior", "pf_ekf"}
-    for name in ("pf_prior", "pf_ekf"):
+    assert set(d["pf_vs_ekf"]) == set(PF_NAMES)
+    for name in PF_NAMES:
         v = d["pf_vs_ekf"][name]
-        assert v["ekf"] == "ekf_acc"
+        assert v["ekf"] == "ekf_acc" and v["n_particles"] == 100
         assert_allclose(v["position_ratio"], d["summary"][name]["rmse_position"]
                         / d["summary"]["ekf_acc"]["rmse_position"])
+    fig4 = [f for f in d["findings"] if f["claim"].startswith("Fig. 4")]
+    assert len(fig4) == 2 and all(f["ours"].startswith("pf_alg1:") for f in fig4)   # Algorithm 1 only
+
+
+@pytest.mark.slow
+@needs_pf
+def test_pf_algorithm_1_needs_many_particles(tmp_path):
+    """Reduced Fig. 4 (4 runs, 1.5 s): the paper's Algorithm 1 with 10000 particles is within
+    1.25x of the EKF; with 1000 the plain bootstrap degenerates (more than 10x the EKF), while
+    the regularised variant with 1000 stays within 1.25x."""
+    short = ["scenario.stop_time=1.5", "pf_ekf_proposal.n_particles=1000"]
+    d = study_montecarlo.run_study(PF_SCENARIO, 4, tmp_path / "a", short, workers=2, progress=False,
+                                   plots=False, sweep_runs=0, validation_runs=0, crlb=False)
+    assert d["pf_vs_ekf"]["pf_alg1"]["position_ratio"] <= 1.25
+    few = study_montecarlo.run_study(PF_SCENARIO, 4, tmp_path / "b", short + [
+        "pf_alg1.n_particles=1000", "pf_regularised.n_particles=1000"], workers=2, progress=False,
+        plots=False, sweep_runs=0, validation_runs=0, crlb=False)
+    assert few["pf_vs_ekf"]["pf_alg1"]["position_ratio"] > 10
+    assert few["pf_vs_ekf"]["pf_regularised"]["position_ratio"] <= 1.25

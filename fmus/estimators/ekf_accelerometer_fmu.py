@@ -19,6 +19,8 @@ from fmus.common.fmi import FlexFusionSlave
 from fmus.common.robot_params import G
 from fmus.estimators import ekf_accelerometer_model as em
 
+_TRIL = np.tril_indices(6)     # the arm states' covariance, packed (output P_x)
+
 
 class EkfAccelerometer(FlexFusionSlave):
     """Arm angles, velocities and accelerations from motor angles and a tool accelerometer (EKF).
@@ -48,6 +50,10 @@ class EkfAccelerometer(FlexFusionSlave):
                     description="trace of the filtered covariance of the arm angles")
         self.output("innovation_norm", unit="1", depends_on=deps,
                     description="normalised innovation norm sqrt(nu^T S^-1 nu) of the last update")
+        # the whole covariance, for consistency checks against the truth (NEES) in studies
+        self.output("P_x", len(_TRIL[0]), unit="1", depends_on=deps,
+                    description="filtered covariance of (q_a, dq_a, ddq_a), lower triangle row by row "
+                    "(numpy.tril_indices(6)); SI units (rad, rad/s, rad/s2) of each product")
 
     def setup(self, params: em.EkfAccelerometerParameters) -> None:
         self.ekf = em.EkfAccelerometerModel(params)
@@ -76,6 +82,7 @@ class EkfAccelerometer(FlexFusionSlave):
         self.p_tool_hat[:] = self.ekf.tool_position(xf)
         self.trace_P_q = float(Pf[0, 0] + Pf[1, 1])
         self.innovation_norm = nu
+        self.P_x[:] = Pf[_TRIL]
 
     def step(self, t: float, dt: float) -> None:
         # Commit the estimate at t as last computed (from the measurements present then), not

@@ -26,8 +26,10 @@ def _has_ideal() -> bool:
 
 
 #: noise-free sensors and, once the plant has realism features, the ideal plant
+# noise-free, calibrated sensors on the ideal plant (the model's own structure)
 NOISE_FREE = ["encoder.noise=0", "encoder.resolution=0", "imu.acc_noise=0", "imu.acc_resolution=0",
-              "imu.acc_bias_rw=0"] + (["plant.ideal=true"] if _has_ideal() else [])
+              "imu.acc_bias_rw=0", "imu.mount_rpy=[0, 0, 0]", "imu.acc_scale=[0, 0, 0]"] + (
+                  ["plant.ideal=true"] if _has_ideal() else [])
 
 
 # ---- the study, through the FMUs -----------------------------------------------------------

@@ -211,3 +211,39 @@ def test_rigid_kinematics_extrapolates_a_late_sample_to_the_output_time() -> Non
         if k >= 1:       # two samples give the velocity
             assert_allclose(late.get("q_a_hat", 2), q_a((k + 1) * T), rtol=1e-12)
             assert_allclose(late.get("p_tool_hat", 2), on_time.get("p_tool_hat", 2), rtol=1e-12)
+
+
+def test_2009_ekf_fuses_a_late_measurement_at_its_stamp() -> None:
+    """EkfMotor (Henriksson et al. 2009; the base shared with EkfComplete and EkfIntegrated):
+    one step late with its stamp, the estimate at t + T is the on-time filter's estimate at t
+    predicted by T with the torque set with that measurement (the plain model's steps)."""
+    import copy
+
+    from fmus.estimators import ekf_flexible_model as fm
+    from fmus.estimators.ekf_motor_fmu import EkfMotor
+    p = fm.EkfMotorParameters()
+    ekf = fm.EkfFlexibleModel(p, "motor")
+    n = 30
+    t = np.arange(n + 1) * T
+    q_m = ekf.x[2:4] + np.array([0.02, -0.01]) * np.sin(2 * math.pi * 3 * t)[:, None]
+    tau = np.array([1.0, -0.5]) * np.cos(2 * math.pi * 2 * t)[:, None]
+    runs = []
+    for _ in range(2):
+        s = InProcess(EkfMotor)
+        s.set(q_m_meas=q_m[0], tau_m=tau[0], t_meas=0.0)
+        s.init()
+        runs.append(s)
+    on_time, late = runs
+    ekf.update(q_m[0], None, tau[0])
+    for k in range(n):
+        on_time.set(q_m_meas=q_m[k + 1], tau_m=tau[k + 1], t_meas=(k + 1) * T)
+        late.set(q_m_meas=q_m[k], tau_m=tau[k], t_meas=k * T)
+        on_time.step()
+        late.step()
+        if k >= 1:
+            expected = copy.copy(ekf).predict(T)      # the estimate at t_k, predicted to t_{k+1}
+            assert_allclose(late.get("q_a_hat", 2), expected[0:2], rtol=1e-10, atol=1e-13)
+            assert_allclose(late.get("q_m_hat", 2), expected[2:4], rtol=1e-10, atol=1e-13)
+        ekf.predict(T)
+        ekf.update(q_m[k + 1], None, tau[k + 1])
+        assert_allclose(on_time.get("q_a_hat", 2), ekf.x[0:2], rtol=1e-12, atol=1e-15)

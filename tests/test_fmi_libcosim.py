@@ -13,6 +13,7 @@ the stamp, 0.034 mm under our master).
 """
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,10 @@ def test_flagship_in_libcosim_starts_from_the_right_pose(tmp_path, tmp_path_fact
     scenario = REPO / "orchestration" / "scenarios" / "flagship.toml"
     overrides = ["scenario.stop_time=1.0"]
     ssp = export_ssp(scenario, tmp_path / "flagship.ssp", overrides)
+    # the package carries the sample times: encoder.t_meas -> ekf.t_meas
+    ssd = zipfile.ZipFile(ssp).read("SystemStructure.ssd").decode()
+    assert ('startElement="encoder" startConnector="t_meas" endElement="ekf" endConnector="t_meas"'
+            in ssd)
     ours = run(scenario, overrides, out_dir=tmp_path / "ours")
     cols = ["plant.p_tool[1]", "plant.p_tool[2]", "ekf.p_tool_hat[1]", "ekf.p_tool_hat[2]"]
     theirs = cosim(ssp, 1e-3, 1000, cols)

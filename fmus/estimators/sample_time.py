@@ -1,5 +1,5 @@
 """Sample-time fusion: what every estimator FMU needs to fuse a measurement at the time it was
-taken, whatever the master's coupling scheme (no FMI here).
+taken, whatever the master's coupling scheme (plain functions and constants).
 
 The sensors publish ``t_meas``, the time their held sample was taken
 (:func:`fmus.robot_plant.sensor_model.input_time`); an estimator takes it as an optional input

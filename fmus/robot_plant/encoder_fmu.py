@@ -41,9 +41,9 @@ class Encoder(FlexFusionSlave):
     ``doStep(t, dt)``, taken as the value at ``t + dt`` and stamped so in ``t_meas``
     (:func:`~fmus.robot_plant.sensor_model.input_time`, the Tracker's convention); ``t_meas``
     holds with the reading between samples. Right after initialisation the output is the
-    noise-free reading of the initial input, stamped with the start time. The check that the sample period
-    is a multiple of the communication step happens at the first ``doStep`` (an FMU does not
-    know its step before), which then fails with a message naming ``sample_rate``.
+    noise-free reading of the initial input, stamped with the start time. The check that the
+    sample period is a multiple of the communication step happens at the first ``doStep`` (an
+    FMU does not know its step before), which then fails with a message naming ``sample_rate``.
     """
 
     parameters_class = EncoderParameters

@@ -77,8 +77,8 @@ class Imu(FlexFusionSlave):
     ``doStep(t, dt)``, taken as their values at ``t + dt`` and stamped so in ``t_meas``
     (:func:`~fmus.robot_plant.sensor_model.input_time`; accelerometer and gyro sample together).
     Right after initialisation the outputs are the noise-free readings of the initial inputs
-    (at rest: +g on sensor z), stamped with the start time. The sample-period and cut-off checks need the
-    communication step and so happen at the first ``doStep``.
+    (at rest: +g on sensor z), stamped with the start time. The sample-period and cut-off checks
+    need the communication step and so happen at the first ``doStep``.
     """
 
     parameters_class = ImuParameters

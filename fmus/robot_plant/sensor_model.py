@@ -396,7 +396,7 @@ def hammer_force(t: float, times: Sequence[float], force_xz: Sequence[float], du
     return f
 
 
-__all__ = ["input_time", "SensorChannels", "butterworth_coefficients", "butterworth_magnitude", "quantise",
-           "rot_y", "rot_rpy", "sensor_rotation", "imu_reading", "force_sensor_reading",
+__all__ = ["input_time", "SensorChannels", "butterworth_coefficients", "butterworth_magnitude",
+           "quantise", "rot_y", "rot_rpy", "sensor_rotation", "imu_reading", "force_sensor_reading",
            "calibrate_tool", "Wall",
            "penetration", "contact_force", "hammer_force", "G"]

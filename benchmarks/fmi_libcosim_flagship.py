@@ -5,9 +5,14 @@ Usage: ``python benchmarks/fmi_libcosim_flagship.py [STOP_TIME]`` (default 11 s,
 the FMUs of ``dist/fmus`` or ``$FLEXFUSION_FMU_DIR``). libcosim runs in a subprocess
 (``tests/cosim_runner.py``): pythonfmu FMUs run in the host's interpreter.
 
-Measured (issue 13, 11 s): our master 0.108 mm, libcosim 0.384 mm (ratio 3.6); before the
-initialisation fix libcosim gave 42.6 mm. The rest is the Jacobi coupling delay: libcosim
-hands the EKF its measurements two steps late.
+Measured (issue 13, 11 s): our master 0.108 mm, libcosim 0.384 mm (ratio 3.6; 42.6 mm before
+the initialisation fix): libcosim hands the EKF its measurements two steps late. With the
+measurements fused at their stamps (``t_meas``): our master 0.1078 mm (results bit-identical),
+libcosim 0.211 mm (ratio 1.95; goal 1.25 not reached). The rest is one step of the sensors'
+stamps: they say t + T (the value our Gauss-Seidel master sets before ``doStep(t, T)``) while
+libcosim sets the value of t. Stamped t instead (an experiment), libcosim gives 0.0178 mm over
+3 s against our 0.0171 mm, and our master would then be a step off: a sensor cannot know which
+its host does; the producer (the plant) would have to stamp its outputs.
 """
 from __future__ import annotations
 

@@ -18,10 +18,13 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import importlib.metadata
 import re
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
@@ -35,6 +38,7 @@ FMU_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11"]
 BUNDLE_ID_FILE = "BUNDLE_ID"
 
 _CLASS = re.compile(r"^class (\w+)\(", re.M)
+_STAGED_SCRIPT = re.compile(r"\w+_[0-9a-f]{12}")     # a script's module name (_stage_script)
 
 
 class BuildError(RuntimeError):
@@ -91,6 +95,39 @@ def _stage_script(script: Path, package: Path) -> Path:
     return staged
 
 
+@contextmanager
+def _installed_builder(package: str) -> Iterator[type]:
+    """pythonfmu's ``FmuBuilder`` from the installed package, for the duration of a build.
+
+    Once a pythonfmu FMU has run in this process, ``pythonfmu`` may be the copy bundled in that
+    FMU's ``resources/`` (imported from there first), whose folder has no native binaries: its
+    builder makes FMUs without them. Then the build imports the installed package afresh, and
+    the vendored ``package`` and FMU scripts (``<script>_<hash>``) with it (an FMU of the same
+    sources may have imported them on top of the bundled ``pythonfmu``); afterwards the modules
+    the running FMUs use are put back.
+    """
+    import pythonfmu
+    installed = Path(importlib.metadata.distribution("pythonfmu").locate_file("pythonfmu")).resolve()
+    if Path(pythonfmu.__file__).resolve().parent == installed:
+        from pythonfmu.builder import FmuBuilder
+        yield FmuBuilder
+        return
+
+    def ours(name: str) -> bool:
+        return (any(name == p or name.startswith(p + ".") for p in ("pythonfmu", package))
+                or _STAGED_SCRIPT.fullmatch(name) is not None)
+    saved = {n: sys.modules.pop(n) for n in [n for n in sys.modules if ours(n)]}
+    sys.path.insert(0, str(installed.parent))        # ahead of any FMU's resources folder
+    try:
+        from pythonfmu.builder import FmuBuilder
+        yield FmuBuilder
+    finally:
+        sys.path.remove(str(installed.parent))
+        for n in [n for n in sys.modules if ours(n)]:
+            del sys.modules[n]
+        sys.modules.update(saved)
+
+
 def validate_fmu(path: Path) -> list[str]:
     """Problems fmpy finds in an FMU (empty when valid)."""
     from fmpy.validation import validate_fmu as fmpy_validate
@@ -109,14 +146,13 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     BuildError
         Naming every FMU that failed to build or validate, with the reason.
     """
-    from pythonfmu.builder import FmuBuilder
-
     dest.mkdir(parents=True, exist_ok=True)
     built: list[Path] = []
     failures: list[str] = []
-    with tempfile.TemporaryDirectory(prefix="flexfusion_stage_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="flexfusion_stage_") as tmp, ExitStack() as stack:
         stage = Path(tmp)
         package = _stage_package(stage)
+        FmuBuilder = stack.enter_context(_installed_builder(package.name))  # noqa: N806 - a class
         for script in (fmu_scripts() if scripts is None else [Path(p) for p in scripts]):
             if only and script.stem not in only and not set(only) & set(_CLASS.findall(script.read_text())):
                 continue

@@ -20,7 +20,6 @@
 """
 from __future__ import annotations
 
-import atexit
 import ctypes
 import shutil
 import sys
@@ -358,6 +357,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
 
     instances: list[_Instance] = []
     slots: list[_Slot] = []
+    _ACTIVE_RUNS[0] += 1
     h = scenario.base_step
     t_now = 0.0
     current: _Instance | None = None
@@ -462,25 +462,42 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
     finally:
         for inst in reversed(instances):
             inst.close()
+        _ACTIVE_RUNS[0] -= 1
+        if not _ACTIVE_RUNS[0]:
+            _remove_extracted()
     return notes
 
 
-_EXTRACTED: dict[tuple[str, float], str] = {}
+_EXTRACTED: dict[tuple[str, float], str] = {}   # FMU file version -> its folder in this process
 _EXTRACT_ROOT: list[str] = []
+_ACTIVE_RUNS = [0]
 
 
 def _extracted(comp: Component) -> str:
-    """The folder an FMU is extracted to, once per process and FMU file version (its shared
-    library is loaded once and reused by every instance); removed at exit."""
+    """The folder an FMU is extracted to: one path per process and FMU file version, so its
+    shared library is loaded once and reused by every instance (the dynamic loader matches an
+    already loaded library by its path, even after the file was removed and extracted again).
+
+    The folders are removed when the last run of the process ends (:func:`_remove_extracted`),
+    not at exit: study workers end without running Python's exit handlers.
+    """
     from fmpy import extract
     path = comp.fmu.resolve()
     key = (str(path), path.stat().st_mtime)
+    if not _EXTRACT_ROOT:
+        _EXTRACT_ROOT.append(tempfile.mkdtemp(prefix="flexfusion_fmus_"))
     if key not in _EXTRACTED:
-        if not _EXTRACT_ROOT:
-            _EXTRACT_ROOT.append(tempfile.mkdtemp(prefix="flexfusion_fmus_"))
-            atexit.register(shutil.rmtree, _EXTRACT_ROOT[0], True)
-        _EXTRACTED[key] = extract(str(path), unzipdir=tempfile.mkdtemp(dir=_EXTRACT_ROOT[0]))
-    return _EXTRACTED[key]
+        _EXTRACTED[key] = str(Path(_EXTRACT_ROOT[0]) / str(len(_EXTRACTED)))
+    folder = _EXTRACTED[key]
+    if not Path(folder, "modelDescription.xml").is_file():
+        extract(str(path), unzipdir=folder)
+    return folder
+
+
+def _remove_extracted() -> None:
+    """Remove this process's FMU extraction folders (the paths stay reserved for the next run)."""
+    if _EXTRACT_ROOT:
+        shutil.rmtree(_EXTRACT_ROOT[0], ignore_errors=True)
 
 
 def _fail(inst: _Instance, function: str, status: int, t: float) -> None:

@@ -54,9 +54,11 @@ def test_model_description(fmu: Path) -> None:
     for name in ("use_accelerometer", "use_bias", "q_jerk", "r_motor", "r_acc", "gear_ratio[1]", "k_hi[2]",
                  "q_a0[1]", "p_tool0[2]", "index_x"):
         assert v[name].causality == "parameter", name
-    # the filtered estimate feeds through from the measurements, not from the jerk input
+    # the filtered estimate feeds through from the measurements and their time stamp, not from
+    # the jerk input
     deps = {o.variable.name: {d.name for d in o.dependencies} for o in md.outputs}
-    assert deps["q_a_hat[1]"] == {"q_m_meas[1]", "q_m_meas[2]", "acc_s[1]", "acc_s[2]", "acc_s[3]"}
+    assert deps["q_a_hat[1]"] == {"q_m_meas[1]", "q_m_meas[2]", "acc_s[1]", "acc_s[2]", "acc_s[3]",
+                                  "t_meas"}
 
 
 def test_runs_standalone_under_simulate_fmu(fmu: Path) -> None:

@@ -48,9 +48,10 @@ def test_model_description(fmus: dict, variant: str) -> None:
     for name in ("lambda1", "lambda5", "stiffness_scale", "k_hi[1]", "k_lo[2]", "w_dq_a", "r_motor",
                  "q_a0[1]", "p_tool0[2]"):
         assert v[name].causality == "parameter", name
-    # the filtered estimate feeds through from the measurements, not from the torque
+    # the filtered estimate feeds through from the measurements and their time stamp, not from
+    # the torque
     deps = {o.variable.name: {d.name for d in o.dependencies} for o in md.outputs}
-    meas = {"q_m_meas[1]", "q_m_meas[2]"}
+    meas = {"q_m_meas[1]", "q_m_meas[2]", "t_meas"}
     if variant != "motor":
         meas |= {"acc_s[1]", "acc_s[2]", "acc_s[3]"}
     assert deps["p_tool_hat[1]"] == meas

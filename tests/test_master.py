@@ -203,6 +203,23 @@ def test_same_seed_gives_byte_identical_results_other_seed_differs(tmp_path):
     assert not np.allclose(ra["src.noise"][1:], ra["other.noise"][1:])
 
 
+def test_fmu_extraction_folders_are_removed_when_a_run_ends(tmp_path):
+    """Study workers end without Python's exit handlers: a run must not leave its FMU folders
+    behind (after a failed run neither), and the next run in the process extracts them again
+    to the same paths (the loaded libraries are reused)."""
+    from orchestration import master
+    path = write(tmp_path, NOISE)
+    run(path, out_dir=tmp_path / "a")
+    root = Path(master._EXTRACT_ROOT[0])
+    folders = set(master._EXTRACTED.values())
+    assert not root.exists()
+    run(path, out_dir=tmp_path / "b")
+    assert not root.exists() and set(master._EXTRACTED.values()) == folders
+    with pytest.raises(RunError):
+        run(write(tmp_path, FAILING.format(mode="error"), "failing.toml"), out_dir=tmp_path / "c")
+    assert not root.exists()
+
+
 def test_results_csv_is_read_by_fmpy(tmp_path):
     path = write(tmp_path, CHAIN)
     r = run(path, out_dir=tmp_path / "o")

@@ -435,19 +435,21 @@ class EkfAccelerometerModel:
             y = np.concatenate([y, np.asarray(acc_xz, float)])
         return y
 
-    def filtered(self, y) -> tuple[np.ndarray, np.ndarray, float]:
-        """``(x_{t|t}, P_{t|t}, normalised innovation norm)`` for the measurement ``y`` (eq. 3b).
+    def filtered(self, y, x=None, P=None) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(x_{t|t}, P_{t|t}, normalised innovation norm)`` for the measurement ``y`` (eq. 3b)
+        from the prior ``x, P`` (default: the filter's own), without committing it.
 
         Raises
         ------
         FilterDivergence
             If the result is non-finite or its covariance not positive definite.
         """
+        x = self.x if x is None else x
+        P = self.P if P is None else P
         with np.errstate(all="ignore"):      # non-finite results are caught by _check
-            return self._filtered(np.asarray(y, float))
+            return self._filtered(np.asarray(y, float), x, P)
 
-    def _filtered(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        x, P = self.x, self.P
+    def _filtered(self, y: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         hx, H = self.meas.h_and_jacobian(x)
         nu = y - hx
         S = H @ P @ H.T + self.R
@@ -473,14 +475,21 @@ class EkfAccelerometerModel:
 
     def predict(self, u, T: float) -> np.ndarray:
         """Time update over ``T`` with the jerk reference ``u`` held (eqs. 3a, 13)."""
+        self.x, self.P = self.predicted(u, T)
+        return self.x
+
+    def predicted(self, u, T: float, x=None, P=None) -> tuple[np.ndarray, np.ndarray]:
+        """``(x, P)`` predicted over ``T`` from ``x, P`` (default: the filter's own) with the
+        jerk reference ``u`` held (eqs. 3a, 13), without committing it."""
+        x = self.x if x is None else x
+        P = self.P if P is None else P
         self._matrices(float(T))
         with np.errstate(all="ignore"):      # non-finite results are caught by _check
-            x = self.F @ self.x + self.Gu @ np.asarray(u, float)
-            P = self.F @ self.P @ self.F.T + self.GQG
+            x = self.F @ x + self.Gu @ np.asarray(u, float)
+            P = self.F @ P @ self.F.T + self.GQG
             P = 0.5 * (P + P.T)
         _check(x, P, "time update")
-        self.x, self.P = x, P
-        return x
+        return x, P
 
     def tool_position(self, x=None) -> np.ndarray:
         """Tool position from the estimated arm angles (eq. 29)."""

@@ -10,7 +10,7 @@ import numpy as np
 
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.parameters import param
-from fmus.robot_plant.sensor_model import G, SensorChannels, imu_reading
+from fmus.robot_plant.sensor_model import G, SensorChannels, imu_reading, input_time
 
 MEMS = ("16-bit MEMS IMU class (e.g. Bosch BMI160 / TDK ICM-20948 data sheets: +-16 g, "
         "+-2000 deg/s, 16-bit output)")
@@ -73,10 +73,12 @@ class Imu(FlexFusionSlave):
     """Specific force ``acc_s = R_s^T (a - g_vec)`` and rate ``gyro_s = R_s^T (0, omega, 0)`` in the
     sensor frame, ``R_s = Ry(phi_tool) R_mount``, with the sensor imperfections.
 
-    No direct feedthrough: the reading at ``t + dt`` is the sample of the inputs held over
-    ``[t, t + dt)``. Right after initialisation the outputs are the noise-free readings of the
-    initial inputs (at rest: +g on sensor z). The sample-period and cut-off checks need the
-    communication step and so happen at the first ``doStep``.
+    No direct feedthrough: the reading at ``t + dt`` is the sample of the inputs set before
+    ``doStep(t, dt)``, taken as their values at ``t + dt`` and stamped so in ``t_meas``
+    (:func:`~fmus.robot_plant.sensor_model.input_time`; accelerometer and gyro sample together).
+    Right after initialisation the outputs are the noise-free readings of the initial inputs
+    (at rest: +g on sensor z), stamped with the start time. The sample-period and cut-off checks
+    need the communication step and so happen at the first ``doStep``.
     """
 
     parameters_class = ImuParameters
@@ -90,6 +92,8 @@ class Imu(FlexFusionSlave):
         self.output("acc_s", 3, unit="m/s2", description="measured specific force, sensor frame",
                     start=(0.0, 0.0, G))
         self.output("gyro_s", 3, unit="rad/s", description="measured angular rate, sensor frame")
+        self.output("t_meas", unit="s", description="time the held sample was taken (the time "
+                    "its inputs stand for)")
         self.acc: SensorChannels | None = None
         self.gyro: SensorChannels | None = None
 
@@ -107,10 +111,12 @@ class Imu(FlexFusionSlave):
             range=p.gyro_range, sample_rate=p.sample_rate, cutoff=p.gyro_cutoff,
             filter_order=p.filter_order, names={"cutoff": "gyro_cutoff"})
         acc, gyro = self._ideal()
-        self.acc_s[:] = self.acc.initial(acc)
-        self.gyro_s[:] = self.gyro.initial(gyro)
+        self.acc_s[:] = self.acc.initial(acc, self._time)
+        self.gyro_s[:] = self.gyro.initial(gyro, self._time)
+        self.t_meas = self.acc.t_meas
 
     def step(self, t: float, dt: float) -> None:
         acc, gyro = self._ideal()
-        self.acc_s[:] = self.acc.step(acc, dt)
-        self.gyro_s[:] = self.gyro.step(gyro, dt)
+        self.acc_s[:] = self.acc.step(acc, dt, input_time(t, dt))
+        self.gyro_s[:] = self.gyro.step(gyro, dt, input_time(t, dt))
+        self.t_meas = self.acc.t_meas

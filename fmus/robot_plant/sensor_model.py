@@ -23,6 +23,21 @@ G = 9.81
 
 
 # ---------------------------------------------------------------------------------------------
+# Sample time
+# ---------------------------------------------------------------------------------------------
+def input_time(t: float, dt: float) -> float:
+    """The time the inputs of ``doStep(t, dt)`` stand for: ``t + dt``, the end of the step.
+
+    The convention of every FlexFusion sensor (Encoder, Imu, Tracker) and so the time stamp
+    ``t_meas`` of a sample taken in that step: a Gauss-Seidel master (ours) steps the producer
+    first and sets its values of ``t + dt``. A Jacobi master (libcosim) sets the values of ``t``:
+    there a sample is one communication step older than its stamp. A sensor cannot tell the two
+    apart from its inputs (it would need the producer's own time stamp).
+    """
+    return t + dt
+
+
+# ---------------------------------------------------------------------------------------------
 # Imperfections
 # ---------------------------------------------------------------------------------------------
 def butterworth_coefficients(cutoff: float, dt: float, order: int) -> tuple[np.ndarray, np.ndarray]:
@@ -79,6 +94,9 @@ class SensorChannels:
     6. quantisation to ``resolution`` (0 = off, round to nearest);
     7. saturation at ``+-range`` (clipped; :attr:`saturated` flags the channels at or beyond it).
 
+    :attr:`t_meas` is the time stamp of the held reading: the ``time`` given with the input
+    that was sampled (:func:`input_time` in the FMUs).
+
     Every parameter is a scalar or a length-``n`` array. The white noise and the random walk use
     independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``.
 
@@ -107,6 +125,7 @@ class SensorChannels:
         self._rng_rw = make_rng(seed, f"{stream}/bias_rw")
         self.walk = np.zeros(n)                 # bias random-walk state
         self.output = np.zeros(n)               # held reading
+        self.t_meas = math.nan                   # its time stamp
         self.saturated = np.zeros(n, dtype=bool)
         self._z = np.zeros((max(self.filter_order, 1), n))   # filter state (direct form II transposed)
         self._b = self._a = None
@@ -190,14 +209,17 @@ class SensorChannels:
         self._dt_sample = dt
 
     # -- use ---------------------------------------------------------------------------------
-    def initial(self, x: np.ndarray) -> np.ndarray:
-        """The reading before the first step: bias, scale, quantisation and saturation of ``x``
-        (no noise); the filter will start in steady state at the first step's input."""
+    def initial(self, x: np.ndarray, time: float = 0.0) -> np.ndarray:
+        """The reading before the first step, stamped ``time``: bias, scale, quantisation and
+        saturation of ``x`` (no noise); the filter will start in steady state at the first
+        step's input."""
+        self.t_meas = float(time)
         self.output = self._finish((1.0 + self.scale) * np.asarray(x, dtype=float) + self.bias + self.walk)
         return self.output
 
-    def step(self, x: np.ndarray, dt: float) -> np.ndarray:
-        """Advance one communication step with input ``x``; returns the (held) reading.
+    def step(self, x: np.ndarray, dt: float, time: float = math.nan) -> np.ndarray:
+        """Advance one communication step with input ``x``, the value at ``time``; returns the
+        (held) reading. A sample taken now is stamped ``time`` (:attr:`t_meas`).
 
         Raises
         ------
@@ -212,6 +234,7 @@ class SensorChannels:
             self.walk += random_walk_increment(self._rng_rw, self.bias_rw, period, self.n)
             y = (1.0 + self.scale) * y + self.bias + self.walk + white_noise(self._rng_noise, self.noise, self.n)
             self.output = self._finish(y)
+            self.t_meas = float(time)
         self._count = (self._count + 1) % self._period_steps
         return self.output
 
@@ -373,7 +396,7 @@ def hammer_force(t: float, times: Sequence[float], force_xz: Sequence[float], du
     return f
 
 
-__all__ = ["SensorChannels", "butterworth_coefficients", "butterworth_magnitude", "quantise",
-           "rot_y", "rot_rpy", "sensor_rotation", "imu_reading", "force_sensor_reading",
+__all__ = ["input_time", "SensorChannels", "butterworth_coefficients", "butterworth_magnitude",
+           "quantise", "rot_y", "rot_rpy", "sensor_rotation", "imu_reading", "force_sensor_reading",
            "calibrate_tool", "Wall",
            "penetration", "contact_force", "hammer_force", "G"]

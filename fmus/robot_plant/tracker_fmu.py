@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.parameters import param
+from fmus.robot_plant.sensor_model import input_time
 from fmus.robot_plant.tracker_model import TrackerModel
 
 LEICA = ("Axelsson et al. 2012, section 5.1 and Henriksson et al. 2009, section IV: Leica laser "
@@ -33,7 +34,8 @@ class Tracker(FlexFusionSlave):
     ``sample_rate`` and held; ``t_meas`` is the sample's time stamp on the controller's clock.
 
     Timing: the input set before ``doStep(t, dt)`` is taken as the position at ``t + dt`` (a
-    Gauss-Seidel master, ours, steps the plant first); after initialisation the input is the
+    Gauss-Seidel master, ours, steps the plant first; the convention of every sensor,
+    :func:`~fmus.robot_plant.sensor_model.input_time`); after initialisation the input is the
     position at the start time. A Jacobi master (libcosim) hands over the position at ``t``:
     the measurement is then one communication step older than its stamp says.
     No direct feedthrough.
@@ -62,5 +64,5 @@ class Tracker(FlexFusionSlave):
         self._publish()
 
     def step(self, t: float, dt: float) -> None:
-        self.model.update(t + dt, self.p_tool)
+        self.model.update(input_time(t, dt), self.p_tool)
         self._publish()

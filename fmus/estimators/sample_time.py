@@ -1,0 +1,37 @@
+"""Sample-time fusion: what every estimator FMU needs to fuse a measurement at the time it was
+taken, whatever the master's coupling scheme (plain functions and constants).
+
+The sensors publish ``t_meas``, the time their held sample was taken
+(:func:`fmus.robot_plant.sensor_model.input_time`); an estimator takes it as an optional input
+of the same name. Unconnected, the input keeps its start value :data:`UNSTAMPED` and the
+measurement inputs count as the measurement at the estimator's current time (the sensors'
+convention under a Gauss-Seidel master, ours).
+"""
+from __future__ import annotations
+
+from fmus.common.fmi import _nominal_step
+
+UNSTAMPED = -1.0     # the start value of an estimator's t_meas input: unconnected
+TIME_TOL = 1e-9      # s: two times closer than this are one instant (hosts round times)
+T_MEAS_DESCRIPTION = ("time the measurement inputs were sampled (the sensors' t_meas); "
+                      "unconnected (negative): they count as the measurement at the end of the step")
+
+
+def measurement_time(t_meas: float, now: float) -> float:
+    """The time of the measurement inputs: their stamp, or ``now`` when unstamped."""
+    return t_meas if t_meas >= 0.0 else now
+
+
+def intervals(t0: float, t1: float, step: float) -> tuple[int, float]:
+    """The prediction from ``t0`` to ``t1`` as ``n`` equal intervals of about ``step`` (the
+    estimator's sample period: its discrete model and noise are per sample), ``(n, length)``.
+
+    The length is rounded as :func:`fmus.common.fmi._nominal_step` rounds the host's step, so
+    one interval of one communication step has the same bits as the step itself.
+    """
+    span = t1 - t0
+    n = max(1, round(span / step)) if step > 0.0 else 1     # NaN before the first step: 1
+    return n, _nominal_step(span / n)
+
+
+__all__ = ["UNSTAMPED", "TIME_TOL", "T_MEAS_DESCRIPTION", "measurement_time", "intervals"]

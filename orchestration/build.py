@@ -71,6 +71,8 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     """
     from pythonfmu.builder import FmuBuilder
 
+    from orchestration import native   # our FMI layer replaces pythonfmu's binary (native/README.md)
+    library = native.build_library()
     if str(REPO) not in sys.path:  # the builder imports the scripts, which import `fmus`
         sys.path.insert(0, str(REPO))
     dest.mkdir(parents=True, exist_ok=True)
@@ -89,6 +91,7 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
             except Exception as exc:  # noqa: BLE001 - collect and report every failure at once
                 failures.append(f"{_shown(script)}: build failed: {type(exc).__name__}: {exc}")
                 continue
+            native.install_into(Path(fmu), library)
             problems = validate_fmu(Path(fmu))
             if problems:
                 failures.append(f"{Path(fmu).name}: fmpy validate: " + "; ".join(problems))

@@ -1,0 +1,144 @@
+"""Our native FMI layer: compile ``native/fmi2_python.c`` and put it into the FMUs.
+
+pythonfmu 0.7 ships a prebuilt ``libpythonfmu-export.so`` with a use-after-free at interpreter
+finalisation and a reference-count bug in every ``fmi2Instantiate`` (native/README.md). The
+build step compiles our replacement with the system C compiler, once per content of its
+sources (cached), and :func:`install_into` puts it into each FMU as
+``binaries/linux64/<modelIdentifier>.so``.
+
+The library is compiled against CPython's limited API (abi3) with this Python's headers and
+does not link libpython: the host provides the interpreter (see native/README.md).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tempfile
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree
+
+from orchestration.build import REPO, BuildError
+
+NATIVE = REPO / "native"
+SOURCES = ("fmi2_python.c", "fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+LIBRARY_NAME = "libflexfusion_fmi2.so"
+DEFAULT_CACHE = REPO / "build" / "native"
+PLATFORM = "linux64"
+CFLAGS = ["-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden",
+          "-Wall", "-Wextra", "-Werror"]
+
+
+def c_compiler() -> list[str]:
+    """The system C compiler as a command (``$CC``, sysconfig's ``CC``, then cc/gcc/clang).
+
+    Raises
+    ------
+    BuildError
+        When none is installed.
+    """
+    candidates = [os.environ.get("CC", ""), sysconfig.get_config_var("CC") or "", "cc", "gcc", "clang"]
+    for candidate in candidates:
+        words = shlex.split(candidate)
+        if words and shutil.which(words[0]):
+            return [shutil.which(words[0]), *words[1:]]
+    raise BuildError("no C compiler found (tried $CC, sysconfig CC, cc, gcc, clang): the native "
+                     "FMI layer needs one (Debian/Ubuntu: apt-get install gcc)")
+
+
+def python_include() -> Path:
+    """The folder with this Python's ``Python.h``.
+
+    Raises
+    ------
+    BuildError
+        When the Python headers are not installed.
+    """
+    include = Path(sysconfig.get_paths()["include"])
+    if not (include / "Python.h").is_file():
+        version = f"{sys.version_info.major}.{sys.version_info.minor}"
+        raise BuildError(f"Python headers not found ({include / 'Python.h'} is missing): the "
+                         f"native FMI layer needs them (Debian/Ubuntu: apt-get install "
+                         f"python{version}-dev)")
+    return include
+
+
+def build_library(cache: Path = DEFAULT_CACHE) -> Path:
+    """Compile the native FMI layer, or reuse the one compiled from the same sources.
+
+    The cache key is the SHA-256 of the sources, the compiler command and flags and the
+    Python headers' folder; a new library is compiled to a temporary name and renamed, so
+    parallel builds never see half a file.
+
+    Returns
+    -------
+    Path
+        The shared library.
+
+    Raises
+    ------
+    BuildError
+        No C compiler, no Python headers, or the compilation failed (with its output).
+    """
+    compiler = c_compiler()
+    include = python_include()
+    digest = hashlib.sha256()
+    for name in SOURCES:
+        digest.update(name.encode() + b"\0" + (NATIVE / name).read_bytes())
+    command_key = [*compiler, *CFLAGS, str(include)]
+    digest.update("\0".join(command_key).encode())
+    target = cache / digest.hexdigest()[:16] / LIBRARY_NAME
+    if target.is_file():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp", suffix=".so", dir=target.parent)
+    os.close(fd)
+    command = [*compiler, *CFLAGS, f"-I{include}", f"-I{NATIVE}",
+               str(NATIVE / "fmi2_python.c"), "-o", tmp]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        os.unlink(tmp)
+        raise BuildError(f"compiling the native FMI layer failed ({shlex.join(command)}):\n"
+                         f"{result.stdout}{result.stderr}")
+    os.chmod(tmp, 0o755)
+    os.replace(tmp, target)
+    return target
+
+
+def model_identifier(fmu: Path) -> str:
+    """The co-simulation model identifier in an FMU's modelDescription.xml."""
+    with zipfile.ZipFile(fmu) as z:
+        root = ElementTree.fromstring(z.read("modelDescription.xml"))
+    cs = root.find("CoSimulation")
+    if cs is None:
+        raise BuildError(f"{fmu.name}: no <CoSimulation> in its modelDescription.xml")
+    return cs.get("modelIdentifier")
+
+
+def install_into(fmu: Path, library: Path) -> None:
+    """Replace the FMU's ``binaries/linux64/<modelIdentifier>.so`` with ``library`` (in place).
+
+    Other platforms' binaries are left as they are.
+    """
+    member = f"binaries/{PLATFORM}/{model_identifier(fmu)}.so"
+    fd, tmp = tempfile.mkstemp(prefix=".tmp", suffix=".fmu", dir=fmu.parent)
+    os.close(fd)
+    try:
+        with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as dst:
+            for info in src.infolist():
+                if info.filename != member:
+                    dst.writestr(info, src.read(info))
+            dst.write(library, member)
+        shutil.copymode(fmu, tmp)
+        os.replace(tmp, fmu)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+__all__ = ["build_library", "c_compiler", "install_into", "model_identifier", "python_include"]

@@ -15,9 +15,9 @@
  * setReal + doStep + getReal.
  *
  * Exit status: 0 all calls returned fmi2OK; 1 an FMI call failed; 2 usage, dlopen or dlsym
- * error; 3 dlclose failed.
+ * error; 3 dlclose failed or did not unload the library.
  */
-#define _POSIX_C_SOURCE 200809L
+#define _GNU_SOURCE     /* RTLD_NOLOAD */
 #include <dlfcn.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -98,6 +98,12 @@ static int run(const char *library, const char *resources, long steps, double dt
     }
     if (dlclose(lib) != 0) {
         fprintf(stderr, "fmi2_host: dlclose: %s\n", dlerror());
+        return 3;
+    }
+    void *still = dlopen(library, RTLD_NOW | RTLD_NOLOAD);
+    if (still) {
+        fprintf(stderr, "fmi2_host: %s is still loaded after dlclose\n", library);
+        dlclose(still);
         return 3;
     }
     return failed;

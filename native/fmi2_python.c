@@ -111,6 +111,7 @@ static void flush_log(Instance *in)
     Py_ssize_t n = PyList_Size(in->log_queue);
     for (Py_ssize_t i = 0; i < n; i++) {
         PyObject *msg = PyList_GetItem(in->log_queue, i);   /* borrowed */
+        if (!msg) { PyErr_Clear(); break; }   /* the list shrank meanwhile */
         PyObject *status = PyObject_GetAttrString(msg, "status");
         PyObject *category = PyObject_GetAttrString(msg, "category");
         PyObject *text = PyObject_GetAttrString(msg, "msg");

@@ -141,4 +141,37 @@ def install_into(fmu: Path, library: Path) -> None:
         raise
 
 
-__all__ = ["build_library", "c_compiler", "install_into", "model_identifier", "python_include"]
+def compile_c_host(exe: Path) -> Path:
+    """Compile ``native/fmi2_host.c`` (the example C host) into ``exe``, linked to this
+    Python's libpython so that an FMU's library finds the interpreter (native/README.md).
+
+    Raises
+    ------
+    BuildError
+        No C compiler, a Python without a shared libpython, or the compilation failed.
+    """
+    if not sysconfig.get_config_var("Py_ENABLE_SHARED"):
+        raise BuildError("this Python has no shared libpython for a C host to link")
+    libdir = sysconfig.get_config_var("LIBDIR")
+    # --no-as-needed: the host calls no Python function itself, the FMU's library does
+    command = [*c_compiler(), "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", f"-I{NATIVE}",
+               str(NATIVE / "fmi2_host.c"), "-o", str(exe), "-ldl", "-Wl,--no-as-needed",
+               f"-L{libdir}", f"-lpython{sysconfig.get_config_var('LDVERSION')}",
+               f"-Wl,-rpath,{libdir}"]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        raise BuildError(f"compiling the C host failed ({shlex.join(command)}):\n"
+                         f"{result.stdout}{result.stderr}")
+    return exe
+
+
+def host_environment() -> dict[str, str]:
+    """The environment of a C host whose embedded interpreter is this one: ``PYTHONHOME`` for
+    the standard library, ``PYTHONPATH`` for this environment's site-packages (numpy, scipy)."""
+    paths = sysconfig.get_paths()
+    site = os.pathsep.join(dict.fromkeys([paths["purelib"], paths["platlib"]]))
+    return dict(os.environ, PYTHONHOME=sys.base_prefix, PYTHONPATH=site)
+
+
+__all__ = ["build_library", "c_compiler", "compile_c_host", "host_environment", "install_into",
+           "model_identifier", "python_include"]

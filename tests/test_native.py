@@ -11,7 +11,6 @@ pythonfmu's own library to show that the check finds its use-after-free).
 """
 from __future__ import annotations
 
-import os
 import shutil
 import subprocess
 import sys
@@ -28,7 +27,7 @@ from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 
 from orchestration import native
-from orchestration.build import BuildError, build_all, validate_fmu
+from orchestration.build import BuildError, build_all, fmu_scripts, validate_fmu
 from toys import TOYS
 
 PYTHONFMU_LIBRARY = (Path(pythonfmu.__file__).parent / "resources" / "binaries" / "linux64"
@@ -80,33 +79,18 @@ def toys(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Fmu]:
     return {f.name: f for f in (Fmu(p, dest / p.stem) for p in built)}
 
 
-def host_environment() -> dict[str, str]:
-    """What the embedded interpreter of a C host needs to find the stdlib and site-packages."""
-    paths = sysconfig.get_paths()
-    site = os.pathsep.join(dict.fromkeys([paths["purelib"], paths["platlib"]]))
-    return dict(os.environ, PYTHONHOME=sys.base_prefix, PYTHONPATH=site)
-
-
 @pytest.fixture(scope="session")
 def host(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """native/fmi2_host.c compiled with the system C compiler, linked to this libpython."""
     if not sysconfig.get_config_var("Py_ENABLE_SHARED"):
         pytest.skip("this Python has no shared libpython for a C host to link")
-    libdir = sysconfig.get_config_var("LIBDIR")
-    version = sysconfig.get_config_var("LDVERSION")
-    exe = tmp_path_factory.mktemp("host") / "fmi2_host"
-    # --no-as-needed: the host calls no Python function itself, but the FMU's library does
-    command = [*native.c_compiler(), "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror",
-               f"-I{native.NATIVE}", str(native.NATIVE / "fmi2_host.c"), "-o", str(exe), "-ldl",
-               "-Wl,--no-as-needed", f"-L{libdir}", f"-lpython{version}", f"-Wl,-rpath,{libdir}"]
-    subprocess.run(command, check=True, capture_output=True)
-    return exe
+    return native.compile_c_host(tmp_path_factory.mktemp("host") / "fmi2_host")
 
 
 def run_host(host: Path, args: list[str], valgrind: list[str] | None = None,
              env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([*(valgrind or []), str(host), *args], capture_output=True, text=True,
-                          env=env or host_environment(), timeout=600)
+                          env=env or native.host_environment(), timeout=600)
 
 
 def run_many(host: Path, jobs: list[tuple[str, list[str]]]) -> list[str]:
@@ -129,7 +113,7 @@ def life_cycles(fmus: dict[str, Fmu], names: list[str], repeats: int) -> list[tu
 
 def test_every_fmu_carries_the_native_layer_and_validates(fmus: dict[str, Fmu]) -> None:
     library = native.build_library()
-    assert len(fmus) == 18
+    assert len(fmus) == len(fmu_scripts())
     for f in fmus.values():
         assert f.library.read_bytes() == library.read_bytes(), f.name
         assert validate_fmu(f.path) == []
@@ -222,7 +206,7 @@ def valgrind_errors(host: Path, args: list[str], xml: Path) -> list[str]:
     rpath strings while it loads libpython's dependencies, a known valgrind false positive)."""
     if shutil.which("valgrind") is None:
         pytest.skip("valgrind is not installed (Debian/Ubuntu: apt-get install valgrind)")
-    env = dict(host_environment(), PYTHONMALLOC="malloc")   # pymalloc's arenas confuse valgrind
+    env = dict(native.host_environment(), PYTHONMALLOC="malloc")   # pymalloc's arenas confuse valgrind
     r = run_host(host, args, env=env,
                  valgrind=["valgrind", "--leak-check=no", "--xml=yes", f"--xml-file={xml}"])
     library = args[0]
@@ -346,3 +330,49 @@ def test_fmu_state_round_trip(toys: dict[str, Fmu]) -> None:
     fmu.freeFMUstate(state)
     fmu.freeFMUstate(restored)
     fmu.freeInstance()
+
+
+# ---- Python host: free, unload, normal exit (what orchestration/fmpy_compat.py works around) --
+
+PYTHON_HOST = """
+import sys
+from pathlib import Path
+from fmpy import read_model_description
+from fmpy.fmi2 import FMU2Slave
+folders, cycles = [Path(p) for p in sys.argv[2:]], int(sys.argv[1])
+fmus = [(read_model_description(str(d / "modelDescription.xml")), d) for d in folders]
+for k in range(cycles):
+    md, folder = fmus[k % len(fmus)]
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(folder), instanceName=f"i{k}",
+                    modelIdentifier=md.coSimulation.modelIdentifier)
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    for j in range(10):
+        fmu.doStep(j * 1e-3, 1e-3)
+    fmu.terminate()
+    fmu.freeInstance()
+    fmu.freeLibrary()      # dlclose
+print("done", cycles)
+"""
+
+
+def python_host_failures(fmus: dict[str, Fmu], cycles: int, processes: int) -> list[str]:
+    """Python processes that instantiate, step, free and unload the FMUs in turn ``cycles``
+    times, then exit normally (no fmpy_compat): the failures, described."""
+    args = [sys.executable, "-c", PYTHON_HOST, str(cycles), *(str(f.folder) for f in fmus.values())]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        runs = list(pool.map(lambda _: subprocess.run(args, capture_output=True, text=True,
+                                                      timeout=1800), range(processes)))
+    return [f"exit {r.returncode}: {r.stderr.strip()[-300:]}" for r in runs
+            if r.returncode != 0 or r.stdout.split() != ["done", str(cycles)]]
+
+
+def test_python_host_frees_unloads_and_exits_normally(fmus: dict[str, Fmu]) -> None:
+    assert python_host_failures(fmus, cycles=len(fmus), processes=1) == []
+
+
+@pytest.mark.slow
+def test_python_host_100_cycles_then_normal_exit_20_times(fmus: dict[str, Fmu]) -> None:
+    assert python_host_failures(fmus, cycles=100, processes=REPEATS) == []

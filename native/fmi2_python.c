@@ -247,11 +247,13 @@ static PyObject *find_slave_class(const char *resources)
     PyObject *pythonfmu = module ? PyImport_ImportModule("pythonfmu.fmi2slave") : NULL;
     PyObject *base = pythonfmu ? PyObject_GetAttrString(pythonfmu, "Fmi2Slave") : NULL;
     if (base) {
-        PyObject *dict = PyModule_GetDict(module);   /* borrowed: never released here */
+        /* a copy of the namespace (PyModule_GetDict's is borrowed: never released here), as
+           the checks below run Python code */
+        PyObject *dict = PyDict_Copy(PyModule_GetDict(module));
         PyObject *key, *value;
         Py_ssize_t pos = 0;
-        int found = 0;
-        while (PyDict_Next(dict, &pos, &key, &value)) {
+        int found = dict ? 0 : -1;
+        while (dict && PyDict_Next(dict, &pos, &key, &value)) {
             int derived = (PyType_Check(value) && value != base)
                           ? PyObject_IsSubclass(value, base) : 0;
             if (derived < 0) { found = -1; break; }
@@ -274,6 +276,7 @@ static PyObject *find_slave_class(const char *resources)
                 PyErr_Format(PyExc_TypeError, "module %S defines %d subclasses of Fmi2Slave, "
                              "an FMU script must define one", name, found);
         }
+        Py_XDECREF(dict);
     }
     Py_XDECREF(base);
     Py_XDECREF(pythonfmu);
@@ -319,6 +322,12 @@ static int create_slave(Instance *in)
         return -1;
     }
     return 0;
+}
+
+/* Whether the instance can take calls (not after a failed fmi2Reset: that one was logged). */
+static int has_slave(const Instance *in)
+{
+    return in != NULL && in->slave != NULL;
 }
 
 static void free_instance_memory(Instance *in)
@@ -418,7 +427,7 @@ static fmi2Status call(fmi2Component c, enum Method m, const char *function, con
                        ...)
 {
     Instance *in = c;
-    if (!in) return fmi2Error;
+    if (!has_slave(in)) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     va_list va;
     va_start(va, format);
@@ -441,7 +450,7 @@ FMI2_Export fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranc
                                            fmi2Boolean stopTimeDefined, fmi2Real stopTime)
 {
     Instance *in = c;
-    if (!in) return fmi2Error;
+    if (!has_slave(in)) return fmi2Error;
     in->last_successful_time = startTime;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *stop = optional(stopTimeDefined, stopTime);
@@ -488,7 +497,7 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
 {
     (void)noSetFMUStatePriorToCurrentPoint;
     Instance *in = c;
-    if (!in) return fmi2Error;
+    if (!has_slave(in)) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *t = PyFloat_FromDouble(currentCommunicationPoint);
     PyObject *h = PyFloat_FromDouble(communicationStepSize);
@@ -585,7 +594,7 @@ static fmi2Status set_values(fmi2Component c, enum Method m, const char *functio
                              ToPython convert)
 {
     Instance *in = c;
-    if (!in) return fmi2Error;
+    if (!has_slave(in)) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *refs = references(vr, nvr);
     PyObject *list = PyList_New((Py_ssize_t)nvr);
@@ -608,7 +617,7 @@ static fmi2Status get_values(fmi2Component c, enum Method m, const char *functio
                              FromPython convert)
 {
     Instance *in = c;
-    if (!in) return fmi2Error;
+    if (!has_slave(in)) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *refs = references(vr, nvr);
     PyObject *result = refs ? PyObject_CallFunctionObjArgs(in->methods[m], refs, NULL) : NULL;
@@ -676,7 +685,7 @@ FMI2_Export fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference v
                                      fmi2String value[])
 {
     Instance *in = c;
-    if (!in) return fmi2Error;
+    if (!has_slave(in)) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     Py_XDECREF(in->strings);                   /* the previous call's strings may go now */
     in->strings = PyList_New(0);
@@ -700,7 +709,7 @@ static fmi2Status give_state(Instance *in, const char *function, PyObject *s, fm
 FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state)
 {
     Instance *in = c;
-    if (!in || !state) return fmi2Error;
+    if (!has_slave(in) || !state) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *s = PyObject_CallNoArgs(in->methods[M_GET_FMU_STATE]);
     if (s) Py_CLEAR(*(PyObject **)state);   /* FMI: a state handed back in is overwritten */
@@ -739,7 +748,7 @@ static PyObject *state_bytes(Instance *in, fmi2FMUstate state)
 FMI2_Export fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size)
 {
     Instance *in = c;
-    if (!in || !state || !size) return fmi2Error;
+    if (!has_slave(in) || !state || !size) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *b = state_bytes(in, state);
     if (b) *size = (size_t)PyBytes_Size(b);
@@ -752,7 +761,7 @@ FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state
                                              fmi2Byte serializedState[], size_t size)
 {
     Instance *in = c;
-    if (!in || !state) return fmi2Error;
+    if (!has_slave(in) || !state) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *b = state_bytes(in, state);
     if (b && (size_t)PyBytes_Size(b) != size) {
@@ -770,7 +779,7 @@ FMI2_Export fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte s
                                                size_t size, fmi2FMUstate *state)
 {
     Instance *in = c;
-    if (!in || !state) return fmi2Error;
+    if (!has_slave(in) || !state) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *b = PyBytes_FromStringAndSize(serializedState, (Py_ssize_t)size);
     PyObject *s = b ? PyObject_CallFunctionObjArgs(in->methods[M_STATE_FROM_BYTES], b, NULL) : NULL;

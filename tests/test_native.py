@@ -27,7 +27,7 @@ from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 
 from orchestration import native
-from orchestration.build import BuildError, build_all, fmu_scripts, validate_fmu
+from orchestration.build import BuildError, build_all, fmu_scripts
 from toys import TOYS
 
 PYTHONFMU_LIBRARY = (Path(pythonfmu.__file__).parent / "resources" / "binaries" / "linux64"
@@ -111,12 +111,12 @@ def life_cycles(fmus: dict[str, Fmu], names: list[str], repeats: int) -> list[tu
 
 # ---- the build step ---------------------------------------------------------------------
 
-def test_every_fmu_carries_the_native_layer_and_validates(fmus: dict[str, Fmu]) -> None:
+def test_every_fmu_carries_the_native_layer(fmus: dict[str, Fmu]) -> None:
+    """(build_all has validated each FMU with fmpy after putting the library in.)"""
     library = native.build_library()
     assert len(fmus) == len(fmu_scripts())
     for f in fmus.values():
         assert f.library.read_bytes() == library.read_bytes(), f.name
-        assert validate_fmu(f.path) == []
 
 
 def test_library_is_cached_by_its_sources(tmp_path: Path) -> None:

@@ -83,8 +83,12 @@ def build_library(cache: Path = DEFAULT_CACHE) -> Path:
     Raises
     ------
     BuildError
-        No C compiler, no Python headers, or the compilation failed (with its output).
+        Not on Linux, no C compiler, no Python headers, or the compilation failed (with its
+        output).
     """
+    if not sys.platform.startswith("linux"):
+        raise BuildError(f"the native FMI layer is built for Linux only (binaries/{PLATFORM}), "
+                         f"not for {sys.platform}")
     compiler = c_compiler()
     include = python_include()
     digest = hashlib.sha256()

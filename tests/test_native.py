@@ -376,3 +376,37 @@ def test_python_host_frees_unloads_and_exits_normally(fmus: dict[str, Fmu]) -> N
 @pytest.mark.slow
 def test_python_host_100_cycles_then_normal_exit_20_times(fmus: dict[str, Fmu]) -> None:
     assert python_host_failures(fmus, cycles=100, processes=REPEATS) == []
+
+
+def test_integer_boolean_and_string_values_round_trip(toys: dict[str, Fmu]) -> None:
+    f = toys["Source"]
+    vr = {v.name: v.valueReference for v in f.md.modelVariables}
+    fmu, log = instantiate(f, logging_on=True)
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.setInteger([vr["seed"]], [7])
+    fmu.setBoolean([vr["enabled"]], [False])
+    fmu.setString([vr["label"]], ["ein Strömungsmodell"])
+    assert fmu.getInteger([vr["seed"]]) == [7]
+    assert fmu.getBoolean([vr["enabled"]]) == [False]
+    assert fmu.getString([vr["label"], vr["label"]]) == [b"ein Str\xc3\xb6mungsmodell"] * 2
+    fmu.exitInitializationMode()
+    fmu.doStep(0.0, 0.1)
+    assert fmu.getReal([vr["noise"]]) == [0.0]      # enabled = False reached the model
+    assert log == []
+    fmu.freeInstance()
+
+
+def test_reset_starts_a_new_slave(toys: dict[str, Fmu]) -> None:
+    f = toys["Source"]
+    n = next(v.valueReference for v in f.md.modelVariables if v.name == "n")
+    fmu, _ = instantiate(f, logging_on=True)
+    for _ in range(2):
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        fmu.doStep(0.0, 0.1)
+        fmu.doStep(0.1, 0.1)
+        assert fmu.getReal([n]) == [2.0]     # steps counted since the (re)start
+        fmu.reset()
+    fmu.freeInstance()

@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 import pythonfmu
 from fmpy import read_model_description
+from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 
 from orchestration import native
@@ -273,18 +274,20 @@ def test_python_exception_is_an_fmi_error_logged_even_without_debug_logging(toys
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
     fmu.exitInitializationMode()
-    status = raw_get_real(fmu, [9999])
+    status = status_of(fmu.getReal, [9999])
     assert status == 3                     # fmi2Error
     assert any(s == 3 and "fmi2GetReal" in m and "KeyError" in m and "9999" in m for s, m in log), log
     fmu.terminate()
     fmu.freeInstance()
 
 
-def raw_get_real(fmu: FMU2Slave, refs: list[int]) -> int:
-    """fmi2GetReal's status (fmpy raises on anything but OK)."""
-    from ctypes import c_double, c_uint
-    return fmu.dll.fmi2GetReal(fmu.component, (c_uint * len(refs))(*refs), len(refs),
-                               (c_double * len(refs))())
+def status_of(call, *args) -> int:  # noqa: ANN001
+    """The FMI status of an fmpy call (fmpy raises on anything but fmi2OK)."""
+    try:
+        call(*args)
+    except FMICallException as exc:
+        return exc.status
+    return 0
 
 
 def test_bad_parameter_fails_initialisation_with_one_message(toys: dict[str, Fmu]) -> None:
@@ -300,17 +303,63 @@ def test_bad_parameter_fails_initialisation_with_one_message(toys: dict[str, Fmu
     fmu.freeInstance()
 
 
-def test_debug_messages_only_when_logging_is_on(toys: dict[str, Fmu]) -> None:
+def test_failed_step_is_a_discard_with_its_error_logged_whatever_the_logging_flag(
+        toys: dict[str, Fmu]) -> None:
     f = toys["Failing"]     # its failed step logs an error; do_step returns False: discard
     for logging_on in (False, True):
         fmu, log = instantiate(f, logging_on)
         fmu.setupExperiment(startTime=0.0)
         fmu.enterInitializationMode()
         fmu.exitInitializationMode()
-        status = fmu.dll.fmi2DoStep(fmu.component, 0.0, 1.0, 1)
-        assert status == 2                 # fmi2Discard, as pythonfmu
+        assert status_of(fmu.doStep, 0.0, 1.0) == 2       # fmi2Discard, as pythonfmu
         assert any(s == 3 and "toy failure" in m for s, m in log), log
         fmu.freeInstance()
+
+
+# A plain pythonfmu script (no FlexFusionSlave) that logs at three levels in each step.
+CHATTY = """
+from pythonfmu.enums import Fmi2Causality, Fmi2Initial, Fmi2Status
+from pythonfmu.fmi2slave import Fmi2Slave
+from pythonfmu.variables import Real
+
+
+class Chatty(Fmi2Slave):
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.y = 0.0
+        self.register_variable(Real("y", causality=Fmi2Causality.output,
+                                    initial=Fmi2Initial.exact))
+
+    def do_step(self, t, h):
+        self.log("info", Fmi2Status.ok)
+        self.log("warning", Fmi2Status.warning)
+        self.log("error", Fmi2Status.error)
+        self.y = t + h
+        return True
+"""
+
+
+def test_messages_below_error_only_when_logging_is_on_and_their_category_enabled(
+        tmp_path: Path) -> None:
+    script = tmp_path / "chatty_fmu.py"
+    script.write_text(CHATTY)
+    path = build_all(tmp_path / "fmus", quiet=True, scripts=[script])[0]
+    f = Fmu(path, tmp_path / "chatty")
+    seen = {}
+    for case, logging_on, categories in (("off", False, None), ("on", True, None),
+                                         ("warnings", True, ["logStatusWarning"])):
+        fmu, log = instantiate(f, logging_on)
+        if categories:
+            fmu.setDebugLogging(True, categories)
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        fmu.doStep(0.0, 0.5)
+        assert fmu.getReal(f.outputs) == [0.5]
+        seen[case] = [m for _, m in log]
+        fmu.freeInstance()
+    assert seen == {"off": ["error"], "on": ["info", "warning", "error"],
+                    "warnings": ["warning", "error"]}
 
 
 def test_fmu_state_round_trip(toys: dict[str, Fmu]) -> None:

@@ -31,15 +31,13 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-import pythonfmu  # noqa: E402
 from fmpy import read_model_description  # noqa: E402
 from fmpy.fmi2 import FMU2Slave  # noqa: E402
 
 from orchestration import fmpy_compat, native  # noqa: E402
 from orchestration.build import build_all  # noqa: E402
 
-PYTHONFMU_LIBRARY = (Path(pythonfmu.__file__).parent / "resources" / "binaries" / "linux64"
-                     / "libpythonfmu-export.so")
+PYTHONFMU_LIBRARY = native.pythonfmu_library()
 H = 1e-3
 REPEATS = 5
 

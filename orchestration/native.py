@@ -114,6 +114,12 @@ def build_library(cache: Path = DEFAULT_CACHE) -> Path:
     return target
 
 
+def pythonfmu_library() -> Path:
+    """pythonfmu's own prebuilt Linux library, which ours replaces (for comparisons)."""
+    import pythonfmu
+    return Path(pythonfmu.__file__).parent / "resources" / "binaries" / PLATFORM / "libpythonfmu-export.so"
+
+
 def model_identifier(fmu: Path) -> str:
     """The co-simulation model identifier in an FMU's modelDescription.xml."""
     with zipfile.ZipFile(fmu) as z:
@@ -178,4 +184,4 @@ def host_environment() -> dict[str, str]:
 
 
 __all__ = ["build_library", "c_compiler", "compile_c_host", "host_environment", "install_into",
-           "model_identifier", "python_include"]
+           "model_identifier", "python_include", "pythonfmu_library"]

@@ -22,7 +22,6 @@ from xml.etree import ElementTree
 
 import numpy as np
 import pytest
-import pythonfmu
 from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
@@ -31,8 +30,6 @@ from orchestration import native
 from orchestration.build import BuildError, build_all, fmu_scripts
 from toys import TOYS
 
-PYTHONFMU_LIBRARY = (Path(pythonfmu.__file__).parent / "resources" / "binaries" / "linux64"
-                     / "libpythonfmu-export.so")
 STOP_TIME = 1.0          # the life-cycle runs: one simulated second at the FMU's default step
 REPEATS = 20
 FAST_SUBSET = ("ForcePulse",)   # cheap, and aborts at exit with pythonfmu's binary
@@ -245,7 +242,7 @@ def test_valgrind_check_finds_pythonfmus_use_after_free(fmus: dict[str, Fmu], ho
     """The same check on pythonfmu 0.7's own library finds its use-after-free at exit."""
     f = fmus["ForcePulse"]
     library = tmp_path / f"{f.name}.so"     # its own file name: the FMU's, beside no resources
-    shutil.copy(PYTHONFMU_LIBRARY, library)
+    shutil.copy(native.pythonfmu_library(), library)
     errors = valgrind_errors(host, f.host_args(10, library=library), tmp_path / "vg.xml")
     assert any("finalizePythonInterpreter" in e for e in errors), errors
 

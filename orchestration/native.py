@@ -30,8 +30,9 @@ SOURCES = ("fmi2_python.c", "fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2Types
 LIBRARY_NAME = "libflexfusion_fmi2.so"
 DEFAULT_CACHE = REPO / "build" / "native"
 PLATFORM = "linux64"
-CFLAGS = ["-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden",
-          "-Wall", "-Wextra", "-Werror"]
+# (no -Werror: another compiler's new warnings must not stop a user's build; a test checks
+# that this one gives none)
+CFLAGS = ["-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra"]
 
 
 def c_compiler() -> list[str]:

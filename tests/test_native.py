@@ -123,6 +123,13 @@ def test_library_is_cached_by_its_sources(tmp_path: Path) -> None:
     assert native.build_library(tmp_path) == first and first.stat().st_mtime_ns == mtime
 
 
+def test_library_compiles_without_warnings(tmp_path: Path) -> None:
+    command = [*native.c_compiler(), *native.CFLAGS, "-Werror", f"-I{native.python_include()}",
+               f"-I{native.NATIVE}", str(native.NATIVE / "fmi2_python.c"), "-o", str(tmp_path / "l.so")]
+    result = subprocess.run(command, capture_output=True, text=True)
+    assert result.returncode == 0 and result.stderr == "", result.stderr
+
+
 def test_no_compiler_is_a_clear_build_error(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("PATH", "/nonexistent")
     monkeypatch.setenv("CC", "")

@@ -11,8 +11,8 @@ pythonfmu's ``libpythonfmu-export.so`` put back in its place is the reference. M
   lists in a Python loop, as the native layer does in C, so an overhead within about 0.3 us
   of zero is below what this subtraction resolves.
 
-Prints microseconds per step (best of several repeats) and the ratio native / pythonfmu
-(goal: at most 1, not slower).
+Prints microseconds per step (best of several repeats, the variants interleaved) and the
+ratio native / pythonfmu (goal: at most 1, not slower).
 
 Run: ``.venv/bin/python benchmarks/native_overhead.py [--steps 20000]``.
 """
@@ -27,6 +27,7 @@ import tempfile
 import time
 import zipfile
 from pathlib import Path
+from typing import Callable
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
@@ -39,7 +40,8 @@ from orchestration.build import build_all  # noqa: E402
 
 PYTHONFMU_LIBRARY = native.pythonfmu_library()
 H = 1e-3
-REPEATS = 5
+REPEATS = 10
+_KEEP: list = []
 
 
 def extract(fmu: Path, folder: Path) -> Path:
@@ -48,8 +50,23 @@ def extract(fmu: Path, folder: Path) -> Path:
     return folder
 
 
-def in_process(folder: Path, md, u: int, y: int, steps: int) -> float:
-    """Best time per component-step (s) through raw ctypes calls into the FMU's library."""
+def timed(step: Callable[[float], None]) -> Callable[[int], float]:
+    """A function that runs ``step(t)`` for ``steps`` steps and returns the time per step (s)."""
+    clock = {"t": 0.0}
+
+    def run(steps: int) -> float:
+        t = clock["t"]
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            step(t)
+            t += H
+        clock["t"] = t
+        return (time.perf_counter() - t0) / steps
+    return run
+
+
+def in_process(folder: Path, md, u: int, y: int) -> Callable[[int], float]:
+    """Component-steps through raw ctypes calls into the FMU's library (an instance here)."""
     fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(folder),
                     modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
     fmu.instantiate(loggingOn=False)
@@ -65,24 +82,18 @@ def in_process(folder: Path, md, u: int, y: int, steps: int) -> float:
     c = fmu.component
     u_vr, y_vr = (ctypes.c_uint * 1)(u), (ctypes.c_uint * 1)(y)
     value, out = (ctypes.c_double * 1)(0.5), (ctypes.c_double * 1)()
-    best = float("inf")
-    t = 0.0
-    for _ in range(REPEATS):
-        t0 = time.perf_counter()
-        for _ in range(steps):
-            set_real(c, u_vr, 1, value)
-            if do_step(c, t, H, 1) != 0:
-                raise RuntimeError("fmi2DoStep failed")
-            get_real(c, y_vr, 1, out)
-            t += H
-        best = min(best, (time.perf_counter() - t0) / steps)
-    fmu.terminate()
-    fmpy_compat.free_instance(fmu)    # pythonfmu's instance is kept (its free is unsafe)
-    return best
+    _KEEP.append(fmu)    # never freed here: pythonfmu's free is unsafe (the process ends soon)
+
+    def step(t: float) -> None:
+        set_real(c, u_vr, 1, value)
+        if do_step(c, t, H, 1) != 0:
+            raise RuntimeError("fmi2DoStep failed")
+        get_real(c, y_vr, 1, out)
+    return timed(step)
 
 
-def direct(folder: Path, u: int, y: int, steps: int) -> float:
-    """Best time per step of the slave's Python methods called directly (no FMI)."""
+def direct(folder: Path, u: int, y: int) -> Callable[[int], float]:
+    """Steps of the slave's Python methods called directly (no FMI)."""
     sys.path.insert(0, str(folder / "resources"))
     module = (folder / "resources" / "slavemodule.txt").read_text().strip()
     cls = getattr(__import__(module), "Gain")
@@ -90,32 +101,26 @@ def direct(folder: Path, u: int, y: int, steps: int) -> float:
     slave.setup_experiment(0.0, None, None)
     slave.enter_initialization_mode()
     slave.exit_initialization_mode()
-    best = float("inf")
-    t = 0.0
-    for _ in range(REPEATS):
-        t0 = time.perf_counter()
-        for _ in range(steps):
-            slave.set_real([u], [0.5])
-            slave.do_step(t, H)
-            slave.get_real([y])
-            t += H
-        best = min(best, (time.perf_counter() - t0) / steps)
-    return best
+
+    def step(t: float) -> None:
+        slave.set_real([u], [0.5])
+        slave.do_step(t, H)
+        slave.get_real([y])
+    return timed(step)
 
 
-def c_host(host: Path, folder: Path, name: str, u: int, y: int, steps: int) -> float:
-    """Best time per step in the C host (one process per repeat, no ctypes)."""
-    args = [str(host), str(folder / "binaries" / "linux64" / f"{name}.so"), str(folder / "resources"),
-            str(steps), repr(H), f"{u}=0.5", str(y), "--time"]
-    times = []
-    for _ in range(REPEATS):
+def c_host(host: Path, folder: Path, name: str, u: int, y: int) -> Callable[[int], float]:
+    """Steps in the C host (a new process per measurement, no ctypes)."""
+    def run(steps: int) -> float:
+        args = [str(host), str(folder / "binaries" / "linux64" / f"{name}.so"),
+                str(folder / "resources"), str(steps), repr(H), f"{u}=0.5", str(y), "--time"]
         r = subprocess.run(args, capture_output=True, text=True, env=native.host_environment())
         # pythonfmu's library stays loaded after dlclose and may abort at exit (its known
         # bugs): the figure, printed before, still counts
         if not r.stdout.strip():
             raise RuntimeError(f"C host failed (exit {r.returncode}): {r.stderr[-500:]}")
-        times.append(float(r.stdout))
-    return min(times) * 1e-6
+        return float(r.stdout) * 1e-6
+    return run
 
 
 def main() -> None:
@@ -133,10 +138,16 @@ def main() -> None:
         u, y = vr["u"], vr["y"]
         host = native.compile_c_host(tmp / "fmi2_host")
         folders = {"native": extract(fmu, tmp / "native"), "pythonfmu": extract(reference, tmp / "pythonfmu")}
-        python_work = direct(folders["native"], u, y, steps)
-        rows = {}
+        runs = {"direct": direct(folders["native"], u, y)}
         for label, folder in folders.items():
-            rows[label] = (in_process(folder, md, u, y, steps), c_host(host, folder, "Gain", u, y, steps))
+            runs[f"{label} fmpy"] = in_process(folder, md, u, y)
+            runs[f"{label} C"] = c_host(host, folder, "Gain", u, y)
+        best = dict.fromkeys(runs, float("inf"))
+        for _ in range(REPEATS):       # interleaved: a load change hits every variant alike
+            for label, run in runs.items():
+                best[label] = min(best[label], run(steps))
+        python_work = best["direct"]
+        rows = {label: (best[f"{label} fmpy"], best[f"{label} C"]) for label in folders}
         print(f"Gain toy FMU, setReal + doStep + getReal, best of {REPEATS} x {steps} steps")
         print(f"  slave's Python methods called directly: {python_work * 1e6:7.2f} us")
         print(f"  {'library':<10} {'fmpy/ctypes':>12} {'overhead':>9} {'C host':>9} {'overhead':>9}")

@@ -146,6 +146,8 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     BuildError
         Naming every FMU that failed to build or validate, with the reason.
     """
+    from orchestration import native   # our FMI layer replaces pythonfmu's binary (native/README.md)
+    library = native.build_library()
     dest.mkdir(parents=True, exist_ok=True)
     built: list[Path] = []
     failures: list[str] = []
@@ -163,6 +165,7 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
             except Exception as exc:  # noqa: BLE001 - collect and report every failure at once
                 failures.append(f"{_shown(script)}: build failed: {type(exc).__name__}: {exc}")
                 continue
+            native.install_into(Path(fmu), library)
             problems = validate_fmu(Path(fmu))
             if problems:
                 failures.append(f"{Path(fmu).name}: fmpy validate: " + "; ".join(problems))

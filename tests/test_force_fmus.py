@@ -97,14 +97,18 @@ def test_observer_fmu_rejects_unknown_kind(fmu_dir):
     s.fmu.freeInstance()
 
 
-def test_impedance_fmu_matches_math(fmu_dir):
-    params = {"K_z": 1500.0, "D_z": 300.0, "q_int": 5.0}
+@pytest.mark.parametrize("structure", imp.STRUCTURES)
+def test_impedance_fmu_matches_math(fmu_dir, structure):
+    params = {"K_z": 1500.0, "D_z": 300.0, "q_int": 5.0, "structure": structure, "tool_compliance": 2e-5}
     s = Slave(fmu_dir / "ImpedanceController.fmu", params)
     s.init()
-    d = imp.ImpedanceDesign(K_z=1500.0, D_z=300.0, q_int=5.0)
+    d = imp.ImpedanceDesign(K_z=1500.0, D_z=300.0, q_int=5.0, structure=structure, tool_k=5e4)
     L = imp.design_gains(d)
-    assert_allclose(s.get("lqr_gain", 3), L, rtol=1e-12)
-    law = imp.ImpedanceLaw(L, d.K_z, d.D_z)
+    assert_allclose(s.get("lqr_gain", 5)[:L.size], L, rtol=1e-12)
+    c = imp.force_gain(d, L)
+    assert (c != 0.0) == (structure == "paper")
+    assert_allclose(s.get("force_gain"), c, rtol=1e-12)
+    law = imp.ImpedanceLaw(L, d.K_z, d.D_z, force_gain=c)
     rng = np.random.default_rng(4)
     h_prev = 0.0
     for k in range(100):

@@ -54,7 +54,7 @@ force observer), used by the tests and to judge whether the paper's compliant to
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import solve_continuous_are

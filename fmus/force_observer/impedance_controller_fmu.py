@@ -99,9 +99,10 @@ class ImpedanceController(FlexFusionSlave):
                    "-n.f_mount x tool_compliance when the tool is in the design model (tool_mass > 0)")
         self.input("f_desired", unit="N", description="desired force bias F_d along the normal")
         self.input("force_fault", unit="1", description="fault flag of the force input (0 = good)")
-        deps = ("p_tool", "p_ref", "force_fault", "f_mount")
         all_in = ("f_contact_hat", "p_tool", "p_ref", "f_mount", "f_desired", "force_fault")
-        self.output("dp_ref", 2, unit="m", depends_on=deps,
+        # every input: the paper's structure feeds the force straight through (c F); the model
+        # description is fixed before the structure parameter is known
+        self.output("dp_ref", 2, unit="m", depends_on=all_in,
                     description="Cartesian reference offset for the MotionController, world")
         self.output("f_normal", unit="N", depends_on=("f_contact_hat",),
                     description="force along the normal used by the controller")

@@ -97,14 +97,18 @@ def test_observer_fmu_rejects_unknown_kind(fmu_dir):
     s.fmu.freeInstance()
 
 
-def test_impedance_fmu_matches_math(fmu_dir):
-    params = {"K_z": 1500.0, "D_z": 300.0, "q_int": 5.0}
+@pytest.mark.parametrize("structure", imp.STRUCTURES)
+def test_impedance_fmu_matches_math(fmu_dir, structure):
+    params = {"K_z": 1500.0, "D_z": 300.0, "q_int": 5.0, "structure": structure, "tool_compliance": 2e-5}
     s = Slave(fmu_dir / "ImpedanceController.fmu", params)
     s.init()
-    d = imp.ImpedanceDesign(K_z=1500.0, D_z=300.0, q_int=5.0)
+    d = imp.ImpedanceDesign(K_z=1500.0, D_z=300.0, q_int=5.0, structure=structure, tool_k=5e4)
     L = imp.design_gains(d)
-    assert_allclose(s.get("lqr_gain", 3), L, rtol=1e-12)
-    law = imp.ImpedanceLaw(L, d.K_z, d.D_z)
+    assert_allclose(s.get("lqr_gain", 5)[:L.size], L, rtol=1e-12)
+    c = imp.force_gain(d, L)
+    assert (c != 0.0) == (structure == "paper")
+    assert_allclose(s.get("force_gain"), c, rtol=1e-12)
+    law = imp.ImpedanceLaw(L, d.K_z, d.D_z, force_gain=c)
     rng = np.random.default_rng(4)
     h_prev = 0.0
     for k in range(100):
@@ -176,3 +180,32 @@ def test_fmus_close_the_impedance_loop_like_the_math(fmu_dir, use_raw):
     assert_allclose(via_fmu["delta"], direct["delta"], rtol=1e-9, atol=1e-12)
     assert_allclose(via_fmu["F_hat"], direct["F_hat"], rtol=1e-9, atol=1e-9)
     assert via_fmu["F"][-1] > 20.0                     # it did press on the wall
+
+
+def test_impedance_fmu_with_the_tool_in_the_design_model(fmu_dir):
+    """tool_mass > 0: the eq. 39 design (flange and deflection states); the flange is the
+    forward kinematics' tool point, the deflection -n.f_mount x tool_compliance."""
+    C = 1e-5
+    params = {"structure": "paper", "tool_compliance": C, "tool_mass": 12.0, "tool_damping": 600.0}
+    s = Slave(fmu_dir / "ImpedanceController.fmu", params)
+    s.init()
+    d = imp.ImpedanceDesign(structure="paper", tool_k=1 / C, tool_m=12.0, tool_d=600.0)
+    L = imp.design_gains(d)
+    assert L.shape == (4,)
+    assert_allclose(s.get("lqr_gain", 5), list(L) + [0.0], rtol=1e-12)
+    law = imp.ImpedanceLaw(L, d.K_z, d.D_z, force_gain=imp.force_gain(d, L))
+    rng = np.random.default_rng(5)
+    h_prev = 0.0
+    for k in range(50):
+        F = np.array([20.0 + rng.normal(), 0.0])
+        fm = np.array([25.0 + rng.normal(), 1.0])
+        p = np.array([1.5 + 1e-3 * rng.normal(), 0.9])
+        pr = np.array([1.51, 0.9])
+        s.set(f_contact_hat=F, p_tool=p, p_ref=pr, f_mount=fm)
+        x_tool = p[0] - fm[0] * C
+        assert_allclose(s.get("dp_ref", 2), [law.output(F[0], x_tool, pr[0], 0.0, h_prev, p[0]), 0.0],
+                        atol=1e-12)
+        law.advance(F[0], x_tool, pr[0], 0.0, h_prev, H, p[0])
+        h_prev = H
+        s.step(H)
+    s.close()

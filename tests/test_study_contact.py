@@ -73,12 +73,20 @@ def test_plots_written(tmp_path):
         assert f.exists() and f.stat().st_size > 10_000
 
 
-def test_compliant_tool_study_reports_each_case():
-    res = sc.compliant_tool_study(t_end=2.0, speed=0.05)
+@pytest.mark.parametrize("structure", imp.STRUCTURES)
+def test_compliant_tool_study_reports_each_case(structure):
+    res = sc.compliant_tool_study(imp.ImpedanceDesign(structure=structure), t_end=2.0, speed=0.05)
     assert set(res) == {f"{c}/{fb}" for c in ("rigid", "compliant", "compliant_designed")
                         for fb in ("observer", "raw")}
-    # rigid tool, and compliant tool with the tool in the LQR model: stable, force as predicted
-    for k in ("rigid/observer", "rigid/raw", "compliant_designed/observer", "compliant_designed/raw"):
+    # rigid tool, and compliant tool with the tool in the LQR model: stable, force as predicted;
+    # except the paper's structure with the raw reading on a rigid tool, which chatters at the
+    # sampling rate (test_impedance_math.test_paper_structure_with_the_raw_reading_chatters)
+    good = ["rigid/observer", "compliant_designed/observer", "compliant_designed/raw"]
+    if structure == "paper":
+        assert abs(res["rigid/raw"]["F_end"] / res["rigid/raw"]["F_pred"] - 1) > 0.1
+    else:
+        good.append("rigid/raw")
+    for k in good:
         assert_allclose(res[k]["F_end"], res[k]["F_pred"], rtol=0.02)
         assert res[k]["contact_losses"] == 0
         assert res[k]["v_max"] < 1.5 * 0.05

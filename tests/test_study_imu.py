@@ -1,6 +1,7 @@
 """The IMU study (`flexfusion study imu`): Table 1, findings, figures; the paper's findings on
 the ISO path (slow)."""
 import argparse
+import json
 
 import numpy as np
 import pytest
@@ -30,17 +31,39 @@ def fake_run(n=200, fk=1e-3, cf=0.5e-3, ekf=0.6e-3, cf_paper=1.1e-3, cf_same=0.7
             "cf_same.p_tool_hat": truth + cf_same * unit}
 
 
+#: Table 1 of the IMU paper as printed (the project never reads the paper: typed here, from
+#: "Table 1. Root mean square error for the test trajectories and estimation methods.").
+PAPER_TABLE1_TEXT = """Trajectory CF EKF FK
+ISO 0.95 mm 0.94 mm 1.44 mm
+Cube 0.81 mm 0.93 mm 0.79 mm"""
+
+
+def test_paper_values_in_the_code_are_the_papers_table1():
+    head, *rows = PAPER_TABLE1_TEXT.splitlines()
+    columns = {"CF": "cf_paper", "EKF": "ekf", "FK": "fk"}
+    names = head.split()[1:]
+    for row, path in zip(rows, ("iso", "square")):
+        values = [float(v) * 1e-3 for v in row.split()[1::2]]
+        expected = {columns[n]: v for n, v in zip(names, values)}
+        assert study_imu.PAPER_TABLE1[path] == pytest.approx(expected, rel=1e-12)
+
+
 def test_table1_and_findings_from_series():
-    table = study_imu.table1({"iso": fake_run(), "square": fake_run(fk=0.8e-3, cf=0.82e-3)})
+    table = study_imu.table1({"iso": fake_run(), "square": fake_run(fk=0.8e-3, cf_paper=0.82e-3, ekf=0.9e-3)})
     assert_allclose(table["iso"]["fk"], 1e-3, rtol=1e-12)
-    assert_allclose(table["iso"]["cf"], 0.5e-3, rtol=1e-12)
+    assert_allclose(table["iso"]["cf_paper"], 1.1e-3, rtol=1e-12)
+    assert list(table["iso"]) == ["cf_paper", "ekf", "fk", "cf", "cf_same"]   # the paper's first
     f = study_imu.findings(table)
-    assert_allclose(f["iso"]["cf_gain_over_fk"], 0.5, rtol=1e-12)
-    assert_allclose(f["iso"]["cf_vs_ekf"], 0.5 / 0.6 - 1, rtol=1e-12)
-    assert f["iso_filters_beat_fk_by_20pct"] is True
-    assert f["iso_cf_within_10pct_of_ekf"] is False
+    assert all(set(x) == {"claim", "ours", "reproduced", "why"} for x in f)
+    assert all(x["reproduced"] in ("yes", "no") for x in f)
+    by_claim = {x["claim"].split(" (")[0]: x for x in f}
+    # ISO: the paper's CF (1.1 mm) does not beat FK (1.0 mm); the square: FK 0.8 vs CF 0.82 within 10 %
+    assert by_claim["On the ISO path both filters beat forward kinematics"]["reproduced"] == "no"
+    assert by_claim["On the ISO path both filters beat forward kinematics"]["why"]
+    assert by_claim["On the slow square"]["reproduced"] == "yes"
+    assert by_claim["The CF is slightly better than the EKF on the slower trajectory"]["reproduced"] == "yes"
     text = study_imu.format_table(table)
-    assert "0.500 mm" in text and "1.44 mm" in text
+    assert "1.100 mm" in text and "1.44 mm" in text and "0.79 mm" in text
 
 
 def test_figures_are_written(tmp_path):
@@ -64,42 +87,42 @@ def test_short_study_run(fmu_dir, tmp_path, monkeypatch):
     res = study_imu.run_study(tmp_path, stop_time=0.8, workers=2, progress=False)
     for path in ("iso", "square"):
         row = res["table1"][path]
-        assert set(row) == {"fk", "cf", "ekf", "cf_paper", "cf_same"}
+        assert list(row) == list(study_imu.ESTIMATES)
         assert all(np.isfinite(v) and 0 < v < 0.01 for v in row.values())
     for name in ("table1.md", "table1.csv", "metrics.json", "fig2_iso_path.png", "fig5_iso_error.png",
                  "fig6_square_error.png"):
         assert (tmp_path / name).exists(), name
+    saved = json.loads((tmp_path / "metrics.json").read_text())
+    assert set(saved) >= {"table1", "paper_table1", "labels", "findings", "wall_time", "figures"}
+    assert saved["wall_time"]["workers"] == 2 and saved["wall_time"]["total_s"] > 0
+    assert len(saved["findings"]) == 6
     # the scenario's own metrics are the study's numbers
     assert_allclose(res["metrics"]["iso"]["cf_rmse"], res["table1"]["iso"]["cf"], rtol=1e-9)
 
 
-def test_replay_matches_the_cosimulation(fmu_dir, monkeypatch):
-    """The tuning replays recorded inputs through the plain models: same estimate as the FMUs."""
-    from fmus.common.parameters import replace
-    from fmus.estimators import complementary_filter_model as cfm
-    from orchestration.scenario import load_scenario
-    from orchestration.study import simulate
+def test_tuning_goes_through_the_shared_tuner(fmu_dir, tmp_path, monkeypatch):
+    """One generation of a tiny population on a short run: the include file is what the
+    scenarios read, the values inside the bounds."""
     monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
-    run = simulate(study_imu.PATHS["square"], ["scenario.stop_time=0.6"])
-    sc = load_scenario(study_imu.PATHS["square"])
-    cf_params = {k: v for k, v in sc.components["cf"].parameters.items()
-                 if k in ("cutoff", "damping", "cutoff_orientation")}
-    est = study_imu.replay("cf", replace(cfm.ComplementaryFilterParameters(), **cf_params),
-                           study_imu.replay_data(run))
-    assert_allclose(est, run["cf.p_tool_hat"], atol=1e-13, rtol=0)
+    res = study_imu.tune_filters(tmp_path, maxiter=1, popsize=1, workers=2, progress=False,
+                                 stop_time=0.8, only=["cf_same"])
+    p = res["cf_same"]["params"]
+    for name, (lo, hi) in study_imu.CF_SAME_BOUNDS.items():
+        assert lo <= p[name] <= hi
+    import tomllib
+    doc = tomllib.loads((tmp_path / "imu2019_tuned.toml").read_text())
+    assert doc["components"]["cf_same"]["parameters"] == pytest.approx(p)
 
 
 @pytest.mark.slow
 def test_paper_findings_on_the_iso_path(fmu_dir, tmp_path, monkeypatch):
-    """IMU paper, Table 1: on the ISO path both filters beat forward kinematics by >= 20 % RMSE
-    (paper: 34 %). The paper's CF is within 1 % of its EKF; here the IMU keeps the residual
-    mounting and scale errors of the paper's calibration (imu2019_iso.toml), which the EKF
-    estimates as biases and the CF (no bias states, cut-offs tuned on an ideal IMU) does not:
-    a 0.4 mrad pitch error is g 0.4e-3 = 4 mm/s2 of acceleration bias, b / (2 pi 0.68 Hz)^2 =
-    0.2 mm of static position error. So the EKF is no worse than the CF."""
+    """What we claim on the ISO path (full length, the shipped tuning): the EKF beats forward
+    kinematics by >= 20 % RMSE (paper: 35 %); the paper's CF, one split at 28 Hz, does not
+    (it passes FK's errors below 28 Hz: the arm's vibration and the static kinematic errors);
+    our tuned two-split CF does."""
     monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
     res = study_imu.run_study(tmp_path, workers=2, progress=False, paths=("iso",))
-    iso = res["findings"]["iso"]
-    assert iso["cf_gain_over_fk"] >= 0.2, res["table1"]
-    assert iso["ekf_gain_over_fk"] >= 0.2, res["table1"]
-    assert iso["cf_vs_ekf"] >= 0.0, res["table1"]
+    row = res["table1"]["iso"]
+    assert 1 - row["ekf"] / row["fk"] >= 0.2, row
+    assert 1 - row["cf_paper"] / row["fk"] < 0.2, row
+    assert 1 - row["cf"] / row["fk"] >= 0.2, row

@@ -35,18 +35,35 @@ true surface stiffness. With a wall of stiffness ``k_w`` at ``x_w`` the stationa
 (for ``x_s > x_w``; else no contact and ``x_s = x_r``): a stiff target (large ``K_z``) puts
 ``x_s`` near ``x_r``, a stiff environment near ``x_w``, as the paper notes (Fig. 4).
 
+Two structures (``ImpedanceDesign.structure``):
+
+* ``"paper"`` (the paper's, eqs. 39-41): ``u = -L X + c F^ + l_r x_r`` -- a state feedback
+  ``L`` from an LQR on the model of the position-controlled robot (and tool) with diagonal
+  weights on positions and velocities (the paper's ``Q = diag(.., K, D, K_t, D_t)``,
+  ``R = 1000``), *no* integral state, and a force gain ``c`` outside the LQR. Here in error
+  coordinates ``e = x - x_r`` (``l_r`` absorbed), ``Delta = -L s + c (F - F_d)``, with ``c``
+  chosen (:func:`force_gain`) so that the design model's static contact is the target
+  impedance. On the true plant the stationary contact therefore misses eq. 2 by whatever the
+  design model gets wrong (static gain of the position loop, tool compliance, force errors).
+* ``"integral"`` (our extension): the states above plus the integral ``zeta`` of ``z``; the
+  stationary contact then satisfies eq. 2 by construction.
+
 Besides the controller, :func:`simulate_1dof` closes the loop on a one-axis model (robot
 position loop + rigid or compliant tool + one-sided wall + force sensor + accelerometer +
 force observer), used by the tests and to judge whether the paper's compliant tool matters.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
 from fmus.force_observer import force_observer_math as fom
+
+
+#: The controller structures of :class:`ImpedanceDesign` (module doc).
+STRUCTURES = ("paper", "integral")
 
 
 def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -71,17 +88,23 @@ class ImpedanceDesign:
     k_env: float = 5000.0      # design surface stiffness (N/m)
     q_e: float = 1e5           # LQR weight on e (1/m^2)
     q_de: float = 1e2          # LQR weight on e' ((s/m)^2)
+    q_dl: float = 1e5          # LQR weight on the tool deflection dl (compliant design; 1/m^2)
+    q_ddl: float = 1e2         # LQR weight on dl' ((s/m)^2); the paper's eq. 41 weighs the tool
+                               # states as the robot's (K_t = K_r = 10, D_t = D_r = 1)
     q_int: float = 1.0         # LQR weight on zeta (1/(N.s)^2)
     r: float = 4e4             # LQR weight on Delta (1/m^2)
     tool_m: float = 0.0        # compliant tool (paper Fig. 3, eq. 39): tool mass (kg); 0 = rigid
     tool_k: float = 0.0        # compliant tool spring (N/m); 0 = rigid tool
     tool_d: float = 0.0        # compliant tool damper (N.s/m)
+    structure: str = "paper"   # "paper" (eqs. 39-41: no integral, force gain c) or "integral"
 
     def __post_init__(self) -> None:
+        if self.structure not in STRUCTURES:
+            raise ValueError(f"impedance design: structure = {self.structure!r}, not one of {STRUCTURES}")
         for name in ("K_z", "m_r", "w_r", "zeta_r", "r"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"impedance design: {name} = {getattr(self, name)} must be > 0")
-        for name in ("D_z", "k_env", "q_e", "q_de", "q_int", "tool_m", "tool_k", "tool_d"):
+        for name in ("D_z", "k_env", "q_e", "q_de", "q_dl", "q_ddl", "q_int", "tool_m", "tool_k", "tool_d"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"impedance design: {name} = {getattr(self, name)} must be >= 0")
 
@@ -136,16 +159,50 @@ def design_model(d: ImpedanceDesign, k_env: float | None = None) -> tuple[np.nda
 
 
 def design_gains(d: ImpedanceDesign) -> np.ndarray:
-    """LQR gain ``L`` for ``Delta = -L s`` (eqs. 40-41 analogue): shape (3,) for a rigid tool,
-    (5,) for the compliant one (no weight on the deflection states)."""
+    """LQR gain ``L`` for ``Delta = -L s`` (eqs. 40-41): on ``(e, e', zeta)`` (3) for a rigid
+    tool, ``(e_f, e_f', dl, dl', zeta)`` (5) for the compliant one (eq. 41's diagonal form:
+    weights on the robot's and the tool's position and velocity states); the ``"paper"``
+    structure drops ``zeta`` (2 or 4 entries)."""
     A, B = design_model(d)
-    q = [d.q_e, d.q_de, 0.0, 0.0, d.q_int] if d.compliant else [d.q_e, d.q_de, d.q_int]
+    q = [d.q_e, d.q_de, d.q_dl, d.q_ddl, d.q_int] if d.compliant else [d.q_e, d.q_de, d.q_int]
+    if d.structure == "paper":          # the integral is the last state
+        A, B, q = A[:-1, :-1], B[:-1], q[:-1]
     return lqr_gain(A, B, np.diag(q), np.array([[d.r]]))[0]
 
 
+def force_gain(d: ImpedanceDesign, L: np.ndarray) -> float:
+    """The paper's force gain ``c`` (eq. 40) for ``Delta = -L s + c (F - F_d)``: the one that
+    makes the design model's static contact the target impedance (eq. 2) on the tool.
+
+    At rest the design model's position loop (stiffness ``k_r``) holds the flange at
+    ``e_f = Delta - F / k_r``, the tool mount deflects by ``dl = -C F`` (``C = 1 / tool_k``,
+    the design's known tool compliance; 0 for a rigid tool) and eq. 2 wants
+    ``e_f + dl = -F / K_z``; so ``e_f = F (C - 1/K_z)`` and
+    ``(1 + L_0) e_f + L_2 dl + F / k_r = c F``. Zero for the ``"integral"`` structure.
+    """
+    if d.structure != "paper":
+        return 0.0
+    L = np.asarray(L, float).ravel()
+    C = 1.0 / d.tool_k if d.tool_k > 0 else 0.0
+    c = (1.0 + L[0]) * (C - 1.0 / d.K_z) + 1.0 / d.k_r
+    if L.size == 4:                       # compliant design model: the deflection is a state
+        c -= L[2] * C
+    return float(c)
+
+
 def closed_loop_poles(d: ImpedanceDesign, L: np.ndarray, k_env: float) -> np.ndarray:
-    """Poles of the design model with gain ``L`` on a surface of stiffness ``k_env``."""
+    """Poles of the design model with gain ``L`` on a surface of stiffness ``k_env``; for the
+    ``"paper"`` structure the force term ``c F = c k_env e_tool`` (in contact) is closed too."""
     A, B = design_model(d, k_env)
+    L = np.asarray(L, float).ravel()
+    if L.size in (2, 4):
+        A, B = A[:-1, :-1], B[:-1]
+        K = L.copy()
+        c = force_gain(d, L)
+        K[0] -= c * k_env                 # F = k_env (e_f + dl): Delta = -(L - c k_env [1 0 1 0]) s
+        if L.size == 4:
+            K[2] -= c * k_env
+        return np.linalg.eigvals(A - B @ K[None, :])
     return np.linalg.eigvals(A - B @ np.atleast_2d(L))
 
 
@@ -172,18 +229,21 @@ class ImpedanceLaw:
     With a gain of length 3 (rigid tool) the state is ``(e, e', zeta)``, ``e = x - x_r``; with
     length 5 (compliant tool, :func:`design_model`) it is ``(e_f, e_f', dl, dl', zeta)`` and
     the flange position ``x_flange`` must be given; ``x`` is always the tool position, used in
-    the impedance variable ``z``.
+    the impedance variable ``z``. Lengths 2 and 4 are the paper's structure: the same without
+    ``zeta``, plus ``c (F - F_d)`` (``force_gain``, :func:`force_gain`).
     """
 
     def __init__(self, L: np.ndarray, K_z: float, D_z: float, tau_v: float = 0.01,
-                 delta_max: float = 0.05) -> None:
+                 delta_max: float = 0.05, force_gain: float = 0.0) -> None:
         self.L = np.asarray(L, dtype=float).ravel()
-        if self.L.size not in (3, 5):
-            raise ValueError(f"impedance gain must have 3 or 5 entries, not {self.L.size}")
+        if self.L.size not in (2, 3, 4, 5):
+            raise ValueError(f"impedance gain must have 2 to 5 entries, not {self.L.size}")
         self.K_z, self.D_z = float(K_z), float(D_z)
         self.tau_v, self.delta_max = float(tau_v), float(delta_max)
+        self.integral = self.L.size in (3, 5)     # else the paper's structure (no zeta)
+        self.c = float(force_gain)
         self.zeta = 0.0
-        npos = 1 if self.L.size == 3 else 2
+        npos = 1 if self.L.size in (2, 3) else 2
         self.q_prev: np.ndarray | None = None
         self.dq = np.zeros(npos)
         self.saturated = False
@@ -200,7 +260,7 @@ class ImpedanceLaw:
         self.q_prev = None
 
     def _positions(self, x: float, x_r: float, x_flange: float | None) -> np.ndarray:
-        if self.L.size == 3:
+        if self.L.size in (2, 3):
             return np.array([x - x_r])
         if x_flange is None:
             raise ValueError("the compliant-tool impedance law needs the flange position")
@@ -213,9 +273,11 @@ class ImpedanceLaw:
         return self.dq + alpha * ((q - self.q_prev) / h - self.dq)
 
     def _state(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        if self.L.size == 3:
-            return np.array([q[0], dq[0], self.zeta])
-        return np.array([q[0], dq[0], q[1], dq[1], self.zeta])
+        s = [q[0], dq[0]] if q.size == 1 else [q[0], dq[0], q[1], dq[1]]
+        return np.array(s + [self.zeta] if self.integral else s)
+
+    def _delta(self, F: float, F_d: float, q: np.ndarray, dq: np.ndarray) -> float:
+        return -float(self.L @ self._state(q, dq)) + self.c * (F - F_d)
 
     def _z(self, F: float, F_d: float, q: np.ndarray, dq: np.ndarray) -> float:
         return (F - F_d) + self.K_z * float(np.sum(q)) + self.D_z * float(np.sum(dq))
@@ -224,7 +286,7 @@ class ImpedanceLaw:
                x_flange: float | None = None) -> float:
         """``Delta`` (m) along the normal at this sample; ``h`` is the time since the last one."""
         q = self._positions(x, x_r, x_flange)
-        delta = -float(self.L @ self._state(q, self._rates(q, h)))
+        delta = self._delta(F, F_d, q, self._rates(q, h))
         return float(np.clip(delta, -self.delta_max, self.delta_max))
 
     def impedance_variable(self, F: float, x: float, x_r: float, F_d: float = 0.0, h: float = 0.0,
@@ -239,11 +301,11 @@ class ImpedanceLaw:
         q = self._positions(x, x_r, x_flange)
         dq = self._rates(q, h_prev)
         z = self._z(F, F_d, q, dq)
-        delta_free = -float(self.L @ self._state(q, dq))
+        delta_free = self._delta(F, F_d, q, dq)
         self.saturated = abs(delta_free) > self.delta_max
         # conditional integration: stop integrating when that would push further into the limit
         dz = -self.L[-1] * z      # sign of d(Delta)/dt due to the integrator
-        if not (self.saturated and np.sign(dz) == np.sign(delta_free)):
+        if self.integral and not (self.saturated and np.sign(dz) == np.sign(delta_free)):
             self.zeta += h * z
         self.q_prev, self.dq = q, dq
 
@@ -295,7 +357,7 @@ def simulate_1dof(plant: OneAxisPlant, design: ImpedanceDesign, x_ref, t_end: fl
     """
     rng = np.random.default_rng(seed)
     L = design_gains(design)
-    law = ImpedanceLaw(L, design.K_z, design.D_z, tau_v=tau_v)
+    law = ImpedanceLaw(L, design.K_z, design.D_z, tau_v=tau_v, force_gain=force_gain(design, L))
     cfg = obs_cfg or fom.ObserverConfig(kind=observer, m=plant.m_t)
     obs = fom.ForceObserverCore(cfg)
     k_r = plant.m_r * plant.w_r ** 2
@@ -377,5 +439,6 @@ def smooth_ramp(x0: float, x1: float, t0: float, t1: float):
     return f
 
 
-__all__ = ["lqr_gain", "ImpedanceDesign", "replace_design", "design_model", "design_gains", "closed_loop_poles",
+__all__ = ["lqr_gain", "ImpedanceDesign", "replace_design", "design_model", "design_gains", "force_gain",
+           "closed_loop_poles", "STRUCTURES",
            "stationary_contact", "ImpedanceLaw", "OneAxisPlant", "simulate_1dof", "smooth_ramp"]

@@ -168,7 +168,7 @@ def test_sensor_with_the_plants_stamp_is_bit_identical_under_our_master(cls, inp
     names = [n for n in wired.vr if wired.s.vars[wired.vr[n]].causality.name == "output"]
     for s in (wired, alone):
         s.init()
-    for k in range(12):
+    for _ in range(12):
         plant.step()
         for s in (wired, alone):
             s.set(**inputs(plant.t))

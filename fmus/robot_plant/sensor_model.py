@@ -40,7 +40,8 @@ def input_time(t: float, dt: float, t_truth: float = UNSTAMPED) -> float:
     under any master. Unconnected (negative), the answer is ``t + dt``, the end of the step: a
     Gauss-Seidel master (ours) steps the producer first and sets its values of ``t + dt``, the
     plant's ``t_state`` then says the same, to the bit. A Jacobi master (libcosim) sets the values
-    of ``t``: there only the producer's stamp is right, as a sensor cannot tell the two masters
+    of ``t``, and ours the values of ``t + h`` to a sensor slower than the plant (``h`` the
+    plant's step): there only the producer's stamp is right, as a sensor cannot tell these cases
     apart from its inputs. ``input_time(t_start, 0.0, t_truth)`` is the stamp in Initialization
     Mode.
     """

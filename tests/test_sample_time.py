@@ -18,8 +18,10 @@ from fmus.estimators.ekf_accelerometer_fmu import EkfAccelerometer
 from fmus.estimators.rigid_kinematics_fmu import RigidKinematics
 from fmus.estimators.rigid_kinematics_model import RigidKinematicsParameters
 from fmus.robot_plant.encoder_fmu import Encoder
+from fmus.robot_plant.flexible_robot_fmu import FlexibleRobot2DOF
 from fmus.robot_plant.imu_fmu import Imu
 from fmus.robot_plant.sensor_model import SensorChannels, input_time
+from fmus.robot_plant.tracker_fmu import Tracker
 
 T = 1e-3
 
@@ -27,14 +29,14 @@ T = 1e-3
 class InProcess:
     """An FMU class instance driven through its FMI methods by variable name."""
 
-    def __init__(self, cls, **params) -> None:
+    def __init__(self, cls, start: float = 0.0, **params) -> None:
         self.s = cls(instance_name="t")
         self.vr = {v.name: vr for vr, v in self.s.vars.items()}
-        self.s.setup_experiment(0.0, None, None)
+        self.s.setup_experiment(start, None, None)
         self.s.enter_initialization_mode()
         for k, v in params.items():
             self.set(**{k: v}) if isinstance(v, (tuple, list)) else setattr(self.s, k, v)
-        self.t = 0.0
+        self.t = start
 
     def names(self, name: str, size: int | None) -> list[str]:
         return [name] if size is None else [f"{name}[{i + 1}]" for i in range(size)]
@@ -90,6 +92,90 @@ def test_sensor_fmus_publish_the_sample_time(cls, inputs) -> None:
         s.step()
         stamps.append(s.get("t_meas"))
     assert_allclose(stamps, [0.001, 0.001, 0.003, 0.003, 0.005, 0.005], rtol=1e-12)
+
+
+def test_plant_stamps_its_outputs() -> None:
+    """The plant's t_state: its start time in Initialization Mode, t + dt after doStep(t, dt)
+    (the time its outputs stand for, whatever the host)."""
+    plant = InProcess(FlexibleRobot2DOF, start=0.25)
+    assert plant.get("t_state") == 0.25
+    plant.init()
+    for k in range(3):
+        plant.step()
+        assert plant.get("t_state") == input_time(0.25 + k * T, T)
+
+
+@pytest.mark.parametrize("cls, inputs", [(Encoder, {}),
+                                         (Imu, {"a_sensor": (0.5, 0.1), "phi_tool": 0.3,
+                                                "omega_tool": 0.2})])
+def test_sensor_stamps_its_sample_with_the_producers_time(cls, inputs) -> None:
+    """Analytic case, a Jacobi host starting at 0.2 s: before doStep(t, T) the sensor gets the
+    plant's outputs of t and the plant's stamp t_truth = t. Sampled at 500 Hz, t_meas is that
+    stamp at a sample, held in between (unconnected it would say t + T); the Encoder's reading
+    of the ramp q_m = a t (no noise, no quantisation) is a t_meas."""
+    a = np.array([2.0, -3.0])
+    params = {"noise": 0.0, "resolution": 0.0} if cls is Encoder else {}
+    s = InProcess(cls, start=0.2, sample_rate=500.0, **params)
+    s.set(t_truth=0.2, q_m=a * 0.2) if cls is Encoder else s.set(t_truth=0.2, **inputs)
+    s.init()
+    stamps = [s.get("t_meas")]
+    for _ in range(6):
+        s.set(t_truth=s.t, **({"q_m": a * s.t} if cls is Encoder else {}))
+        s.step()
+        stamps.append(s.get("t_meas"))
+        if cls is Encoder:
+            assert_allclose(s.get("q_m_meas", 2), a * s.get("t_meas"), rtol=1e-12)
+    assert_allclose(stamps, [0.2, 0.2, 0.2, 0.202, 0.202, 0.204, 0.204], rtol=1e-12)
+
+
+def test_tracker_measures_at_the_producers_time() -> None:
+    """Analytic case, a Jacobi host: the tool on a ramp p(t) = p0 + v t, handed over one step
+    late (the value of t before doStep(t, T)) with its stamp t_truth = t. The tracker (no noise,
+    1 kHz, clock 1 ms behind) measures exactly p(t_meas - skew), linear interpolation being exact
+    on a ramp; unconnected, it takes the late position as of t + T: off by v T."""
+    p0, v = np.array([1.0, 0.6]), np.array([0.2, -0.1])
+    runs = {}
+    for stamped in (True, False):
+        s = InProcess(Tracker, noise=0.0, p_tool=tuple(p0))
+        if stamped:
+            s.set(t_truth=0.0)
+        s.init()
+        for _ in range(8):
+            s.set(p_tool=p0 + v * s.t, **({"t_truth": s.t} if stamped else {}))
+            s.step()
+        runs[stamped] = (s.get("t_meas"), s.get("p_tool_meas", 2))
+    t_meas, p_meas = runs[True]
+    assert_allclose(t_meas, 7 * T, rtol=1e-12)          # the newest sample instant by t_truth
+    assert_allclose(p_meas, p0 + v * (t_meas - 1e-3), rtol=1e-12)
+    t_meas, p_meas = runs[False]
+    assert_allclose(p_meas - (p0 + v * (t_meas - 1e-3)), -v * T, rtol=1e-9)
+
+
+@pytest.mark.parametrize("cls, inputs", [
+    (Encoder, lambda t: {"q_m": (1.0 + 2.0 * t, -3.0 * t)}),
+    (Imu, lambda t: {"a_sensor": (0.5 + t, 0.1), "phi_tool": 0.3 * t, "omega_tool": 0.3}),
+    (Tracker, lambda t: {"p_tool": (1.0 + 0.2 * t, 0.6 - 0.1 * t)})])
+def test_sensor_with_the_plants_stamp_is_bit_identical_under_our_master(cls, inputs) -> None:
+    """Our Gauss-Seidel master steps the plant before the sensor: the plant's t_state is then
+    t + T, what the unconnected input assumes. Wired to a plant's t_state, a sensor (default
+    noise) gives every output bit for bit as unconnected: the scenarios' results do not change."""
+    plant = InProcess(FlexibleRobot2DOF)
+    plant.init()
+    wired, alone = InProcess(cls), InProcess(cls)
+    for s in (wired, alone):
+        s.set(**inputs(0.0))
+    wired.set(t_truth=plant.get("t_state"))
+    names = [n for n in wired.vr if wired.s.vars[wired.vr[n]].causality.name == "output"]
+    for s in (wired, alone):
+        s.init()
+    for _ in range(12):
+        plant.step()
+        for s in (wired, alone):
+            s.set(**inputs(plant.t))
+        wired.set(t_truth=plant.get("t_state"))
+        wired.step()
+        alone.step()
+        assert_array_equal([wired.get(n) for n in names], [alone.get(n) for n in names])
 
 
 # ---- estimators ----------------------------------------------------------------------------

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.parameters import param
-from fmus.robot_plant.sensor_model import SensorChannels, input_time
+from fmus.robot_plant.sensor_model import T_TRUTH_DESCRIPTION, UNSTAMPED, SensorChannels, input_time
 
 RESOLVER = "16-bit resolver-to-digital conversion per motor revolution (e.g. AD2S1210 at 16 bit)"
 
@@ -38,12 +38,14 @@ class Encoder(FlexFusionSlave):
     """Motor angle measurement ``q_m_meas`` of joints 2 and 3 (quantised, noisy, sampled).
 
     No direct feedthrough: the reading at ``t + dt`` is the sample of the input set before
-    ``doStep(t, dt)``, taken as the value at ``t + dt`` and stamped so in ``t_meas``
+    ``doStep(t, dt)``, stamped in ``t_meas`` with the time that input stands for: the plant's
+    ``t_state`` when connected to ``t_truth``, else ``t + dt``
     (:func:`~fmus.robot_plant.sensor_model.input_time`, the Tracker's convention); ``t_meas``
     holds with the reading between samples. Right after initialisation the output is the
-    noise-free reading of the initial input, stamped with the start time. The check that the
-    sample period is a multiple of the communication step happens at the first ``doStep`` (an
-    FMU does not know its step before), which then fails with a message naming ``sample_rate``.
+    noise-free reading of the initial input, stamped with ``t_truth`` or the start time. The
+    check that the sample period is a multiple of the communication step happens at the first
+    ``doStep`` (an FMU does not know its step before), which then fails with a message naming
+    ``sample_rate``.
     """
 
     parameters_class = EncoderParameters
@@ -52,6 +54,7 @@ class Encoder(FlexFusionSlave):
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self.input("q_m", 2, unit="rad", description="true motor angle, motor side")
+        self.input("t_truth", unit="s", start=UNSTAMPED, description=T_TRUTH_DESCRIPTION)
         self.output("q_m_meas", 2, unit="rad", description="measured motor angle, motor side")
         self.output("t_meas", unit="s", description="time the held sample was taken (the time "
                     "its input stands for)")
@@ -62,9 +65,9 @@ class Encoder(FlexFusionSlave):
             2, seed=p.seed, stream="encoder", noise=p.noise, bias=p.bias, bias_rw=p.bias_rw,
             scale=p.scale, resolution=p.resolution, sample_rate=p.sample_rate, cutoff=p.cutoff,
             filter_order=p.filter_order)
-        self.q_m_meas[:] = self.channels.initial(self.q_m, self._time)
+        self.q_m_meas[:] = self.channels.initial(self.q_m, input_time(self._time, 0.0, self.t_truth))
         self.t_meas = self.channels.t_meas
 
     def step(self, t: float, dt: float) -> None:
-        self.q_m_meas[:] = self.channels.step(self.q_m, dt, input_time(t, dt))
+        self.q_m_meas[:] = self.channels.step(self.q_m, dt, input_time(t, dt, self.t_truth))
         self.t_meas = self.channels.t_meas

@@ -21,6 +21,11 @@ class FlexibleRobot2DOF(FlexFusionSlave):
     those of the real, bent robot. The integration step ``dt / substeps`` is checked against the
     stiffest mode at the first ``doStep`` (the step size is not known before): a
     ``ParameterError`` naming ``substeps`` ends the step.
+
+    ``t_state`` stamps the outputs with the time they stand for (the start time in
+    Initialization Mode, ``t + dt`` after ``doStep(t, dt)``): wired to the sensors' ``t_truth``,
+    their samples carry the right time under any master's coupling scheme (a Jacobi master such
+    as libcosim hands a sensor the plant's outputs one step later than ours).
     """
 
     parameters_class = PlantParameters
@@ -48,17 +53,21 @@ class FlexibleRobot2DOF(FlexFusionSlave):
         self.output("tau_applied", 2, unit="N.m", description="motor torque applied at the end of the last "
                     "step: (1 + torque_constant_error) tau_m + ripple, with the tau_m held over that step "
                     "(diagnostic), motor side")
+        self.output("t_state", unit="s", description="time the outputs stand for: the plant's own "
+                    "time after its last step (the start time before the first)")
 
     def setup(self, params: PlantParameters) -> None:
         self.model = plant_dynamics.plant_model(params)
         self.update_outputs()
         self.update_applied_torque()
+        self.t_state = self._time
 
     def step(self, t: float, dt: float) -> None:
         self.model.check_step(dt)
         self.model.step(self.tau_m, self.f_ext, dt)
         self.update_outputs()
         self.update_applied_torque()
+        self.t_state = t + dt
 
     def update_applied_torque(self) -> None:
         """The torque the motors apply at the end of the step, for the command held over it."""

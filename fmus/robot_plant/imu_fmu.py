@@ -10,7 +10,8 @@ import numpy as np
 
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.parameters import param
-from fmus.robot_plant.sensor_model import G, SensorChannels, imu_reading, input_time
+from fmus.robot_plant.sensor_model import (G, T_TRUTH_DESCRIPTION, UNSTAMPED, SensorChannels, imu_reading,
+                                           input_time)
 
 MEMS = ("16-bit MEMS IMU class (e.g. Bosch BMI160 / TDK ICM-20948 data sheets: +-16 g, "
         "+-2000 deg/s, 16-bit output)")
@@ -74,11 +75,12 @@ class Imu(FlexFusionSlave):
     sensor frame, ``R_s = Ry(phi_tool) R_mount``, with the sensor imperfections.
 
     No direct feedthrough: the reading at ``t + dt`` is the sample of the inputs set before
-    ``doStep(t, dt)``, taken as their values at ``t + dt`` and stamped so in ``t_meas``
+    ``doStep(t, dt)``, stamped in ``t_meas`` with the time they stand for: the plant's
+    ``t_state`` when connected to ``t_truth``, else ``t + dt``
     (:func:`~fmus.robot_plant.sensor_model.input_time`; accelerometer and gyro sample together).
     Right after initialisation the outputs are the noise-free readings of the initial inputs
-    (at rest: +g on sensor z), stamped with the start time. The sample-period and cut-off checks
-    need the communication step and so happen at the first ``doStep``.
+    (at rest: +g on sensor z), stamped with ``t_truth`` or the start time. The sample-period and
+    cut-off checks need the communication step and so happen at the first ``doStep``.
     """
 
     parameters_class = ImuParameters
@@ -89,6 +91,7 @@ class Imu(FlexFusionSlave):
         self.input("a_sensor", 2, unit="m/s2", description="acceleration of the mount point, world x and z")
         self.input("phi_tool", unit="rad", description="tool angle about world y")
         self.input("omega_tool", unit="rad/s", description="tool angular velocity about world y")
+        self.input("t_truth", unit="s", start=UNSTAMPED, description=T_TRUTH_DESCRIPTION)
         self.output("acc_s", 3, unit="m/s2", description="measured specific force, sensor frame",
                     start=(0.0, 0.0, G))
         self.output("gyro_s", 3, unit="rad/s", description="measured angular rate, sensor frame")
@@ -111,12 +114,14 @@ class Imu(FlexFusionSlave):
             range=p.gyro_range, sample_rate=p.sample_rate, cutoff=p.gyro_cutoff,
             filter_order=p.filter_order, names={"cutoff": "gyro_cutoff"})
         acc, gyro = self._ideal()
-        self.acc_s[:] = self.acc.initial(acc, self._time)
-        self.gyro_s[:] = self.gyro.initial(gyro, self._time)
+        t0 = input_time(self._time, 0.0, self.t_truth)
+        self.acc_s[:] = self.acc.initial(acc, t0)
+        self.gyro_s[:] = self.gyro.initial(gyro, t0)
         self.t_meas = self.acc.t_meas
 
     def step(self, t: float, dt: float) -> None:
         acc, gyro = self._ideal()
-        self.acc_s[:] = self.acc.step(acc, dt, input_time(t, dt))
-        self.gyro_s[:] = self.gyro.step(gyro, dt, input_time(t, dt))
+        t_in = input_time(t, dt, self.t_truth)
+        self.acc_s[:] = self.acc.step(acc, dt, t_in)
+        self.gyro_s[:] = self.gyro.step(gyro, dt, t_in)
         self.t_meas = self.acc.t_meas

@@ -25,16 +25,27 @@ G = 9.81
 # ---------------------------------------------------------------------------------------------
 # Sample time
 # ---------------------------------------------------------------------------------------------
-def input_time(t: float, dt: float) -> float:
-    """The time the inputs of ``doStep(t, dt)`` stand for: ``t + dt``, the end of the step.
+UNSTAMPED = -1.0     # start value of a sensor's t_truth input: unconnected (the estimators' t_meas
+                     # input has the same convention, fmus.estimators.sample_time.UNSTAMPED)
+T_TRUTH_DESCRIPTION = ("time the truth inputs stand for, stamped by their producer (the plant's "
+                       "t_state); unconnected (negative): the end of the step")
 
-    The convention of every FlexFusion sensor (Encoder, Imu, Tracker) and so the time stamp
-    ``t_meas`` of a sample taken in that step: a Gauss-Seidel master (ours) steps the producer
-    first and sets its values of ``t + dt``. A Jacobi master (libcosim) sets the values of ``t``:
-    there a sample is one communication step older than its stamp. A sensor cannot tell the two
-    apart from its inputs (it would need the producer's own time stamp).
+
+def input_time(t: float, dt: float, t_truth: float = UNSTAMPED) -> float:
+    """The time the inputs of ``doStep(t, dt)`` stand for, and so the time stamp ``t_meas`` of a
+    sample taken in that step, in every FlexFusion sensor (Encoder, Imu, Tracker).
+
+    ``t_truth`` is the producer's own stamp of those inputs (the plant's ``t_state``: its time
+    after its last step), an optional input of every sensor: connected (>= 0), it is the answer
+    under any master. Unconnected (negative), the answer is ``t + dt``, the end of the step: a
+    Gauss-Seidel master (ours) steps the producer first and sets its values of ``t + dt``, the
+    plant's ``t_state`` then says the same, to the bit. A Jacobi master (libcosim) sets the values
+    of ``t``, and ours the values of ``t + h`` to a sensor slower than the plant (``h`` the
+    plant's step): there only the producer's stamp is right, as a sensor cannot tell these cases
+    apart from its inputs. ``input_time(t_start, 0.0, t_truth)`` is the stamp in Initialization
+    Mode.
     """
-    return t + dt
+    return t_truth if t_truth >= 0.0 else t + dt
 
 
 # ---------------------------------------------------------------------------------------------
@@ -396,7 +407,7 @@ def hammer_force(t: float, times: Sequence[float], force_xz: Sequence[float], du
     return f
 
 
-__all__ = ["input_time", "SensorChannels", "butterworth_coefficients", "butterworth_magnitude",
-           "quantise", "rot_y", "rot_rpy", "sensor_rotation", "imu_reading", "force_sensor_reading",
-           "calibrate_tool", "Wall",
-           "penetration", "contact_force", "hammer_force", "G"]
+__all__ = ["UNSTAMPED", "T_TRUTH_DESCRIPTION", "input_time", "SensorChannels", "butterworth_coefficients",
+           "butterworth_magnitude", "quantise", "rot_y", "rot_rpy", "sensor_rotation", "imu_reading",
+           "force_sensor_reading", "calibrate_tool", "Wall", "penetration", "contact_force", "hammer_force",
+           "G"]

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.parameters import param
-from fmus.robot_plant.sensor_model import input_time
+from fmus.robot_plant.sensor_model import T_TRUTH_DESCRIPTION, UNSTAMPED, input_time
 from fmus.robot_plant.tracker_model import TrackerModel
 
 LEICA = ("Axelsson et al. 2012, section 5.1 and Henriksson et al. 2009, section IV: Leica laser "
@@ -33,11 +33,12 @@ class Tracker(FlexFusionSlave):
     """Measured tool position ``p_tool_meas = p_tool(t_meas - skew) + noise``, sampled at
     ``sample_rate`` and held; ``t_meas`` is the sample's time stamp on the controller's clock.
 
-    Timing: the input set before ``doStep(t, dt)`` is taken as the position at ``t + dt`` (a
+    Timing: the input set before ``doStep(t, dt)`` is the position at the plant's ``t_state``
+    when that is connected to ``t_truth``, right under any master; unconnected, at ``t + dt`` (a
     Gauss-Seidel master, ours, steps the plant first; the convention of every sensor,
-    :func:`~fmus.robot_plant.sensor_model.input_time`); after initialisation the input is the
-    position at the start time. A Jacobi master (libcosim) hands over the position at ``t``:
-    the measurement is then one communication step older than its stamp says.
+    :func:`~fmus.robot_plant.sensor_model.input_time`), which a Jacobi master (libcosim, which
+    hands over the position at ``t``) makes one communication step too new. After
+    initialisation the input is the position at ``t_truth`` or the start time.
     No direct feedthrough.
     """
 
@@ -48,6 +49,7 @@ class Tracker(FlexFusionSlave):
         super().__init__(**kwargs)
         self.input("p_tool", 2, unit="m", description="true tool position, world x and z",
                    start=(1.2, 0.9))
+        self.input("t_truth", unit="s", start=UNSTAMPED, description=T_TRUTH_DESCRIPTION)
         self.output("p_tool_meas", 2, unit="m", description="measured tool position, world x and z",
                     start=(1.2, 0.9))
         self.output("t_meas", unit="s", description="time stamp of the held measurement "
@@ -60,9 +62,9 @@ class Tracker(FlexFusionSlave):
 
     def setup(self, p: TrackerParameters) -> None:
         self.model = TrackerModel(p.noise, p.sample_rate, p.skew, seed=p.seed)
-        self.model.start(self._time, self.p_tool)
+        self.model.start(input_time(self._time, 0.0, self.t_truth), self.p_tool)
         self._publish()
 
     def step(self, t: float, dt: float) -> None:
-        self.model.update(input_time(t, dt), self.p_tool)
+        self.model.update(input_time(t, dt, self.t_truth), self.p_tool)
         self._publish()

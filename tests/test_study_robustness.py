@@ -145,45 +145,28 @@ def test_short_robustness_table(fmus, tmp_path) -> None:
 
 @pytest.mark.slow
 def test_the_papers_findings(fmus, tmp_path) -> None:
-    """Full P1/P2 runs (3-5 min on 2 cores): every accelerometer-based observer has at least 2x
-    lower 3-30 Hz mean error than rigid kinematics on P1 and P2; with 50 % stiffness error the
-    paper's observer changes its band-limited mean error by at most 10 %; the drift fix keeps
-    the all-frequency error (max and mean) no worse than rigid kinematics on P1 and P2 and the
-    band-limited mean error at least 2x lower than rigid kinematics in every case; EKF Integrated
-    with the drift correction also with the stiffness error, changing its band error <= 10 %."""
+    """The full study on the shipped, P1-tuned scenarios (the same runs as `flexfusion study
+    robustness --workers 2`: about 4 min on 2 busy cores). Asserted: the one paper finding we
+    reproduce, every accelerometer-based observer (and our variants) at least 2x (the paper's
+    lower factor) below rigid kinematics' 3-30 Hz mean error on P1 and P2 (measured 5.3-13x);
+    beyond the paper, the drift-corrected EKF Integrated stays below rigid kinematics' error at
+    all frequencies (mean) in every case, model errors included. Not reproduced (stated in
+    findings with the numbers): EKF Motor the worst, the accelerometer observers beating it, the
+    robustness of EKF Integrated and the observer to the 50 % stiffness error."""
     from orchestration.study import open_executor
-    # these findings were made with a perfect IMU: set it explicitly (the Imu's default mounting
-    # and scale errors cost the EKF Integrated its 2x: nominal 1.99x, with the drift correction
-    # 1.73x; the observer's band error changes by 12.5 % with the stiffness error)
-    ideal = tmp_path / "ideal_imu.toml"
-    ideal.write_text("[components.imu.parameters]\n"
-                     + "".join(f"{v} = [0.0, 0.0, 0.0]\n" for v in ("mount_rpy", "acc_scale", "gyro_scale")))
     with open_executor(workers=2) as ex:
-        table = sr.robustness([ideal], executor=ex, progress=False)
+        table = sr.robustness(executor=ex, progress=False, workers=2)
     sr.write(table, tmp_path)
     cases = table["cases"]
-    nom, err = cases["nominal"]["columns"], cases["model_errors"]["columns"]
-    acc_based = [c for c in nom if c.startswith(("Det. Observer", "EKF Complete", "EKF Integrated"))]
-    assert any(c.startswith("Det. Observer") for c in acc_based)
+    first = table["findings"][0]
+    assert first["claim"].startswith("accelerometer-based observers beat rigid kinematics")
+    assert first["reproduced"]
     for key in ("nominal", "tuning"):
         cols = cases[key]["columns"]
-        for c in acc_based:
+        acc = [c for c in cols if sr.base_label(c) in sr.ACC_BASED]
+        assert len(acc) == 5
+        for c in acc:
             assert cols[c]["band_mean"] <= cols["Rigid kinematics"]["band_mean"] / 2, (key, c)
-    # the paper's observer (the EKFs' robustness is their own module's business)
-    assert abs(err["Det. Observer"]["band_mean"] / nom["Det. Observer"]["band_mean"] - 1) <= 0.10
-    for key in ("nominal", "tuning"):
-        cols = cases[key]["columns"]
-        for c in cols:
-            if "FK fusion" in c or "drift correction" in c:
-                assert cols[c]["all_mean"] <= cols["Rigid kinematics"]["all_mean"], (key, c)
-                assert cols[c]["all_max"] <= cols["Rigid kinematics"]["all_max"], (key, c)
     for key, case in cases.items():
-        for c, st in case["columns"].items():
-            if "FK fusion" in c or "drift correction" in c:
-                assert st["band_mean"] <= case["columns"]["Rigid kinematics"]["band_mean"] / 2, (key, c)
-    # EKF Integrated with the drift correction: no worse than rigid kinematics at all frequencies
-    # even with the stiffness error, and robust in the band as the paper claims for its EKF
-    fixed = next(c for c in nom if "drift correction" in c)
-    assert err[fixed]["all_mean"] <= err["Rigid kinematics"]["all_mean"]
-    assert err[fixed]["all_max"] <= err["Rigid kinematics"]["all_max"]
-    assert abs(err[fixed]["band_mean"] / nom[fixed]["band_mean"] - 1) <= 0.10
+        fixed = next(c for c in case["columns"] if "drift correction" in c)
+        assert case["columns"][fixed]["all_mean"] < case["columns"]["Rigid kinematics"]["all_mean"], key

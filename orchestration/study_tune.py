@@ -8,6 +8,15 @@ evaluated in parallel on the study executor (``workers=executor.map``): each eva
 scenario run (:func:`orchestration.study.simulate`) with the candidate as overrides
 ``component.param=value``, and its cost the RMSE (or the band-passed error) of the estimate.
 
+Guards against over-fitting (the tuner sees the truth, so it can fit the noise realisation):
+
+* **held-out seeds**: the cost is the mean over the training ``seeds`` (scenario seeds: every
+  sensor's noise stream changes with it); the best candidate and the scenario's own values are
+  then evaluated on ``holdout_seeds`` that the optimiser never saw (``holdout_cost``).
+* **noise floors** (:func:`sensor_floors`): an EKF's motor-angle measurement std
+  ``sqrt(lambda5) r_motor`` is kept at or above the Encoder's physical error, white noise plus
+  quantisation, so ``lambda5 >= (sigma_enc / r_motor)^2`` (:func:`default_bounds`).
+
 Speed: before tuning, the scenario is *pruned* to what the estimate and the truth depend on
 (the components upstream of them through the connections); other estimators, their metrics and
 recordings are dropped. The noise streams do not change (each component's seed depends on the
@@ -17,12 +26,14 @@ scenario seed and its own name only).
 
 CLI::
 
-    flexfusion study tune SCENARIO --estimator COMPONENT --out DIR [--param NAME=LOW:HIGH ...]
-        [--maxiter N] [--popsize N] [--stop-time S] [--metric rmse|bandpass_mean|bandpass_max]
+    flexfusion study tune SCENARIO --estimator COMPONENT [--estimator ...] --out DIR
+        [--param NAME=LOW:HIGH ...] [--maxiter N] [--popsize N] [--stop-time S]
+        [--metric rmse|bandpass_mean|bandpass_max] [--seeds 1,2 --holdout-seeds 3,4]
         [--apply-to OTHER_COMPONENT ...] [--workers K | --scheduler ADDR]
 
-writes ``DIR/tuned_COMPONENT.toml`` (the include file; ``--apply-to`` repeats the values for
-variants of the estimator) and ``DIR/tune_COMPONENT.json`` (result and history).
+tunes each estimator in turn and writes ``DIR/tuned_COMPONENT.toml`` (the include file;
+``--apply-to`` repeats the values for variants of a single estimator) and
+``DIR/tune_COMPONENT.json`` (result, held-out costs, noise floors and history).
 """
 from __future__ import annotations
 
@@ -63,7 +74,10 @@ class TuneResult:
     ``params`` the best values (name -> value), ``cost`` its cost (m), ``initial_cost`` the
     cost of the scenario's own values (NaN if not evaluated), ``n_evals`` runs made,
     ``wall_time`` seconds, ``history`` one dict per evaluation (``params``, ``cost``) in order,
-    ``failed`` the number of evaluations whose run failed (cost :data:`PENALTY`).
+    ``failed`` the number of evaluations whose run failed (cost :data:`PENALTY`);
+    ``cost`` and ``initial_cost`` are means over the training ``seeds``, ``holdout_cost`` and
+    ``initial_holdout_cost`` over ``holdout_seeds`` (NaN without them); ``bounds`` the search
+    ranges used, ``floors`` :func:`sensor_floors` of the scenario.
     """
 
     component: str
@@ -76,10 +90,19 @@ class TuneResult:
     failed: int = 0
     metric: str = "rmse"
     message: str = ""
+    seeds: list[int] = field(default_factory=list)
+    holdout_seeds: list[int] = field(default_factory=list)
+    holdout_cost: float = float("nan")
+    initial_holdout_cost: float = float("nan")
+    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    floors: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return {"component": self.component, "params": self.params, "cost": self.cost,
-                "initial_cost": self.initial_cost, "metric": self.metric, "n_evals": self.n_evals,
+                "initial_cost": self.initial_cost, "seeds": self.seeds,
+                "holdout_seeds": self.holdout_seeds, "holdout_cost": self.holdout_cost,
+                "initial_holdout_cost": self.initial_holdout_cost, "metric": self.metric,
+                "bounds": self.bounds, "floors": self.floors, "n_evals": self.n_evals,
                 "failed": self.failed, "wall_time": self.wall_time, "message": self.message,
                 "history": self.history}
 
@@ -141,8 +164,55 @@ def fmu_type(doc: dict[str, Any], component: str) -> str:
     return Path(str(fmu)).stem
 
 
+def parameter_value(doc: dict[str, Any], component: str, name: str, default: Any) -> Any:
+    """The value of a component's parameter in a scenario document: its own, else the last of
+    its parameter sets that has it, else ``default`` (the FMU's)."""
+    ctab = doc["components"][component]
+    value = default
+    for sname in ctab.get("parameter_sets", []):
+        value = doc.get("parameter_sets", {}).get(sname, {}).get(name, value)
+    return ctab.get("parameters", {}).get(name, value)
+
+
+def _components_of_type(doc: dict[str, Any], kind: str) -> list[str]:
+    return [c for c in doc.get("components", {}) if fmu_type(doc, c) == kind]
+
+
+def sensor_floors(doc: dict[str, Any]) -> dict[str, float]:
+    """The physical measurement error std of the scenario's sensors (per sample, per axis).
+
+    The sensors add white noise after their anti-aliasing filter and then round to their
+    resolution (:class:`fmus.robot_plant.sensor_model.SensorChannels`): the rounding error is
+    uniform over one step ``Delta`` (variance ``Delta^2 / 12``) and independent of the noise, so::
+
+        sigma = sqrt(noise^2 + Delta^2 / 12)
+
+    ``encoder`` (rad, motor side; the defaults 2e-5 rad noise and Delta = 2 pi / 2^16 give
+    3.4e-5 rad) and ``accelerometer`` (m/s2; 0.02 m/s2 and 32 g / 2^16 give 0.020 m/s2), for
+    the first Encoder / Imu component of the scenario (absent sensors are left out). A filter
+    that claims a smaller measurement std than this trusts its sensor more than it can be
+    trusted: a fit to one noise realisation.
+    """
+    from fmus.robot_plant.encoder_fmu import EncoderParameters
+    from fmus.robot_plant.imu_fmu import ImuParameters
+
+    floors = {}
+    for key, kind, defaults, noise, res in (("encoder", "Encoder", EncoderParameters(), "noise", "resolution"),
+                                            ("accelerometer", "Imu", ImuParameters(), "acc_noise",
+                                             "acc_resolution")):
+        comps = _components_of_type(doc, kind)
+        if comps:
+            sd = float(parameter_value(doc, comps[0], noise, getattr(defaults, noise)))
+            step = float(parameter_value(doc, comps[0], res, getattr(defaults, res)))
+            floors[key] = math.sqrt(sd * sd + step * step / 12.0)
+    return floors
+
+
 def default_bounds(doc: dict[str, Any], component: str) -> dict[str, tuple[float, float]]:
-    """:data:`DEFAULT_BOUNDS` of the component's FMU type.
+    """:data:`DEFAULT_BOUNDS` of the component's FMU type; for an EKF, ``lambda5`` (the
+    motor-angle measurement variance scaling) starts at the Encoder's floor,
+    ``(sensor_floors(doc)["encoder"] / r_motor)^2``, so the tuned std ``sqrt(lambda5) r_motor``
+    is never below the encoder's physical error.
 
     Raises
     ------
@@ -153,7 +223,14 @@ def default_bounds(doc: dict[str, Any], component: str) -> dict[str, tuple[float
     if kind not in DEFAULT_BOUNDS:
         raise StudyError(f"no default tuning parameters for '{component}' ({kind}); give them "
                          f"with --param NAME=LOW:HIGH (defaults exist for {', '.join(DEFAULT_BOUNDS)})")
-    return dict(DEFAULT_BOUNDS[kind])
+    bounds = dict(DEFAULT_BOUNDS[kind])
+    floors = sensor_floors(doc)
+    if "lambda5" in bounds and "encoder" in floors:
+        from fmus.estimators.ekf_flexible_model import EkfMotorParameters
+        r_motor = float(parameter_value(doc, component, "r_motor", EkfMotorParameters().r_motor))
+        low = (floors["encoder"] / r_motor) ** 2
+        bounds["lambda5"] = (max(bounds["lambda5"][0], low), max(bounds["lambda5"][1], 10.0 * low))
+    return bounds
 
 
 # ---------------------------------------------------------------------------------------------
@@ -188,13 +265,16 @@ def evaluate(doc: dict[str, Any], overrides: Sequence[str], estimate: str, truth
 
 
 class _Objective:
-    """``f(x)`` for differential evolution: decode ``x`` into overrides and run (picklable)."""
+    """``f(x)`` for differential evolution: decode ``x`` into overrides and run, the mean cost
+    over the seeds (the scenario's own seed if none; picklable)."""
 
-    def __init__(self, doc, component, names, log_mask, base_overrides, estimate, truth, after, metric):
+    def __init__(self, doc, component, names, log_mask, base_overrides, estimate, truth, after, metric,
+                 seeds=()):
         self.doc, self.component, self.names = doc, component, list(names)
         self.log_mask = list(log_mask)
         self.base_overrides = tuple(base_overrides)
         self.estimate, self.truth, self.after, self.metric = estimate, truth, after, metric
+        self.seeds = tuple(seeds)
 
     def values(self, x: Sequence[float]) -> dict[str, float]:
         return {n: float(10.0 ** v if lg else v) for n, v, lg in zip(self.names, x, self.log_mask)}
@@ -203,8 +283,18 @@ class _Objective:
         return list(self.base_overrides) + [f"{self.component}.{n}={_value_text(v)}"
                                             for n, v in self.values(x).items()]
 
+    def cost(self, overrides: Sequence[str], seeds: Sequence[int]) -> float:
+        """Mean cost of one candidate's ``overrides`` over ``seeds`` (``()``: the scenario's)."""
+        runs = [list(overrides) + [f"scenario.seed={int(s)}"] for s in seeds] or [list(overrides)]
+        return float(np.mean([evaluate(self.doc, o, self.estimate, self.truth, self.after, self.metric)
+                              for o in runs]))
+
     def __call__(self, x: Sequence[float]) -> float:
-        return evaluate(self.doc, self.overrides(x), self.estimate, self.truth, self.after, self.metric)
+        return self.cost(self.overrides(x), self.seeds)
+
+
+def _cost_job(objective: _Objective, overrides: Sequence[str], seeds: Sequence[int]) -> float:
+    return objective.cost(overrides, seeds)
 
 
 class _RecordingMap:
@@ -231,7 +321,7 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
          estimate: str | None = None, after: float = 0.5, log_scale: bool = True,
          maxiter: int = 10, popsize: int = 4, seed: int = 0, executor: Executor | None = None,
          progress: bool = True, overrides: Sequence[str] = (), metric: str = "rmse",
-         tol: float = 0.01) -> TuneResult:
+         tol: float = 0.01, seeds: Sequence[int] = (), holdout_seeds: Sequence[int] = ()) -> TuneResult:
     """Minimise the estimation error of ``component`` over ``bounds`` (section III-C).
 
     Parameters
@@ -260,6 +350,11 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
     metric
         ``rmse`` (the paper's 2-norm of the error), ``bandpass_mean`` or ``bandpass_max``
         (3-30 Hz).
+    seeds, holdout_seeds
+        Scenario seeds the cost is averaged over while tuning (``()``: the scenario's own), and
+        seeds on which the best candidate and the scenario's own values are evaluated
+        afterwards (never seen by the optimiser; ``()``: no held-out evaluation). They must not
+        overlap.
 
     Raises
     ------
@@ -272,6 +367,9 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
 
     if metric not in METRICS:
         raise StudyError(f"unknown tuning metric {metric!r} (one of {', '.join(METRICS)})")
+    if set(seeds) & set(holdout_seeds):
+        raise StudyError(f"held-out seeds {sorted(set(seeds) & set(holdout_seeds))} are also "
+                         "training seeds: a held-out cost must come from noise the tuner never saw")
     doc = load_document(scenario)
     fmu_type(doc, component)
     if bounds is None:
@@ -291,7 +389,8 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
     small = prune(doc, [estimate, truth])
     if component not in small["components"]:
         raise StudyError(f"the estimate '{estimate}' is not an output of '{component}'")
-    objective = _Objective(small, component, names, log_mask, overrides, estimate, truth, after, metric)
+    objective = _Objective(small, component, names, log_mask, overrides, estimate, truth, after, metric,
+                           seeds)
     # a parameter name or value the FMU rejects fails here, once, with the scenario's message
     # (in the workers it would only make every candidate cost the penalty)
     from .scenario import load_scenario
@@ -320,12 +419,25 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
     finally:
         if bar is not None:
             bar.close()
-    wall = time.perf_counter() - t0
     best = objective.values(res.x)
+    # the scenario's own values on the training seeds; both on the held-out seeds
+    checks = [(objective, list(overrides), seeds)]
+    if holdout_seeds:
+        checks += [(objective, objective.overrides(res.x), holdout_seeds),
+                   (objective, list(overrides), holdout_seeds)]
+    if executor is None:
+        costs = [_cost_job(*c) for c in checks]
+    else:
+        costs = list(executor.map(_cost_job, *zip(*checks)))
+    costs += [float("nan")] * (3 - len(costs))
+    wall = time.perf_counter() - t0
     return TuneResult(component=component, params=best, cost=float(res.fun), n_evals=len(recorder.history),
                       wall_time=wall, history=recorder.history, metric=metric,
                       failed=sum(1 for h in recorder.history if h["cost"] >= PENALTY),
-                      message=str(res.message))
+                      message=str(res.message), initial_cost=costs[0], seeds=[int(s) for s in seeds],
+                      holdout_seeds=[int(s) for s in holdout_seeds], holdout_cost=costs[1],
+                      initial_holdout_cost=costs[2], bounds={n: tuple(bounds[n]) for n in names},
+                      floors=sensor_floors(doc))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -392,29 +504,54 @@ def parse_param(text: str) -> tuple[str, tuple[float, float]]:
         raise StudyError(f"--param {text!r}: expected NAME=LOW:HIGH, e.g. pole_freq[1]=0.5:40") from None
 
 
+def parse_seeds(text: str | None) -> list[int]:
+    """``"1,2"`` -> ``[1, 2]`` (``None`` or empty: ``[]``)."""
+    if not text:
+        return []
+    try:
+        return [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise StudyError(f"seeds {text!r}: expected integers separated by commas, e.g. 1,2") from None
+
+
+def _mm(v: float) -> str:
+    return f"{v * 1e3:.4g} mm"
+
+
 def main(args: argparse.Namespace) -> int:
     bounds = dict(parse_param(t) for t in args.param) if args.param else None
+    if args.apply_to and len(args.estimator) > 1:
+        raise StudyError("--apply-to needs a single --estimator (the values are that estimator's)")
+    seeds, holdout = parse_seeds(args.seeds), parse_seeds(args.holdout_seeds)
     overrides = list(args.set or [])
     if args.stop_time is not None:
         overrides.append(f"scenario.stop_time={args.stop_time}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with open_executor(args.workers, args.scheduler) as ex:
-        res = tune(args.scenario, args.estimator, bounds, truth=args.truth, estimate=args.estimate,
-                   after=args.after, log_scale=not args.linear, maxiter=args.maxiter,
-                   popsize=args.popsize, seed=args.seed, executor=ex, progress=not args.no_progress,
-                   overrides=overrides, metric=args.metric)
-    comment = (f"tuned by: flexfusion study tune {args.scenario} --estimator {args.estimator} "
-               f"(metric {res.metric}, cost {res.cost * 1e3:.4g} mm, {res.n_evals} runs, "
-               f"{res.wall_time:.0f} s)")
-    inc = write_include(out / f"tuned_{args.estimator}.toml", [args.estimator] + list(args.apply_to or []),
-                        res.params, comment)
-    (out / f"tune_{args.estimator}.json").write_text(json.dumps(res.to_json(), indent=1))
-    print(f"{args.estimator}: cost {res.cost * 1e3:.4g} mm ({res.metric}) after {res.n_evals} runs "
-          f"in {res.wall_time:.1f} s; {res.failed} failed")
-    for k, v in res.params.items():
-        print(f"  {k:<20} {v:.6g}")
-    print(f"include file: {inc}")
+        for component in args.estimator:
+            res = tune(args.scenario, component, bounds, truth=args.truth, estimate=args.estimate,
+                       after=args.after, log_scale=not args.linear, maxiter=args.maxiter,
+                       popsize=args.popsize, seed=args.seed, executor=ex, progress=not args.no_progress,
+                       overrides=overrides, metric=args.metric, seeds=seeds, holdout_seeds=holdout)
+            comment = (f"tuned by: flexfusion study tune {args.scenario} --estimator {component} "
+                       f"--metric {res.metric} --maxiter {args.maxiter} --popsize {args.popsize}"
+                       + (f" --stop-time {args.stop_time}" if args.stop_time is not None else "")
+                       + (f" --seeds {args.seeds}" if seeds else "")
+                       + (f" --holdout-seeds {args.holdout_seeds}" if holdout else "")
+                       + f"\ncost {_mm(res.cost)} on the training seeds (scenario's values "
+                       f"{_mm(res.initial_cost)}), held out {_mm(res.holdout_cost)} (scenario's values "
+                       f"{_mm(res.initial_holdout_cost)}); {res.n_evals} candidates, {res.wall_time:.0f} s")
+            inc = write_include(out / f"tuned_{component}.toml", [component] + list(args.apply_to or []),
+                                res.params, comment)
+            (out / f"tune_{component}.json").write_text(json.dumps(res.to_json(), indent=1))
+            print(f"{component}: cost {_mm(res.cost)} ({res.metric}; scenario's values {_mm(res.initial_cost)}), "
+                  f"held out {_mm(res.holdout_cost)} (scenario's values {_mm(res.initial_holdout_cost)}) "
+                  f"after {res.n_evals} candidates in {res.wall_time:.1f} s; {res.failed} failed")
+            for k, v in res.params.items():
+                lo, hi = res.bounds[k]
+                print(f"  {k:<20} {v:.6g}   in [{lo:.4g}, {hi:.4g}]")
+            print(f"include file: {inc}")
     return 0
 
 
@@ -424,7 +561,8 @@ def register(subparsers: Any) -> None:
                               "(differential evolution, parallel on the study executor)",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("scenario", help="scenario TOML file with the estimator and the truth")
-    p.add_argument("--estimator", required=True, metavar="COMPONENT", help="component to tune")
+    p.add_argument("--estimator", required=True, action="append", metavar="COMPONENT",
+                   help="component to tune (repeatable: each is tuned in turn)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--param", action="append", metavar="NAME=LOW:HIGH",
                    help="parameter and its range (repeatable; default: per FMU type)")
@@ -436,6 +574,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--estimate", default=None, help="estimate variable (default COMPONENT.p_tool_hat)")
     p.add_argument("--after", type=float, default=0.5, help="seconds left out at the start")
     p.add_argument("--stop-time", type=float, default=None, help="shorter runs while tuning (s)")
+    p.add_argument("--seeds", default=None, metavar="S1,S2",
+                   help="scenario seeds the cost is averaged over (default: the scenario's seed)")
+    p.add_argument("--holdout-seeds", default=None, metavar="S1,S2",
+                   help="seeds on which the result is checked afterwards, never used for tuning")
     p.add_argument("--linear", action="store_true", help="search linearly, not in log10")
     p.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE", help="override (repeatable)")
     p.add_argument("--apply-to", action="append", metavar="COMPONENT",
@@ -446,4 +588,4 @@ def register(subparsers: Any) -> None:
 
 
 __all__ = ["tune", "TuneResult", "write_include", "evaluate", "prune", "load_document",
-           "default_bounds", "DEFAULT_BOUNDS", "register", "PENALTY"]
+           "default_bounds", "sensor_floors", "parameter_value", "parse_seeds", "DEFAULT_BOUNDS", "register", "PENALTY"]

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose
 
 from orchestration import study_robustness as sr
 from orchestration.build import build_all
@@ -33,20 +34,73 @@ def fmus(fmu_dir, monkeypatch):
     monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
 
 
-def test_jobs_give_only_the_observers_the_stiffness_error() -> None:
+def test_jobs_give_only_the_estimators_the_model_errors() -> None:
+    """Each case's estimators take the identified set with its error; the controller keeps the
+    identified set; joint 2 only changes joint 2; the identification error is 5 % on each
+    identified parameter and nothing else."""
     jobs = sr.case_jobs(stop_time=1.0)
-    assert len(jobs) == 3
-    for (doc, overrides, variables), (key, _, _, scale) in zip(jobs, sr.CASES):
+    assert [c[0] for c in sr.CASES] == ["nominal", "tuning", "model_errors", "model_errors_joint2",
+                                        "ident_errors"]
+    assert len(jobs) == len(sr.CASES)
+    for (doc, overrides, variables), (key, _, _, error) in zip(jobs, sr.CASES):
         est = sr.estimators(doc)
-        assert "rigid" in est and "observer" in est
+        assert "rigid" in est and "observer" in est and len(est) == 7
         assert variables == ["plant.p_tool"] + [f"{c}.p_tool_hat" for c in est]
-        stiff = [o for o in overrides if "stiffness_scale" in o]
-        if scale == 1.0:
-            assert stiff == []
+        assert overrides == ["scenario.stop_time=1.0"]
+        assert doc["components"]["controller"]["parameter_sets"] == [sr.MODEL_SET]
+        true_set = doc["parameter_sets"][sr.MODEL_SET]
+        if not error:
+            assert all(doc["components"][c]["parameter_sets"] == [sr.MODEL_SET] for c in est)
+            continue
+        sname = f"{sr.MODEL_SET}_{error}"
+        assert all(doc["components"][c]["parameter_sets"] == [sname] for c in est)
+        wrong = doc["parameter_sets"][sname]
+        ratio = {k: np.asarray(wrong[k], float) / np.asarray(true_set[k], float) for k in true_set}
+        changed = {k for k, r in ratio.items() if not np.allclose(r, 1.0)}
+        if error == "stiffness_50":
+            assert changed == {"k_lo", "k_hi"}
+            assert_allclose(ratio["k_lo"], [0.5, 0.5]) and assert_allclose(ratio["k_hi"], [0.5, 0.5])
+        elif error == "stiffness_50_joint2":
+            assert changed == {"k_lo", "k_hi"}
+            assert_allclose(ratio["k_lo"], [1.0, 0.5]) and assert_allclose(ratio["k_hi"], [1.0, 0.5])
         else:
-            assert sorted(stiff) == sorted(f"{c}.stiffness_scale=0.5" for c, k in est.items()
-                                           if k in sr.STIFFNESS_TYPES)
-            assert not any(o.startswith("rigid.") for o in overrides)
+            assert changed == set(sr.IDENTIFIED)
+            for k in changed:
+                assert_allclose(np.abs(ratio[k] - 1.0), sr.IDENT_ERROR, rtol=1e-9)
+
+
+#: Table I of Henriksson et al. 2009 as printed (transcribed; the test must not read the paper):
+#: case, band, then max / mean for EKF Complete, EKF Motor, EKF Integrated, Det. Observer, Rigid.
+TABLE_I_TEXT = """
+Nominal      All     17.6  9.7   16.2  7.2   174.3 101.0 97.0  59.9  5.6   2.7
+Nominal      3-30Hz  1.007 0.070 0.914 0.111 1.114 0.056 1.121 0.057 2.142 0.221
+Tuning       All     9.4   7.2   16.3  6.0   82.0  36.4  43.3  28.6  2.1   0.5
+Tuning       3-30Hz  0.135 0.027 0.698 0.122 0.110 0.018 0.108 0.020 1.351 0.219
+ModelErrors  All     24.0  16.3  24.0  13.2  163.3 94.3  69.8  45.4  5.6   2.7
+ModelErrors  3-30Hz  1.070 0.090 2.803 0.340 1.113 0.056 1.120 0.057 2.142 0.221
+"""
+
+
+def test_paper_table_is_the_papers() -> None:
+    """PAPER_TABLE holds Table I's 60 numbers, and they give the paper's own prose figures
+    (section IV-C): mean error 2 %, 25 %, 98 % above EKF Integrated's on P1, 11 %, 50 %, 580 % on
+    P2; +206 % (EKF Motor) and +29 % (EKF Complete) with the stiffness error."""
+    cols = ["EKF Complete", "EKF Motor", "EKF Integrated", "Det. Observer", "Rigid kinematics"]
+    keys = {"Nominal": "nominal", "Tuning": "tuning", "ModelErrors": "model_errors"}
+    rows = [line.split() for line in TABLE_I_TEXT.strip().splitlines()]
+    assert len(rows) == 6
+    assert set(sr.PAPER_TABLE) == set(keys.values())
+    for case, band, *nums in rows:
+        off = 0 if band == "All" else 2
+        for i, col in enumerate(cols):
+            assert sr.PAPER_TABLE[keys[case]][col][off:off + 2] == (float(nums[2 * i]), float(nums[2 * i + 1]))
+    mean = {k: {c: v[3] for c, v in t.items()} for k, t in sr.PAPER_TABLE.items()}
+    for key, pct in (("nominal", (2, 25, 98)), ("tuning", (11, 50, 580))):
+        got = [100 * (mean[key][c] / mean[key]["EKF Integrated"] - 1)
+               for c in ("Det. Observer", "EKF Complete", "EKF Motor")]
+        assert_allclose(got, pct, atol=2.5)
+    assert_allclose(100 * (mean["model_errors"]["EKF Motor"] / mean["nominal"]["EKF Motor"] - 1), 206, atol=1)
+    assert_allclose(100 * (mean["model_errors"]["EKF Complete"] / mean["nominal"]["EKF Complete"] - 1), 29, atol=1)
 
 
 def test_error_stats_of_a_known_error() -> None:
@@ -63,66 +117,56 @@ def test_error_stats_of_a_known_error() -> None:
 
 
 def test_short_robustness_table(fmus, tmp_path) -> None:
-    table = sr.robustness(stop_time=0.3, after=0.05, progress=False)
+    table = sr.robustness(stop_time=0.3, after=0.05, progress=False, workers=1)
     cases = table["cases"]
-    assert list(cases) == ["nominal", "tuning", "model_errors"]
+    assert list(cases) == [c[0] for c in sr.CASES]
     for case in cases.values():
         assert "Rigid kinematics" in case["columns"] and "Det. Observer" in case["columns"]
         for st in case["columns"].values():
             assert set(st) == set(sr.STATS) and all(np.isfinite(v) and v >= 0 for v in st.values())
-    # rigid kinematics has no stiffness in it: the same numbers with the model error
-    assert cases["model_errors"]["columns"]["Rigid kinematics"] == cases["nominal"]["columns"]["Rigid kinematics"]
-    assert cases["model_errors"]["columns"]["Det. Observer"] != cases["nominal"]["columns"]["Det. Observer"]
+    # rigid kinematics (no gravity compensation) uses no dynamic parameter: unchanged by every
+    # model error; the observers are not
+    for key in ("model_errors", "model_errors_joint2", "ident_errors"):
+        assert cases[key]["columns"]["Rigid kinematics"] == cases["nominal"]["columns"]["Rigid kinematics"]
+        assert cases[key]["columns"]["EKF Motor"] != cases["nominal"]["columns"]["EKF Motor"]
     files = sr.write(table, tmp_path)
     names = {f.name for f in files}
     assert {"table.json", "table.md", "fig4_nominal.png", "fig5_tuning.png", "fig6_model_errors.png"} <= names
     js = json.loads((tmp_path / "table.json").read_text())
     assert js["paper"]["nominal"]["Rigid kinematics"] == [5.6, 2.7, 2.142, 0.221]
+    assert js["wall_time"] > 0 and js["workers"] == 1
+    assert len(js["findings"]) == 4
+    for f in js["findings"]:
+        assert set(f) >= {"claim", "paper", "ours", "reproduced", "why"} and isinstance(f["reproduced"], bool)
+    assert js["findings"][3]["paper"]["EKF Motor"] == pytest.approx(2.063, abs=1e-3)
     md = (tmp_path / "table.md").read_text()
-    assert "(0.221)" in md and "Model errors" in md
+    assert "(0.221)" in md and "Model errors" in md and "Findings" in md
 
 
 @pytest.mark.slow
 def test_the_papers_findings(fmus, tmp_path) -> None:
-    """Full P1/P2 runs (3-5 min on 2 cores): every accelerometer-based observer has at least 2x
-    lower 3-30 Hz mean error than rigid kinematics on P1 and P2; with 50 % stiffness error the
-    paper's observer changes its band-limited mean error by at most 10 %; the drift fix keeps
-    the all-frequency error (max and mean) no worse than rigid kinematics on P1 and P2 and the
-    band-limited mean error at least 2x lower than rigid kinematics in every case; EKF Integrated
-    with the drift correction also with the stiffness error, changing its band error <= 10 %."""
+    """The full study on the shipped, P1-tuned scenarios (the same runs as `flexfusion study
+    robustness --workers 2`: about 4 min on 2 busy cores). Asserted: the one paper finding we
+    reproduce, every accelerometer-based observer (and our variants) at least 2x (the paper's
+    lower factor) below rigid kinematics' 3-30 Hz mean error on P1 and P2 (measured 5.3-13x);
+    beyond the paper, the drift-corrected EKF Integrated stays below rigid kinematics' error at
+    all frequencies (mean) in every case, model errors included. Not reproduced (stated in
+    findings with the numbers): EKF Motor the worst, the accelerometer observers beating it, the
+    robustness of EKF Integrated and the observer to the 50 % stiffness error."""
     from orchestration.study import open_executor
-    # these findings were made with a perfect IMU: set it explicitly (the Imu's default mounting
-    # and scale errors cost the EKF Integrated its 2x: nominal 1.99x, with the drift correction
-    # 1.73x; the observer's band error changes by 12.5 % with the stiffness error)
-    ideal = tmp_path / "ideal_imu.toml"
-    ideal.write_text("[components.imu.parameters]\n"
-                     + "".join(f"{v} = [0.0, 0.0, 0.0]\n" for v in ("mount_rpy", "acc_scale", "gyro_scale")))
     with open_executor(workers=2) as ex:
-        table = sr.robustness([ideal], executor=ex, progress=False)
+        table = sr.robustness(executor=ex, progress=False, workers=2)
     sr.write(table, tmp_path)
     cases = table["cases"]
-    nom, err = cases["nominal"]["columns"], cases["model_errors"]["columns"]
-    acc_based = [c for c in nom if c.startswith(("Det. Observer", "EKF Complete", "EKF Integrated"))]
-    assert any(c.startswith("Det. Observer") for c in acc_based)
+    first = table["findings"][0]
+    assert first["claim"].startswith("accelerometer-based observers beat rigid kinematics")
+    assert first["reproduced"]
     for key in ("nominal", "tuning"):
         cols = cases[key]["columns"]
-        for c in acc_based:
+        acc = [c for c in cols if sr.base_label(c) in sr.ACC_BASED]
+        assert len(acc) == 5
+        for c in acc:
             assert cols[c]["band_mean"] <= cols["Rigid kinematics"]["band_mean"] / 2, (key, c)
-    # the paper's observer (the EKFs' robustness is their own module's business)
-    assert abs(err["Det. Observer"]["band_mean"] / nom["Det. Observer"]["band_mean"] - 1) <= 0.10
-    for key in ("nominal", "tuning"):
-        cols = cases[key]["columns"]
-        for c in cols:
-            if "FK fusion" in c or "drift correction" in c:
-                assert cols[c]["all_mean"] <= cols["Rigid kinematics"]["all_mean"], (key, c)
-                assert cols[c]["all_max"] <= cols["Rigid kinematics"]["all_max"], (key, c)
     for key, case in cases.items():
-        for c, st in case["columns"].items():
-            if "FK fusion" in c or "drift correction" in c:
-                assert st["band_mean"] <= case["columns"]["Rigid kinematics"]["band_mean"] / 2, (key, c)
-    # EKF Integrated with the drift correction: no worse than rigid kinematics at all frequencies
-    # even with the stiffness error, and robust in the band as the paper claims for its EKF
-    fixed = next(c for c in nom if "drift correction" in c)
-    assert err[fixed]["all_mean"] <= err["Rigid kinematics"]["all_mean"]
-    assert err[fixed]["all_max"] <= err["Rigid kinematics"]["all_max"]
-    assert abs(err[fixed]["band_mean"] / nom[fixed]["band_mean"] - 1) <= 0.10
+        fixed = next(c for c in case["columns"] if "drift correction" in c)
+        assert case["columns"][fixed]["all_mean"] < case["columns"]["Rigid kinematics"]["all_mean"], key

@@ -101,3 +101,63 @@ def test_a_failing_candidate_costs_the_penalty_and_bad_bounds_are_refused(tmp_pa
     with pytest.raises(StudyError, match="NAME=LOW:HIGH"):
         st.parse_param("gain=1")
     assert st.parse_param("pole_freq[2]=0.5:40") == ("pole_freq[2]", (0.5, 40.0))
+
+
+def test_sensor_floors_bound_the_ekf_measurement_noise() -> None:
+    """Encoder: sqrt(noise^2 + step^2 / 12) (white noise plus uniform rounding error), and
+    lambda5's low bound puts sqrt(lambda5) * r_motor exactly there; a noisier encoder raises it."""
+    from fmus.robot_plant.encoder_fmu import EncoderParameters
+    from fmus.robot_plant.imu_fmu import ImuParameters
+    p1 = st.load_document(Path(st.__file__).parent / "scenarios" / "henriksson2009_p1.toml")
+    enc, imu = EncoderParameters(), ImuParameters()
+    floors = st.sensor_floors(p1)
+    assert_allclose(floors["encoder"], np.hypot(enc.noise, enc.resolution / np.sqrt(12)), rtol=1e-12)
+    assert_allclose(floors["accelerometer"], np.hypot(imu.acc_noise, imu.acc_resolution / np.sqrt(12)),
+                    rtol=1e-12)
+    # the rounding error of a uniform step is Delta^2 / 12: check the formula on samples
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0, 1, 200_000)
+    noisy = x + enc.noise * rng.standard_normal(x.size)
+    err = np.round(noisy / enc.resolution) * enc.resolution - x
+    assert_allclose(err.std(), floors["encoder"], rtol=0.01)
+    for comp in ("ekf_complete", "ekf_motor", "ekf_integrated", "ekf_integrated_fixed"):
+        lo, hi = st.default_bounds(p1, comp)["lambda5"]
+        r_motor = st.parameter_value(p1, comp, "r_motor", 1e-4)
+        assert_allclose(np.sqrt(lo) * r_motor, floors["encoder"], rtol=1e-12)
+        assert hi > lo
+    p1["components"]["encoder"].setdefault("parameters", {})["noise"] = 1e-4
+    assert st.sensor_floors(p1)["encoder"] > floors["encoder"]
+    assert st.default_bounds(p1, "ekf_motor")["lambda5"][0] > 1.0
+
+
+def test_shipped_tuning_respects_the_sensor_floors() -> None:
+    """Every tuned EKF of the 2009 scenarios claims at least the encoder's physical error, and
+    EKF Complete's (untuned) accelerometer std at least the Imu's."""
+    p1 = st.load_document(Path(st.__file__).parent / "scenarios" / "henriksson2009_p1.toml")
+    floors = st.sensor_floors(p1)
+    ekfs = [c for c in p1["components"] if st.fmu_type(p1, c).startswith("Ekf")]
+    assert len(ekfs) == 4
+    for comp in ekfs:
+        lam5 = st.parameter_value(p1, comp, "lambda5", 1.0)
+        assert np.sqrt(lam5) * st.parameter_value(p1, comp, "r_motor", 1e-4) >= floors["encoder"] * (1 - 1e-9), comp
+    assert st.parameter_value(p1, "ekf_complete", "r_acc", 0.05) >= floors["accelerometer"]
+
+
+def test_held_out_seeds(tmp_path) -> None:
+    """Training and held-out costs are reported; the scenario's own value (gain 3) is evaluated
+    too; overlapping seeds are refused."""
+    res = st.tune(_toy(tmp_path), "g", {"gain": (0.1, 10.0)}, truth="src.ys", estimate="g.yv",
+                  after=0.0, maxiter=4, popsize=5, seed=1, progress=False, seeds=[1, 2], holdout_seeds=[3])
+    t = np.arange(0.0, 0.1 + 1e-9, 0.01)
+    rms = np.sqrt(np.mean(5 * t * t))
+    assert res.seeds == [1, 2] and res.holdout_seeds == [3]
+    assert_allclose(res.initial_cost, 2.0 * rms, rtol=1e-6)          # gain 3: error 2 (t, 2t)
+    assert_allclose(res.initial_holdout_cost, 2.0 * rms, rtol=1e-6)
+    assert_allclose(res.holdout_cost, abs(res.params["gain"] - 1) * rms, rtol=1e-6)   # the toy has no noise
+    assert res.to_json()["holdout_cost"] == res.holdout_cost
+    with pytest.raises(StudyError, match="also training seeds"):
+        st.tune(_toy(tmp_path), "g", {"gain": (0.1, 10.0)}, truth="src.ys", estimate="g.yv",
+                progress=False, seeds=[1, 2], holdout_seeds=[2, 3])
+    assert st.parse_seeds("1, 2") == [1, 2] and st.parse_seeds(None) == []
+    with pytest.raises(StudyError, match="integers"):
+        st.parse_seeds("a,b")

@@ -57,8 +57,11 @@ plain output error, the study to :data:`PRACTICE`):
   35 Hz, a local mode about 220 Hz), as Wernholt & Gunnarsson (2008) fit the model's frequency
   response only around the gearbox modes, below the structural ones. The filtered error is
   band-limited, so it is decimated to twice the cut-off and whitened by the filter's noise
-  gain: ``s^2`` stays about 1 for white sensor noise and ``s^2 (J^T J)^-1`` keeps its meaning
-  (approximately: the Butterworth roll-off leaves some correlation between samples).
+  gain: ``s^2`` stays about 1 for white accelerometer noise and ``s^2 (J^T J)^-1`` keeps its
+  meaning (approximately: the Butterworth roll-off leaves some correlation between samples; the
+  encoder's filtered error keeps the model's start from the first, noisy, reading, which
+  raises its variance to about 1.8). On a plant with unmodelled in-band dynamics ``s^2`` is
+  larger with the prefilter than without (the misfit is low-frequency, the noise is reduced).
 * *Accelerometer calibration* as nuisance parameters: an affine map of the nominally mounted
   reading, ``acc = C^T [f; 1]`` with ``f`` the model's reading at the nominal mounting - per
   axis a scale, the cross-axis terms of a small mounting rotation, and a bias (the Imu's
@@ -453,8 +456,8 @@ def _covariance(jac: np.ndarray, s2: float, rcond: float = 1e-10) -> np.ndarray:
 
 
 def fit(experiments: Sequence[Experiment], nominal: RobotParameters, *, noise: NoiseLevels = NoiseLevels(),
-        criterion: Criterion = Criterion(), theta0: Sequence[float] | None = None, max_nfev: int = 40, map_fn: Mapper | None = None,
-        diff_step: float = 1e-6, xtol: float = 1e-8, ftol: float = 1e-8,
+        criterion: Criterion = Criterion(), theta0: Sequence[float] | None = None, max_nfev: int = 40,
+        map_fn: Mapper | None = None, diff_step: float = 1e-6, xtol: float = 1e-8, ftol: float = 1e-8,
         progress: Callable[[float], None] | None = None) -> Fit:
     """Closed-loop output-error fit of the flexible-joint model (module docstring).
 

@@ -64,6 +64,10 @@ def test_cli_identifies_the_ideal_plant_and_writes_the_report_and_include(tmp_pa
         assert abs(p["relative_error"]) < 0.01, name
         assert p["biased"] is False and "std" in p and "reason" in p
     assert rep["fixed"]["m1"]["reason"].startswith("fixed at the nominal")
+    # the study's criterion: the calibration of an ideal accelerometer is estimated as ideal
+    assert rep["criterion"] == {"prefilter": 25.0, "prefilter_order": 4, "acc_calibration": True}
+    cal = rep["acc_calibration"]
+    assert abs(cal["scale_x"]) < 1e-4 and abs(cal["scale_z"]) < 1e-4 and max(map(abs, cal["bias"])) < 1e-3
     doc = tomllib.loads(inc.read_text())
     robot = doc["parameter_sets"]["identified_robot"]
     assert_allclose(robot["k_hi"], [rep["parameters"]["k_hi[1]"]["fitted"], rep["parameters"]["k_hi[2]"]["fitted"]])
@@ -85,6 +89,8 @@ def test_non_convergence_is_one_error_and_keeps_the_best_fit(tmp_path, capsys):
 def test_bad_working_point_is_one_error(tmp_path, capsys):
     assert main(["study", "identify", "--out", str(tmp_path), "--working-point", "0.7"]) == 2
     assert "--working-point '0.7'" in capsys.readouterr().err
+    assert main(["study", "identify", "--out", str(tmp_path), "--prefilter", "-1"]) == 2
+    assert "--prefilter -1: prefilter cut-off must be a frequency >= 0 Hz" in capsys.readouterr().err
 
 
 @pytest.mark.skipif(not _has_ideal(), reason="the plant FMU has no parameter 'ideal' yet (no unmodelled "

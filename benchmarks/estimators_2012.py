@@ -39,7 +39,6 @@ sys.path.insert(0, str(REPO))
 
 from fmus.estimators import ekf_accelerometer_model as em  # noqa: E402
 from fmus.estimators import particle_filter_model as pm  # noqa: E402
-from orchestration import fmpy_compat  # noqa: E402
 
 Q0 = (0.2, -0.1)
 
@@ -104,7 +103,7 @@ def fmu_cost(fmu: Path, params: dict, qm, acc, u, T: float) -> tuple[float, floa
         s.getReal(outs)
     cost = (time.perf_counter() - t0) / len(u), (time.process_time() - c0) / len(u)
     s.terminate()
-    fmpy_compat.free_instance(s)
+    s.freeInstance()
     return cost
 
 
@@ -157,4 +156,3 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
-    fmpy_compat.exit_without_finalizers(0)

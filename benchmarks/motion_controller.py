@@ -24,7 +24,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from fmus.common import dynamics, kinematics  # noqa: E402
 from fmus.robot_plant import motion_control_model as mcm  # noqa: E402
-import orchestration.fmpy_compat  # noqa: E402,F401 - keep pythonfmu instances (see that module)
 
 DT = 1e-3
 

@@ -35,13 +35,13 @@ sys.path.insert(0, str(REPO))
 from fmpy import read_model_description  # noqa: E402
 from fmpy.fmi2 import FMU2Slave  # noqa: E402
 
-from orchestration import fmpy_compat, native  # noqa: E402
+from orchestration import native  # noqa: E402
 from orchestration.build import build_all  # noqa: E402
 
 PYTHONFMU_LIBRARY = native.pythonfmu_library()
 H = 1e-3
 REPEATS = 10
-_KEEP: list = []
+_INSTANCES: list[FMU2Slave] = []   # freed at the end of main()
 
 
 def extract(fmu: Path, folder: Path) -> Path:
@@ -82,7 +82,7 @@ def in_process(folder: Path, md, u: int, y: int) -> Callable[[int], float]:
     c = fmu.component
     u_vr, y_vr = (ctypes.c_uint * 1)(u), (ctypes.c_uint * 1)(y)
     value, out = (ctypes.c_double * 1)(0.5), (ctypes.c_double * 1)()
-    _KEEP.append(fmu)    # never freed here: pythonfmu's free is unsafe (the process ends soon)
+    _INSTANCES.append(fmu)
 
     def step(t: float) -> None:
         set_real(c, u_vr, 1, value)
@@ -158,8 +158,9 @@ def main() -> None:
         print(f"  ratio native / pythonfmu: step {npy / ppy:.2f} (fmpy), {nc / pc:.2f} (C host); "
               f"FMI overhead {(npy - python_work) / (ppy - python_work):.2f} (fmpy), "
               f"{(nc - python_work) / (pc - python_work):.2f} (C host)")
-    # pythonfmu's library is loaded in this process: skip its crashing exit-time destructor
-    fmpy_compat.exit_without_finalizers(0)
+        for fmu in _INSTANCES:
+            fmu.terminate()
+            fmu.freeInstance()
 
 
 if __name__ == "__main__":

@@ -133,7 +133,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", nargs="*", help="observer names or FMU identifiers")
     ap.add_argument("--fmu-dir", type=Path, help="built FMUs (default: build them into a temp dir)")
     args = ap.parse_args(argv)
-    from orchestration import fmpy_compat
     selected = [c for c in cases() if not args.only or c.name in args.only or c.fmu in args.only]
     with tempfile.TemporaryDirectory(prefix="observers_2009_") as tmp:
         fmu_dir = args.fmu_dir
@@ -147,7 +146,6 @@ def main(argv: list[str] | None = None) -> int:
             paper = "" if r["paper_s_per_s"] is None else f"{r['paper_s_per_s']:.2f}"
             print(f"{r['name']:<16} {r['us_per_step']:8.1f} {r['cpu_us_per_step']:12.1f} {r['s_per_s']:22.3f} "
                   f"{paper:>7}", flush=True)
-    fmpy_compat.exit_without_finalizers(0)
     return 0
 
 

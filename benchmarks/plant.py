@@ -33,7 +33,6 @@ from fmus.common import dynamics, kinematics  # noqa: E402
 from fmus.common.parameters import as_array, replace  # noqa: E402
 from fmus.robot_plant import plant_dynamics  # noqa: E402
 from fmus.robot_plant.plant_model import PlantParameters  # noqa: E402
-from orchestration import fmpy_compat  # noqa: E402
 
 DT = 1e-3
 POSES = {"home q=(0,0)": None, "P1 start (1.10, 0.80)": (1.10, 0.80), "P2 start (1.45, 0.55)": (1.45, 0.55),
@@ -100,7 +99,7 @@ def fmu_cost(fmu: Path, p: PlantParameters, n: int) -> tuple[float, ...]:
         t_set, t_step, t_get = t_set + b - a, t_step + c - b, t_get + clock() - c
     cost = (clock() - t0) / n
     s.terminate()
-    s.freeInstance()   # kept, not freed: see orchestration.fmpy_compat
+    s.freeInstance()
     return cost, t_set / n, t_step / n, t_get / n
 
 
@@ -170,4 +169,3 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
-    fmpy_compat.exit_without_finalizers(0)

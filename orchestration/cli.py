@@ -228,10 +228,8 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def console_main() -> None:
-    """The ``flexfusion`` console script: :func:`main`, then an exit that skips pythonfmu's
-    crashing library destructors (see :mod:`orchestration.fmpy_compat`)."""
-    from orchestration import fmpy_compat
-    fmpy_compat.exit_without_finalizers(main())
+    """The ``flexfusion`` console script."""
+    sys.exit(main())
 
 
 if __name__ == "__main__":

@@ -32,7 +32,6 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 import numpy as np
 
-from . import fmpy_compat
 from .scenario import Component, Scenario, ScenarioError
 
 if TYPE_CHECKING:
@@ -240,8 +239,7 @@ class _Instance:
                         self.fmu.terminate()
                 except Exception:  # noqa: BLE001 - terminate after an error may fail too
                     pass
-                # a pythonfmu instance is kept, not freed (see orchestration/fmpy_compat.py)
-                fmpy_compat.free_instance(self.fmu, owner=self)
+                self.fmu.freeInstance()
                 self.instantiated = False
         except Exception:  # noqa: BLE001
             pass

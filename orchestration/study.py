@@ -7,12 +7,10 @@ given (``"local"`` starts a ``LocalCluster`` on this machine). :func:`map_jobs` 
 a progress bar and returns their results in job order, so a study's numbers do not depend on the
 executor or the number of workers.
 
-Worker processes are forked from a clean server process (``forkserver``), so they end with
-``os._exit``, which skips pythonfmu's crashing library destructor (see
-:mod:`orchestration.fmpy_compat`). They live as long as the executor: pythonfmu instances are
-never freed inside a process, so a worker grows by a few MB per run (3.5-6 MB measured; 1.5 GB
-for 250 runs). Replacing workers (``max_tasks_per_child``) would bound that, but deadlocks
-Python 3.11's ``ProcessPoolExecutor`` when jobs are queued (python/cpython#115634).
+Worker processes are forked from a clean server process (``forkserver``), not from this one
+(which may hold threads and loaded FMUs), and live as long as the executor; each run frees its
+FMU instances and unloads their libraries. (Replacing workers with ``max_tasks_per_child``
+deadlocks Python 3.11's ``ProcessPoolExecutor`` when jobs are queued, python/cpython#115634.)
 """
 from __future__ import annotations
 
@@ -170,7 +168,6 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
     except ImportError:
         raise StudyError("a Dask scheduler needs the packages 'dask' and 'distributed' "
                          "(pip install 'flexfusion[dask]')") from None
-    # forked workers end with os._exit (see the module docstring)
     with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
         if scheduler == "local":
             cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,

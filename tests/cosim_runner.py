@@ -8,8 +8,7 @@ Usage::
 
 Steps the execution ``N_STEPS`` times by its base step ``STEP_NS`` (integer nanoseconds) and
 records, after every step, the last value of each ``comp.var`` (scalar FMI variable names).
-``OUT.json`` holds ``{"time": [...], "values": {"comp.var": [...]}, "log": "..."}``; the
-process ends without library destructors (see ``orchestration.fmpy_compat``).
+``OUT.json`` holds ``{"time": [...], "values": {"comp.var": [...]}, "log": "..."}``.
 """
 from __future__ import annotations
 
@@ -65,5 +64,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    from orchestration.fmpy_compat import exit_without_finalizers
-    exit_without_finalizers(main(sys.argv[1:]))
+    sys.exit(main(sys.argv[1:]))

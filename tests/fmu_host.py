@@ -1,7 +1,6 @@
 """One FMU under test, driven through fmpy's FMU2Slave with its log recorded.
 
-Shared by the FMU test modules. pythonfmu instances are kept, not freed: freeing one in the
-host's interpreter corrupts it (see orchestration/fmpy_compat.py).
+Shared by the FMU test modules.
 """
 from __future__ import annotations
 
@@ -12,8 +11,6 @@ import numpy as np
 from fmpy import calloc, extract, free, read_model_description
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-
-from orchestration import fmpy_compat
 
 
 class FmuLog(list):
@@ -101,7 +98,7 @@ class Slave:
 
     def close(self) -> None:
         self.fmu.terminate()
-        fmpy_compat.free_instance(self.fmu, owner=self)
+        self.fmu.freeInstance()
         if self._own_unzip:
             shutil.rmtree(self.unzip, ignore_errors=True)
 

@@ -15,7 +15,6 @@ AFTER_AN_FMU_RAN = """
 import sys, zipfile
 from pathlib import Path
 from fmpy import simulate_fmu
-from orchestration.fmpy_compat import exit_without_finalizers
 simulate_fmu(sys.argv[1], stop_time=0.003, step_size=0.001)
 import pythonfmu
 bundled = 'resources' in Path(pythonfmu.__file__).parts
@@ -23,7 +22,6 @@ from orchestration.build import build_all
 fmu, = build_all(Path(sys.argv[2]), only=["Encoder"], quiet=True)
 binaries = [n for n in zipfile.ZipFile(fmu).namelist() if n.startswith("binaries/")]
 print(bundled, len(binaries))
-exit_without_finalizers(0)
 """
 
 

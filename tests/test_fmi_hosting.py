@@ -32,8 +32,6 @@ for r in range(3):
             failures.append(f"{path}: round {r}: {type(exc).__name__}: {exc}")
 bundles = sorted(m for m in sys.modules if m.startswith("fmus_") and "." not in m)
 print(json.dumps({"failures": failures, "bundles": bundles, "outputs": outputs}, default=str))
-sys.stdout.flush()
-import os; os._exit(0)    # pythonfmu 0.7's exit-time destructors crash (see fmpy_compat)
 """
 
 
@@ -101,3 +99,18 @@ variables = {[f"c.{b}" for b in bases]!r}
             names = [o for o in outputs if o == b or o.startswith(b + "[")]
             fmpy_values = np.column_stack([theirs[o] for o in names])
             assert np.array_equal(mine, fmpy_values), f"{path.stem}.{b}"
+
+
+def test_a_thin_script_instantiates_again_under_pythonfmus_library(tmp_path_factory) -> None:
+    """pythonfmu 0.7's library (still the FMUs' Windows binary) releases the script module's
+    dictionary once per ``fmi2Instantiate``; FlexFusionSlave's _MODULE_DICTS balances that.
+    Without it, EkfMotor (a script without functions) fails to instantiate the 2nd time."""
+    from orchestration import native
+    ours = next(p for p in every_fmu(tmp_path_factory) if p.stem == "EkfMotor")
+    fmu = tmp_path_factory.mktemp("pythonfmu_library") / ours.name
+    shutil.copy(ours, fmu)
+    native.install_into(fmu, native.pythonfmu_library())
+    proc = subprocess.run([sys.executable, "-c", "import fmpy, sys\nfor _ in range(3):\n"
+                           "    fmpy.simulate_fmu(sys.argv[1], stop_time=0.003, step_size=0.001)",
+                           str(fmu)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]

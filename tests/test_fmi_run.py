@@ -12,15 +12,15 @@ from toys import write
 
 REPO = Path(__file__).resolve().parent.parent
 
-# the console script's path: main(), then the exit that skips pythonfmu's destructors
+# the console script's path: main(), then a normal exit
 RUN = r"""
 import sys
-from orchestration import cli, fmpy_compat
+from orchestration import cli
 status = cli.main(sys.argv[1:])
 tree = sorted(m for m in sys.modules if m == "fmus" or m.startswith("fmus."))
 bundled = sorted(m for m in sys.modules if m.startswith("fmus_") and "." not in m)
 print("TREE", tree, "BUNDLED", bundled)
-fmpy_compat.exit_without_finalizers(status)
+sys.exit(status)
 """
 
 

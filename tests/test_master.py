@@ -276,3 +276,35 @@ def test_result_access(tmp_path):
     assert r.variables() == ["src.ys", "src.y"]
     with pytest.raises(KeyError, match="not recorded"):
         r["src.noise"]
+
+
+# ---- instances freed, libraries unloaded ----------------------------------------------------
+
+
+def loaded_from(folder: str) -> set[str]:
+    """The shared libraries under ``folder`` mapped into this process (removed files too)."""
+    with open("/proc/self/maps") as maps:
+        paths = {line.split(maxsplit=5)[-1].strip().removesuffix(" (deleted)") for line in maps}
+    return {p for p in paths if p.startswith(folder) and p.endswith(".so")}
+
+
+@pytest.mark.parametrize("mode, fail_at", [("error", 0.05), ("oops", 0.05), ("error", 1.0)],
+                         ids=["fails-stepping", "fails-initialising", "runs-to-the-end"])
+def test_a_run_frees_its_instances_and_unloads_their_libraries(tmp_path, monkeypatch, mode, fail_at):
+    from orchestration import master
+    loaded_at_close: list[set[str]] = []
+    close = master._Instance.close
+
+    def recording_close(self):
+        loaded_at_close.append(loaded_from(master._EXTRACT_ROOT[0]))
+        close(self)
+
+    monkeypatch.setattr(master._Instance, "close", recording_close)
+    scenario = write(tmp_path, FAILING.format(mode=mode).replace("fail_at = 0.05", f"fail_at = {fail_at}"))
+    if fail_at < 0.1:     # the scenario's stop time
+        with pytest.raises(RunError):
+            run(scenario, out_dir=tmp_path / "o")
+    else:
+        run(scenario, out_dir=tmp_path / "o")
+    assert {Path(p).name for p in loaded_at_close[0]} == {"Failing.so", "Gain.so"}   # were loaded
+    assert loaded_from(master._EXTRACT_ROOT[0]) == set()

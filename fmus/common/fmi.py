@@ -181,7 +181,9 @@ class FlexFusionSlave(Fmi2Slave):
         which it only borrowed: each instance drains one reference, and a thin script (no
         functions holding ``__globals__``) loses its dictionary at the first instance, so the
         second one fails or crashes. Defining the class runs this once per execution, before
-        that decrement, and balances it.
+        that decrement, and balances it. Our Linux library (native/) needs none of this, but
+        the FMUs' Windows binary is still pythonfmu's (tests/test_fmi_hosting.py shows the
+        defect with its Linux twin).
         """
         super().__init_subclass__(**kwargs)
         module = sys.modules.get(cls.__module__)

@@ -39,7 +39,6 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from orchestration.cli import export_ssp  # noqa: E402
-from orchestration.fmpy_compat import exit_without_finalizers  # noqa: E402
 from orchestration.master import run  # noqa: E402
 from orchestration.metrics import rmse  # noqa: E402
 
@@ -88,4 +87,3 @@ def compare(stop: float, out: Path, extra: list[str]) -> None:
 
 if __name__ == "__main__":
     main(float(sys.argv[1]) if len(sys.argv) > 1 else 11.0)
-    exit_without_finalizers(0)

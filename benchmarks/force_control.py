@@ -25,7 +25,6 @@ sys.path.insert(0, str(REPO))
 
 from fmus.force_observer import force_observer_math as fom  # noqa: E402
 from fmus.force_observer import impedance_math as imp  # noqa: E402
-import orchestration.fmpy_compat  # noqa: E402,F401 - keep pythonfmu instances (see that module)
 
 
 def _fmu(path: Path, params: dict):
@@ -165,5 +164,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    # end without pythonfmu's crashing library destructors (see orchestration/fmpy_compat.py)
-    orchestration.fmpy_compat.exit_without_finalizers(main())
+    sys.exit(main())

@@ -21,7 +21,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import orchestration.fmpy_compat  # noqa: E402,F401 - keep pythonfmu instances (see that module)
 from fmus.estimators import complementary_filter_model as cfm  # noqa: E402
 from fmus.estimators import imu_ekf_model as iem  # noqa: E402
 
@@ -103,7 +102,3 @@ if __name__ == "__main__":
     steps = int(sys.argv[1]) if len(sys.argv) > 1 else 4000
     for key, value in main(steps).items():
         print(f"{key:<36} {value:10.2f}")
-    # pythonfmu instances are never freed (fmpy_compat); skip their exit-time destructors
-    sys.stdout.flush()
-    orchestration.fmpy_compat.exit_without_finalizers(0) if hasattr(
-        orchestration.fmpy_compat, "exit_without_finalizers") else None

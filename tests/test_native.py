@@ -390,7 +390,7 @@ def test_fmu_state_round_trip(toys: dict[str, Fmu]) -> None:
     fmu.freeInstance()
 
 
-# ---- Python host: free, unload, normal exit (what orchestration/fmpy_compat.py works around) --
+# ---- Python host: free, unload, normal exit (pythonfmu 0.7's binary needed work-arounds) -------
 
 PYTHON_HOST = """
 import sys
@@ -418,7 +418,7 @@ print("done", cycles)
 
 def python_host_failures(fmus: dict[str, Fmu], cycles: int, processes: int) -> list[str]:
     """Python processes that instantiate, step, free and unload the FMUs in turn ``cycles``
-    times, then exit normally (no fmpy_compat): the failures, described."""
+    times, then exit normally (no work-around): the failures, described."""
     args = [sys.executable, "-c", PYTHON_HOST, str(cycles), *(str(f.folder) for f in fmus.values())]
     with ThreadPoolExecutor(max_workers=2) as pool:
         runs = list(pool.map(lambda _: subprocess.run(args, capture_output=True, text=True,

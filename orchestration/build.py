@@ -34,7 +34,7 @@ DEFAULT_DEST = REPO / "dist" / "fmus"
 FMU_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11"]
 
 
-# Hash of the bundled package, in every FMU: FMUs with different ones must not run together.
+# Hash of the bundled package, in every FMU (provenance; its first 12 hex name the vendored package).
 BUNDLE_ID_FILE = "BUNDLE_ID"
 
 _CLASS = re.compile(r"^class (\w+)\(", re.M)

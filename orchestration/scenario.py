@@ -766,7 +766,6 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     if dup:
         raise ScenarioError(f"{label}: duplicate metric name(s) {', '.join(sorted(dup))}")
 
-    _check_same_bundle(label, components)
     return Scenario(path=path, name=name, description=description, stop_time=stop_time,
                     base_step=base_step, seed=int(seed), components=components,
                     connections=connections, record=record, record_interval=interval,
@@ -801,25 +800,6 @@ def _check_honest_signals(label: str, oracles: Any, connections: list[Connection
                           "sensor or an estimate, or mark it in oracles = [...]",
                           roles.HonestSignalWarning, stacklevel=3)
     return marked
-
-
-def _check_same_bundle(label: str, components: dict[str, Component]) -> None:
-    """Our FMUs share one Python package, imported once per process from the first FMU loaded:
-    FMUs built at different times would run each other's (older) code. Reject such a mix."""
-    import zipfile
-    from orchestration.build import BUNDLE_ID_FILE
-    ids: dict[str, list[str]] = {}
-    for name, comp in components.items():
-        try:
-            with zipfile.ZipFile(comp.fmu) as z:
-                bundle = z.read(f"resources/fmus/{BUNDLE_ID_FILE}").decode().strip()
-        except (KeyError, OSError, zipfile.BadZipFile):
-            continue                        # not one of ours
-        ids.setdefault(bundle, []).append(name)
-    if len(ids) > 1:
-        groups = "; ".join(f"{', '.join(v)} (build {k[:8]})" for k, v in ids.items())
-        raise ScenarioError(f"{label}: the FMUs were built from different versions of the shared "
-                            f"'fmus' package ({groups}); rebuild them together with `flexfusion build`")
 
 
 def _article(word: str) -> str:

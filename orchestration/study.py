@@ -15,6 +15,7 @@ deadlocks Python 3.11's ``ProcessPoolExecutor`` when jobs are queued, python/cpy
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import multiprocessing
 import os
 import time
@@ -255,4 +256,24 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 __all__ = ["StudyError", "RunArrays", "simulate", "open_executor", "map_jobs",
-           "add_executor_arguments"]
+           "add_executor_arguments", "dataclass_from_scalars"]
+
+
+def dataclass_from_scalars(cls: type, scalars: dict[str, Any]) -> Any:
+    """An instance of a parameter dataclass from a component's scalar FMU parameters
+    (``name`` or ``name[i]``); names that are not fields are ignored, the rest keep defaults."""
+    kw: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        if f.name in scalars:
+            kw[f.name] = scalars[f.name]
+            continue
+        items = {int(k[len(f.name) + 1:-1]): v for k, v in scalars.items()
+                 if k.startswith(f.name + "[") and k.endswith("]")}
+        if items:
+            default = list(f.default) if isinstance(f.default, tuple) else []
+            n = max(len(default), max(items))
+            vals = (default + [0.0] * n)[:n]
+            for i, v in items.items():
+                vals[i - 1] = v
+            kw[f.name] = tuple(vals)
+    return cls(**kw)

@@ -53,8 +53,8 @@ from typing import Any, Sequence
 from fmus.common.parameters import ParameterError, validate
 
 from . import identification as ident
-from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
-from .study_montecarlo import _dataclass_from_scalars
+from .study import (StudyError, add_executor_arguments, dataclass_from_scalars, map_jobs,
+                    open_executor, simulate)
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
 DEFAULT_SCENARIO = SCENARIOS / "identify_experiment.toml"
@@ -127,10 +127,10 @@ def _experiment(name: str, sc: Any, run: Any) -> ident.Experiment:
         if c.parameters.get("sample_rate", 0.0):
             raise StudyError(f"component '{c.name}': the identification needs sample_rate = 0 "
                              "(a sample every step)")
-    imu_p = _dataclass_from_scalars(ImuParameters, imu.parameters)
+    imu_p = dataclass_from_scalars(ImuParameters, imu.parameters)
     return ident.Experiment(
         name, run.time, run[f"{ctrl.name}.tau_m"], run[f"{enc.name}.q_m_meas"], run[f"{imu.name}.acc_s"],
-        _dataclass_from_scalars(MotionControllerParameters, ctrl.parameters),
+        dataclass_from_scalars(MotionControllerParameters, ctrl.parameters),
         acc_cutoff=imu_p.acc_cutoff, acc_filter_order=imu_p.filter_order, g=imu_p.g)
 
 
@@ -138,8 +138,8 @@ def noise_levels(sc: Any) -> ident.NoiseLevels:
     """Whitening levels from the sensors' data-sheet settings in the scenario."""
     from fmus.robot_plant.encoder_fmu import EncoderParameters
     from fmus.robot_plant.imu_fmu import ImuParameters
-    enc = _dataclass_from_scalars(EncoderParameters, _component(sc, "Encoder").parameters)
-    imu = _dataclass_from_scalars(ImuParameters, _component(sc, "Imu").parameters)
+    enc = dataclass_from_scalars(EncoderParameters, _component(sc, "Encoder").parameters)
+    imu = dataclass_from_scalars(ImuParameters, _component(sc, "Imu").parameters)
     return ident.NoiseLevels.of_sensors(enc.noise, enc.resolution, imu.acc_noise, imu.acc_resolution)
 
 
@@ -170,7 +170,7 @@ def plant_truth(sc: Any) -> tuple[Any, bool | None]:
     parameter, i.e. no unmodelled dynamics) - for the report only."""
     from fmus.robot_plant.plant_model import PlantParameters
     plant = _component(sc, "FlexibleRobot2DOF")
-    params = _dataclass_from_scalars(PlantParameters, plant.parameters)
+    params = dataclass_from_scalars(PlantParameters, plant.parameters)
     ideal = getattr(params, "ideal", None) if "ideal" in plant.variables else None
     return params.robot(), ideal
 

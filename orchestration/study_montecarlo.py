@@ -108,26 +108,6 @@ class FilterInfo:
 # ---------------------------------------------------------------------------------------------
 # the scenario's filters and plant
 # ---------------------------------------------------------------------------------------------
-def _dataclass_from_scalars(cls: type, scalars: dict[str, Any]) -> Any:
-    """An instance of a parameter dataclass from a component's scalar FMU parameters
-    (``name`` or ``name[i]``); names that are not fields are ignored, the rest keep defaults."""
-    kw: dict[str, Any] = {}
-    for f in dataclasses.fields(cls):
-        if f.name in scalars:
-            kw[f.name] = scalars[f.name]
-            continue
-        items = {int(k[len(f.name) + 1:-1]): v for k, v in scalars.items()
-                 if k.startswith(f.name + "[") and k.endswith("]")}
-        if items:
-            default = list(f.default) if isinstance(f.default, tuple) else []
-            n = max(len(default), max(items))
-            vals = (default + [0.0] * n)[:n]
-            for i, v in items.items():
-                vals[i - 1] = v
-            kw[f.name] = tuple(vals)
-    return cls(**kw)
-
-
 def _scenario_parts(scenario: str | Path, overrides: Sequence[str]):
     from .scenario import load_scenario
     sc = load_scenario(scenario, tuple(overrides))
@@ -344,11 +324,11 @@ def run_study(scenario: str | Path, runs: int, out: str | Path, overrides: Seque
     model_bounds: dict[str, Any] = {}
     t1 = time.perf_counter()
     if crlb:
-        plant_p = _dataclass_from_scalars(RobotParameters, sc.components[plant].parameters)
+        plant_p = study.dataclass_from_scalars(RobotParameters, sc.components[plant].parameters)
         u0 = results[0]["inputs"]
         cache: dict[tuple, Any] = {}
         for f in filters:
-            p = _dataclass_from_scalars(EkfAccelerometerParameters, f.parameters)
+            p = study.dataclass_from_scalars(EkfAccelerometerParameters, f.parameters)
             for dyn, tag, store in (("physical", "crlb", bounds), ("ekf", "ekf_model_bound", model_bounds)):
                 key = (f.use_accelerometer, p, dyn)
                 if key not in cache:
@@ -370,7 +350,7 @@ def run_study(scenario: str | Path, runs: int, out: str | Path, overrides: Seque
     t2 = time.perf_counter()
     validation = None
     if crlb and validation_runs and ekfs:
-        p = _dataclass_from_scalars(EkfAccelerometerParameters, ekfs[0].parameters)
+        p = study.dataclass_from_scalars(EkfAccelerometerParameters, ekfs[0].parameters)
         try:
             validation = validation_case(p, p.q_jerk, validation_runs, T=T, stop_time=sc.stop_time,
                                          after=after, path=_controller_path(sc), seed=first_seed)

@@ -20,16 +20,9 @@ from toys import write
 SCENARIO = study_identify.DEFAULT_SCENARIO
 
 
-def _has_ideal() -> bool:
-    from orchestration.scenario import fmu_dir, read_variables
-    return "ideal" in read_variables(fmu_dir() / "FlexibleRobot2DOF.fmu")[2]
-
-
-#: noise-free sensors and, once the plant has realism features, the ideal plant
-# noise-free, calibrated sensors on the ideal plant (the model's own structure)
+#: noise-free, calibrated sensors on the ideal plant (the model's own structure)
 NOISE_FREE = ["encoder.noise=0", "encoder.resolution=0", "imu.acc_noise=0", "imu.acc_resolution=0",
-              "imu.acc_bias_rw=0", "imu.mount_rpy=[0, 0, 0]", "imu.acc_scale=[0, 0, 0]"] + (
-                  ["plant.ideal=true"] if _has_ideal() else [])
+              "imu.acc_bias_rw=0", "imu.mount_rpy=[0, 0, 0]", "imu.acc_scale=[0, 0, 0]", "plant.ideal=true"]
 
 
 # ---- the study, through the FMUs -----------------------------------------------------------
@@ -93,8 +86,6 @@ def test_bad_working_point_is_one_error(tmp_path, capsys):
     assert "--prefilter -1: prefilter cut-off must be a frequency >= 0 Hz" in capsys.readouterr().err
 
 
-@pytest.mark.skipif(not _has_ideal(), reason="the plant FMU has no parameter 'ideal' yet (no unmodelled "
-                    "dynamics to identify against): this test needs the realistic plant")
 def test_realistic_plant_gives_biased_estimates_and_says_so(tmp_path):
     """Unmodelled dynamics (elastic mode, torque ripple, torque-constant error) bias the fit,
     and identify.json says which estimates and why (a fit that fails to converge on it still

@@ -4,7 +4,7 @@ from __future__ import annotations
 from fmus.common import kinematics
 from fmus.common.fmi import FlexFusionSlave
 from fmus.estimators.rigid_kinematics_model import RigidKinematicsParameters, arm_angles
-from fmus.estimators.sample_time import T_MEAS_DESCRIPTION, TIME_TOL, UNSTAMPED, measurement_time
+from fmus.common.sample_time import T_MEAS_DESCRIPTION, TIME_TOL, UNSTAMPED, measurement_time
 
 
 class RigidKinematics(FlexFusionSlave):

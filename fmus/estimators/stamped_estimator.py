@@ -1,7 +1,7 @@
 """The FMU base of the filters that fuse each measurement at the time it was taken.
 
 The sensors publish ``t_meas``, the time their held sample was taken; a filter takes it as an
-optional input of the same name (:mod:`fmus.estimators.sample_time`). Design: the filter's state
+optional input of the same name (:mod:`fmus.common.sample_time`). Design: the filter's state
 stays anchored at the last fused measurement. For a measurement stamped ``t_meas``, newer than
 that, the filter predicts from the anchor to ``t_meas``, updates, and outputs the prediction from
 there to the current time. A measurement that arrives late (a Jacobi master such as libcosim
@@ -25,7 +25,7 @@ import math
 from typing import Any
 
 from fmus.common.fmi import FlexFusionSlave
-from fmus.estimators.sample_time import (T_MEAS_DESCRIPTION, TIME_TOL, UNSTAMPED, intervals,
+from fmus.common.sample_time import (T_MEAS_DESCRIPTION, TIME_TOL, UNSTAMPED, intervals,
                                          measurement_time)
 
 

@@ -18,6 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from fmus.common.noise import make_rng, random_walk_increment, white_noise
+from fmus.common.sample_time import UNSTAMPED, measurement_time
 
 G = 9.81
 
@@ -25,8 +26,6 @@ G = 9.81
 # ---------------------------------------------------------------------------------------------
 # Sample time
 # ---------------------------------------------------------------------------------------------
-UNSTAMPED = -1.0     # start value of a sensor's t_truth input: unconnected (the estimators' t_meas
-                     # input has the same convention, fmus.estimators.sample_time.UNSTAMPED)
 T_TRUTH_DESCRIPTION = ("time the truth inputs stand for, stamped by their producer (the plant's "
                        "t_state); unconnected (negative): the end of the step")
 
@@ -45,7 +44,7 @@ def input_time(t: float, dt: float, t_truth: float = UNSTAMPED) -> float:
     apart from its inputs. ``input_time(t_start, 0.0, t_truth)`` is the stamp in Initialization
     Mode.
     """
-    return t_truth if t_truth >= 0.0 else t + dt
+    return measurement_time(t_truth, t + dt)
 
 
 # ---------------------------------------------------------------------------------------------

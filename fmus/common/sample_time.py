@@ -1,5 +1,6 @@
-"""Sample-time fusion: what every estimator FMU needs to fuse a measurement at the time it was
-taken, whatever the master's coupling scheme (plain functions and constants).
+"""Sample times: the one convention by which sensors stamp their samples and estimators fuse
+each measurement at the time it was taken, whatever the master's coupling scheme (plain
+functions and constants, shared by both sides).
 
 The sensors publish ``t_meas``, the time their held sample was taken
 (:func:`fmus.robot_plant.sensor_model.input_time`); an estimator takes it as an optional input
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 from fmus.common.fmi import _nominal_step
 
-UNSTAMPED = -1.0     # the start value of an estimator's t_meas input: unconnected
+UNSTAMPED = -1.0     # start value of a stamp input (a sensor's t_truth, an estimator's t_meas): unconnected
 TIME_TOL = 1e-9      # s: two times closer than this are one instant (hosts round times)
 T_MEAS_DESCRIPTION = ("time the measurement inputs were sampled (the sensors' t_meas); "
                       "unconnected (negative): they count as the measurement at the end of the step")

@@ -7,8 +7,9 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 EXIT_USER_ERROR = 2
 
@@ -23,14 +24,27 @@ def _show_warning(message: Any, category: Any, filename: str, lineno: int, file:
     print(f"warning: {message}", file=sys.stderr)
 
 
+@contextmanager
+def loaded(path: Path, overrides: list[str] | tuple[str, ...] = ()) -> Iterator[Any]:
+    """The scenario of a TOML file, or of an SSP package (``.ssp``, ``.ssd``), whose FMUs exist
+    while the context lasts."""
+    if path.suffix.lower() in (".ssp", ".ssd"):
+        from .ssp import load_ssp, opened
+        with opened(path) as ssd:
+            yield load_ssp(path, ssd, overrides)
+    else:
+        from .scenario import load_scenario
+        yield load_scenario(path, overrides)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from .master import RunError, run
-    from .scenario import ScenarioError, load_scenario
+    from .scenario import ScenarioError
 
     try:
-        scenario = load_scenario(args.scenario, args.set or ())
-        out = args.out or Path("results") / scenario.name
-        result = run(scenario, out_dir=out, progress=not args.no_progress)
+        with loaded(args.scenario, args.set or ()) as scenario:
+            out = args.out or Path("results") / scenario.name
+            result = run(scenario, out_dir=out, progress=not args.no_progress)
     except (ScenarioError, RunError) as exc:
         msg = str(exc)
         out_dir = getattr(exc, "out_dir", None)
@@ -126,35 +140,19 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
-def export_ssp(scenario_path: Path, out: Path, overrides: list[str] | tuple[str, ...] = ()) -> Path:
+def export_ssp(scenario_path: Path, out: Path, overrides: list[str] | tuple[str, ...] = (),
+               host: str = "libcosim") -> Path:
     """Write a scenario as an SSP package (see :mod:`orchestration.ssp`)."""
     from .scenario import load_scenario
-    from .ssp import SspComponent, write_ssp
+    from .ssp import export_scenario
 
-    sc = load_scenario(scenario_path, overrides)
-    inputs: dict[str, list[str]] = {n: [] for n in sc.components}
-    outputs: dict[str, list[str]] = {n: [] for n in sc.components}
-    conns: list[tuple[str, str, str, str]] = []
-    for c in sc.connections:
-        for s, d in c.pairs:
-            if s not in outputs[c.src]:
-                outputs[c.src].append(s)
-            inputs[c.dst].append(d)
-            conns.append((c.src, s, c.dst, d))
-    for col in sc.record_columns():        # recorded outputs are connectors too
-        cname, var = col.split(".", 1)
-        info = sc.components[cname].variables[var]
-        if info.causality == "output" and var not in outputs[cname]:
-            outputs[cname].append(var)
-    comps = [SspComponent(c.name, c.fmu, c.step, dict(c.parameters), inputs[c.name], outputs[c.name])
-             for c in sc.components.values()]
-    return write_ssp(out, sc.name, comps, conns, sc.base_step, sc.stop_time)
+    return export_scenario(load_scenario(scenario_path, overrides), out, host)
 
 
 def cmd_export_ssp(args: argparse.Namespace) -> int:
     from .scenario import ScenarioError
     try:
-        path = export_ssp(Path(args.scenario), Path(args.output), args.set or ())
+        path = export_ssp(Path(args.scenario), Path(args.output), args.set or (), args.host)
     except ScenarioError as exc:
         return _error(str(exc))
     except OSError as exc:
@@ -169,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("build", help="build and validate every FMU into dist/fmus", add_help=False)
 
     p_run = sub.add_parser("run", help="run a scenario: results.csv, metrics.json, run.json")
-    p_run.add_argument("scenario", type=Path, help="scenario file (TOML)")
+    p_run.add_argument("scenario", type=Path, help="scenario file (TOML), or an SSP package (.ssp, .ssd)")
     p_run.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE",
                        help="override a parameter (repeatable); also scenario.seed=N, scenario.stop_time=T")
     p_run.add_argument("--out", type=Path, help="output folder (default results/<scenario name>)")
@@ -182,6 +180,9 @@ def main(argv: list[str] | None = None) -> int:
     p_ssp.add_argument("scenario", type=Path, help="scenario file (TOML)")
     p_ssp.add_argument("-o", "--output", required=True, type=Path, help="the .ssp file to write")
     p_ssp.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE", help="override a parameter")
+    p_ssp.add_argument("--host", choices=("libcosim", "omsimulator"), default="libcosim",
+                       help="the engine's annotations: libcosim (default) gives each component with "
+                            "its own step an osp:StepSizeHint, which OMSimulator rejects")
 
     p_study = sub.add_parser("study", help="studies: Monte Carlo, tuning, robustness, ...")
     kinds = p_study.add_subparsers(dest="study", required=True, metavar="KIND")

@@ -246,3 +246,171 @@ def test_parameters_from_a_parameter_set_are_bound(tmp_path):
              if p[0].tag.endswith("Real")}
     assert bound[("slow", "slope")] == 3.5 and bound[("src", "slope")] == 2.0
     assert bound[("g", "gain")] == 3.0            # the component's own value wins over the set
+
+
+# ---- the SSP 1.0 schemas, OMSimulator's annotations -----------------------------------------
+SCHEMAS = Path(__file__).parent / "data" / "ssp1"
+
+
+def _schema(*names: str):
+    """The SSP 1.0 schemas ``names`` in one validator (an inline ssv:ParameterSet, admitted by
+    the SSD schema as lax content, is validated when the SSV schema is imported too)."""
+    from lxml import etree
+    ns = {"SystemStructureDescription": NS["ssd"], "SystemStructureParameterValues": NS["ssv"]}
+    imports = "".join(f'<xs:import namespace="{ns[n]}" schemaLocation="{(SCHEMAS / n).as_uri()}.xsd"/>'
+                      for n in names)
+    return etree.XMLSchema(etree.fromstring(
+        f'<xs:schema xmlns:xs="http://www.w3.org/2001/XMLSchema">{imports}</xs:schema>'.encode()))
+
+
+def assert_valid_ssp(ssp: Path) -> None:
+    """Every SSD and SSV of the package is valid against the SSP 1.0 schemas."""
+    from lxml import etree
+    ssd = _schema("SystemStructureDescription", "SystemStructureParameterValues")
+    ssv = _schema("SystemStructureParameterValues")
+    with zipfile.ZipFile(ssp) as z:
+        for name in z.namelist():
+            if name.endswith((".ssd", ".ssv")):
+                doc = etree.fromstring(z.read(name))
+                schema = ssd if name.endswith(".ssd") else ssv
+                assert schema.validate(doc), f"{ssp.name}/{name}: {schema.error_log}"
+
+
+def test_the_schemas_reject_a_broken_ssd_and_a_bad_inline_parameter_value(tmp_path):
+    from lxml import etree
+    ssp = export(tmp_path, write(tmp_path, CHAIN))
+    assert_valid_ssp(ssp)
+    text = zipfile.ZipFile(ssp).read("SystemStructure.ssd").decode()
+    schema = _schema("SystemStructureDescription", "SystemStructureParameterValues")
+    for broken in (text.replace('<ssd:Component name="g" ', '<ssd:Component '),        # name required
+                   text.replace('<ssv:Real value="3.0" />', '<ssv:Real value="three" />'),   # inline ssv
+                   text.replace('kind="input"', 'kind="sideways"', 1)):                    # enumeration
+        assert broken != text
+        assert not schema.validate(etree.fromstring(broken.encode()))
+
+
+def test_omsimulator_export_has_its_annotations_first_and_no_component_annotations(tmp_path, capsys):
+    path = write(tmp_path, CHAIN)
+    out = tmp_path / "oms.ssp"
+    assert main(["export-ssp", str(path), "-o", str(out), "--host", "omsimulator"]) == 0
+    warned = capsys.readouterr().err
+    assert "warning: OMSimulator takes no step size per component: m, slow" in warned
+    assert "(ssv:String): src.label" in warned
+    assert_valid_ssp(out)
+    root = ET.fromstring(zipfile.ZipFile(out).read("SystemStructure.ssd"))
+
+    def first_annotation(el):
+        return el.find(f"{{{NS['ssd']}}}Annotations/{{{NS['ssc']}}}Annotation")
+
+    system = root.find(f"{{{NS['ssd']}}}System")
+    for el in (system, root.find(f"{{{NS['ssd']}}}DefaultExperiment")):
+        assert first_annotation(el).get("type") == "org.openmodelica"
+    master = first_annotation(system).find(
+        f"{{{NS['oms']}}}Annotations/{{{NS['oms']}}}SimulationInformation/{{{NS['oms']}}}FixedStepMaster")
+    assert float(master.get("stepSize")) == 0.001 and master.get("description") == "oms-ma"
+    assert not [c for c in root.iter(f"{{{NS['ssd']}}}Component") if c.find(f"{{{NS['ssd']}}}Annotations")]
+
+
+# ---- archive names and packed files ----------------------------------------------------------
+def test_two_different_fmus_with_one_file_name_get_unique_archive_names(tmp_path, toy_dir):
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "Gain.fmu").write_bytes((toy_dir / "MassSpring.fmu").read_bytes())
+    text = CHAIN.replace('[components.slow]\nfmu = "Source"', '[components.slow]\nfmu = "other/Gain.fmu"')
+    text = text.replace('"slow.n", "slow.t_s"', '"slow.x"')
+    path = write(tmp_path, text)
+    ssp = export(tmp_path, path)
+    assert_valid_ssp(ssp)
+    with zipfile.ZipFile(ssp) as z:
+        assert z.read("resources/Gain.fmu") == (toy_dir / "Gain.fmu").read_bytes()
+        assert z.read("resources/Gain_2.fmu") == (other / "Gain.fmu").read_bytes()
+        sources = {c.get("name"): c.get("source") for c in ET.fromstring(z.read("SystemStructure.ssd")).iter(
+            f"{{{NS['ssd']}}}Component")}
+    assert sources["g"] == "resources/Gain.fmu" and sources["slow"] == "resources/Gain_2.fmu"
+    assert main(["run", str(ssp), "--out", str(tmp_path / "ssp"), "--no-progress"]) == 0
+    assert main(["run", str(path), "--out", str(tmp_path / "toml"), "--no-progress"]) == 0
+    assert (tmp_path / "ssp" / "results.csv").read_bytes() == (tmp_path / "toml" / "results.csv").read_bytes()
+
+
+def _every_fmu_dir(tmp_path_factory, monkeypatch) -> Path:
+    """Scenarios find the FlexFusion FMUs (built once per test process)."""
+    from fmu_host import every_fmu
+    folder = every_fmu(tmp_path_factory)[0].parent
+    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(folder))
+    return folder
+
+
+def _same_run(a: Path, b: Path) -> None:
+    """Two run folders hold the same results, bit for bit, and the same metrics."""
+    assert (a / "results.csv").read_bytes() == (b / "results.csv").read_bytes()
+    assert json.loads((a / "metrics.json").read_text()) == json.loads((b / "metrics.json").read_text())
+    assert json.loads((a / "run.json").read_text())["status"] == "ok"
+
+
+def test_a_packed_csv_file_is_bound_by_a_relative_uri_and_the_package_runs_as_the_scenario(
+        tmp_path, tmp_path_factory, monkeypatch):
+    _every_fmu_dir(tmp_path_factory, monkeypatch)
+    scenario = REPO / "orchestration" / "scenarios" / "contact_raw.toml"
+    ssp = tmp_path / "contact.ssp"
+    assert main(["export-ssp", str(scenario), "-o", str(ssp)]) == 0
+    assert_valid_ssp(ssp)
+    with zipfile.ZipFile(ssp) as z:
+        assert z.read("resources/contact_wall.csv") == (scenario.parent / "paths" / "contact_wall.csv").read_bytes()
+        root = ET.fromstring(z.read("SystemStructure.ssd"))
+    bound = {(c.get("name"), p.get("name")): p[0].get("value") for c in root.iter(f"{{{NS['ssd']}}}Component")
+             for p in c.iter(f"{{{NS['ssv']}}}Parameter")}
+    assert bound[("path", "csv_file")] == bound[("controller", "csv_file")] == "resources/contact_wall.csv"
+    short = ["--set", "scenario.stop_time=0.05", "--no-progress"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CouplingWarning)
+        assert main(["run", str(ssp), "--out", str(tmp_path / "ssp"), *short]) == 0
+        assert main(["run", str(scenario), "--out", str(tmp_path / "toml"), *short]) == 0
+    _same_run(tmp_path / "ssp", tmp_path / "toml")
+
+
+def test_a_file_parameter_naming_no_file_is_refused_with_one_error(tmp_path, tmp_path_factory, monkeypatch,
+                                                                   capsys):
+    _every_fmu_dir(tmp_path_factory, monkeypatch)
+    scenario = REPO / "orchestration" / "scenarios" / "contact_raw.toml"
+    out = tmp_path / "x.ssp"
+    status = main(["export-ssp", str(scenario), "-o", str(out), "--set", 'path.csv_file="paths/nowhere.csv"'])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and not out.exists()
+    assert err[0].startswith("error: component 'path': parameter 'csv_file' names") and "nowhere.csv" in err[0]
+
+
+# ---- import: our own packages round-trip ---------------------------------------------------
+def test_the_chain_round_trips_bit_for_bit_with_its_metrics_and_a_seed_override(tmp_path):
+    text = CHAIN + """
+[[metrics]]
+kind = "rmse"
+name = "gain_vs_source"
+estimate = "g.yv"
+truth = "src.ys"
+after = 0.05
+"""
+    path = write(tmp_path, text)
+    ssp = export(tmp_path, path)
+    for tag, seed in (("", []), ("_5", ["--set", "scenario.seed=5"])):
+        assert main(["run", str(ssp), "--out", str(tmp_path / f"ssp{tag}"), "--no-progress", *seed]) == 0
+        assert main(["run", str(path), "--out", str(tmp_path / f"toml{tag}"), "--no-progress", *seed]) == 0
+        _same_run(tmp_path / f"ssp{tag}", tmp_path / f"toml{tag}")
+    assert json.loads((tmp_path / "ssp" / "metrics.json").read_text())["gain_vs_source"]["value"] > 0
+    # the seed override reaches the components whose seed the package bound from the scenario seed
+    assert (tmp_path / "ssp" / "results.csv").read_bytes() != (tmp_path / "ssp_5" / "results.csv").read_bytes()
+
+
+def test_the_flagship_round_trips_bit_for_bit(tmp_path, tmp_path_factory, monkeypatch):
+    _every_fmu_dir(tmp_path_factory, monkeypatch)
+    scenario = REPO / "orchestration" / "scenarios" / "flagship.toml"
+    ssp = tmp_path / "flagship.ssp"
+    assert main(["export-ssp", str(scenario), "-o", str(ssp)]) == 0
+    assert_valid_ssp(ssp)
+    short = ["--set", "scenario.stop_time=0.6", "--no-progress"]     # the metrics start at 0.5 s
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CouplingWarning)
+        assert main(["run", str(ssp), "--out", str(tmp_path / "ssp"), *short]) == 0
+        assert main(["run", str(scenario), "--out", str(tmp_path / "toml"), *short]) == 0
+    _same_run(tmp_path / "ssp", tmp_path / "toml")
+    metrics = json.loads((tmp_path / "ssp" / "metrics.json").read_text())
+    assert 0 < metrics["ekf_position_rmse"]["value"] < 1e-3

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import warnings
@@ -414,3 +415,183 @@ def test_the_flagship_round_trips_bit_for_bit(tmp_path, tmp_path_factory, monkey
     _same_run(tmp_path / "ssp", tmp_path / "toml")
     metrics = json.loads((tmp_path / "ssp" / "metrics.json").read_text())
     assert 0 < metrics["ekf_position_rmse"]["value"] < 1e-3
+
+
+# ---- import: an SSP written by hand, in another tool's style ----------------------------------
+# default namespace for ssd, other prefixes, a component without a type, parameters in .ssv files
+# and on the system (names component.parameter), OMSimulator's step annotation, libcosim's hint
+HANDMADE = """<?xml version="1.0" encoding="UTF-8"?>
+<SystemStructureDescription xmlns="http://ssp-standard.org/SSP1/SystemStructureDescription"
+    xmlns:c="http://ssp-standard.org/SSP1/SystemStructureCommon"
+    xmlns:pv="http://ssp-standard.org/SSP1/SystemStructureParameterValues"
+    xmlns:o="https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd"
+    xmlns:a="https://opensimulationplatform.com/SSP/OSPAnnotations"
+    name="handmade" version="1.0" generationTool="a text editor">
+  <System name="root">
+    <ParameterBindings>
+      <ParameterBinding source="resources/root.ssv"/>
+    </ParameterBindings>
+    <Elements>
+      <Component name="source" source="resources/Source.fmu">
+        <Connectors>
+          <Connector name="y" kind="output"><c:Real/></Connector>
+          <Connector name="ys[1]" kind="output"><c:Real/></Connector>
+          <Connector name="ys[2]" kind="output"><c:Real/></Connector>
+        </Connectors>
+        <ParameterBindings>
+          <ParameterBinding source="resources/source.ssv"/>
+        </ParameterBindings>
+      </Component>
+      <Component name="gain" type="application/x-fmu-sharedlibrary" source="resources/Gain.fmu">
+        <ParameterBindings>
+          <ParameterBinding>
+            <ParameterValues>
+              <pv:ParameterSet version="1.0" name="gain">
+                <pv:Parameters>
+                  <pv:Parameter name="gain"><pv:Real value="-1.5"/></pv:Parameter>
+                  <pv:Parameter name="offset"><pv:Real value="9"/></pv:Parameter>
+                </pv:Parameters>
+              </pv:ParameterSet>
+            </ParameterValues>
+          </ParameterBinding>
+        </ParameterBindings>
+      </Component>
+      <Component name="spring" source="resources/MassSpring.fmu">
+        <ParameterBindings>
+          <ParameterBinding>
+            <ParameterValues>
+              <pv:ParameterSet version="1.0" name="spring">
+                <pv:Parameters>
+                  <pv:Parameter name="k"><pv:Real value="4"/></pv:Parameter>
+                  <pv:Parameter name="kc"><pv:Real value="2"/></pv:Parameter>
+                </pv:Parameters>
+              </pv:ParameterSet>
+            </ParameterValues>
+          </ParameterBinding>
+        </ParameterBindings>
+        <Annotations>
+          <c:Annotation type="com.opensimulationplatform"><a:StepSizeHint value="0.004"/></c:Annotation>
+        </Annotations>
+      </Component>
+      <Component name="sink" source="resources/Gain.fmu"/>
+    </Elements>
+    <Connections>
+      <Connection startElement="source" startConnector="ys[1]" endElement="gain" endConnector="uv[1]"/>
+      <Connection startElement="source" startConnector="ys[2]" endElement="gain" endConnector="uv[2]"/>
+      <Connection startElement="source" startConnector="y" endElement="gain" endConnector="u"/>
+      <Connection startElement="gain" startConnector="y" endElement="sink" endConnector="u"/>
+    </Connections>
+    <Annotations>
+      <c:Annotation type="org.openmodelica">
+        <o:Annotations><o:SimulationInformation>
+          <o:FixedStepMaster description="oms-ma" stepSize="0.002" absoluteTolerance="0.0001" relativeTolerance="0.0001"/>
+        </o:SimulationInformation></o:Annotations>
+      </c:Annotation>
+    </Annotations>
+  </System>
+  <DefaultExperiment startTime="0.0" stopTime="0.048"/>
+</SystemStructureDescription>
+"""
+SSV = """<?xml version="1.0" encoding="UTF-8"?>
+<p2:ParameterSet xmlns:p2="http://ssp-standard.org/SSP1/SystemStructureParameterValues" version="1.0" name="{name}">
+  <p2:Parameters>{parameters}</p2:Parameters>
+</p2:ParameterSet>
+"""
+SOURCE_SSV = SSV.format(name="source", parameters="""
+    <p2:Parameter name="slope"><p2:Real value="2"/></p2:Parameter>
+    <p2:Parameter name="seed"><p2:Integer value="7"/></p2:Parameter>
+    <p2:Parameter name="enabled"><p2:Boolean value="false"/></p2:Parameter>
+    <p2:Parameter name="label"><p2:String value="abc"/></p2:Parameter>""")
+ROOT_SSV = SSV.format(name="root", parameters="""
+    <p2:Parameter name="gain.offset"><p2:Real value="0.5"/></p2:Parameter>""")
+# the same system as a scenario file
+HANDMADE_TOML = """
+connections = ["source.ys -> gain.uv", "source.y -> gain.u", "gain.y -> sink.u"]
+[scenario]
+name = "handmade"
+stop_time = 0.048
+base_step = 0.002
+[components.source]
+fmu = "Source"
+parameters = { slope = 2.0, seed = 7, enabled = false, label = "abc" }
+[components.gain]
+fmu = "Gain"
+parameters = { gain = -1.5, offset = 0.5 }
+[components.spring]
+fmu = "MassSpring"
+step = 0.004
+parameters = { k = 4.0, kc = 2.0 }
+[components.sink]
+fmu = "Gain"
+"""
+
+
+def handmade(tmp_path: Path, toy_dir: Path, edit=lambda text: text, name: str = "handmade.ssp") -> Path:
+    """The hand-written package, its SSD changed by ``edit``."""
+    out = tmp_path / name
+    with zipfile.ZipFile(out, "w") as z:
+        z.writestr("SystemStructure.ssd", edit(HANDMADE))
+        z.writestr("resources/source.ssv", SOURCE_SSV)
+        z.writestr("resources/root.ssv", ROOT_SSV)
+        for fmu in ("Source", "Gain", "MassSpring"):
+            z.write(toy_dir / f"{fmu}.fmu", f"resources/{fmu}.fmu")
+    return out
+
+
+def test_a_hand_written_ssp_in_another_tools_style_runs_as_its_scenario(tmp_path, toy_dir):
+    from orchestration.ssp import load_ssp, opened
+    ssp = handmade(tmp_path, toy_dir)
+    assert_valid_ssp(ssp)        # the hand-written package is standard SSP 1.0
+    with opened(ssp) as ssd:
+        sc = load_ssp(ssp, ssd)
+    assert sc.components["source"].parameters == {"slope": 2.0, "seed": 7, "enabled": False, "label": "abc"}
+    assert sc.components["gain"].parameters == {"gain": -1.5, "offset": 0.5}   # the system's value wins
+    assert (sc.base_step, sc.components["spring"].step, sc.stop_time) == (0.002, 0.004, 0.048)
+    assert [str(c) for c in sc.connections] == ["source.ys -> gain.uv", "source.y -> gain.u",
+                                                "gain.y -> sink.u"]
+    assert main(["run", str(ssp), "--out", str(tmp_path / "ssp"), "--no-progress"]) == 0
+    assert main(["run", str(write(tmp_path, HANDMADE_TOML)), "--out", str(tmp_path / "toml"),
+                 "--no-progress"]) == 0
+    _same_run(tmp_path / "ssp", tmp_path / "toml")
+    from orchestration.results import Result
+    r = Result.load(tmp_path / "ssp")
+    assert_allclose(r.time, 0.002 * np.arange(25), rtol=0, atol=1e-15)
+    assert_allclose(r["gain.y"], -1.5 * 2.0 * r.time + 0.5, rtol=0, atol=1e-14)
+
+
+def test_without_step_annotations_the_base_step_is_the_documented_default(tmp_path, toy_dir):
+    from orchestration.ssp import DEFAULT_BASE_STEP, load_ssp, opened
+    ssp = handmade(tmp_path, toy_dir, lambda t: re.sub(r"<Annotations>.*?</Annotations>", "", t, flags=re.S))
+    with opened(ssp) as ssd:
+        sc = load_ssp(ssp, ssd)
+    assert DEFAULT_BASE_STEP == 0.001
+    assert sc.base_step == DEFAULT_BASE_STEP and sc.components["spring"].step == DEFAULT_BASE_STEP
+
+
+@pytest.mark.parametrize("edit, cause", [
+    (lambda t: t.replace("resources/Gain.fmu", "resources/Nope.fmu"),
+     "component 'gain': FMU 'resources/Nope.fmu' is not in the package"),
+    (lambda t: t.replace('startElement="gain"', 'startElement="nobody"'),
+     "connection nobody.y -> sink.u: no element 'nobody'"),
+    (lambda t: t.replace('endConnector="u"', 'endConnector="w"'),
+     "component 'gain' (Gain) has no variable 'w'"),
+    (lambda t: t.replace('<Connector name="y" kind="output">', '<Connector name="why" kind="output">'),
+     "component 'source': connector 'why' is not a variable of resources/Source.fmu"),
+    (lambda t: t.replace('name="gain"><pv:Real', 'name="gian"><pv:Real'),
+     "component 'gain' has no parameter 'gian'"),
+    (lambda t: t.replace("<Elements>", "<Elements><Connector>"), "malformed XML"),
+    (lambda t: t.replace('startTime="0.0"', 'startTime="1.0"'), "startTime = 1: our master starts at 0"),
+])
+def test_a_malformed_ssp_ends_in_one_error_line(tmp_path, toy_dir, capsys, edit, cause):
+    ssp = handmade(tmp_path, toy_dir, edit)
+    assert main(["run", str(ssp), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {ssp}: ") and cause in err[0], err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_file_that_is_no_package_ends_in_one_error_line(tmp_path, capsys):
+    bad = tmp_path / "x.ssp"
+    bad.write_text("not a zip")
+    assert main(["run", str(bad)]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {bad}: not an SSP package (not a zip archive)"

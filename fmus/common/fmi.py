@@ -96,7 +96,7 @@ _NOT_STATE = frozenset({"vars", "log_queue", "instance_name", "resources", "visi
 _BOUND = "flexfusion.bound"   # deepcopy memo key: the live objects _Bound names stand for
 
 
-def _nominal_step(h: float) -> float:
+def nominal_step(h: float) -> float:
     """The communication step rounded to 12 significant digits.
 
     Hosts differ in the last bits of the step they pass: fmpy's ``simulate_fmu`` passes
@@ -398,7 +398,7 @@ class FlexFusionSlave(Fmi2Slave):
             self.log(msg, Fmi2Status.error)
             raise ValueError(msg)           # an FMI error status, not a Discard
         if step_size != self._host_step:
-            self._host_step, self._step = step_size, _nominal_step(step_size)
+            self._host_step, self._step = step_size, nominal_step(step_size)
         try:
             if self.nan_inputs == "error":
                 self._check_inputs(current_time)
@@ -535,4 +535,4 @@ class FlexFusionSlave(Fmi2Slave):
         return root
 
 
-__all__ = ["FlexFusionSlave", "known_units"]
+__all__ = ["FlexFusionSlave", "known_units", "nominal_step"]

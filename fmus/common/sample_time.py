@@ -10,7 +10,7 @@ convention under a Gauss-Seidel master, ours).
 """
 from __future__ import annotations
 
-from fmus.common.fmi import _nominal_step
+from fmus.common.fmi import nominal_step
 
 UNSTAMPED = -1.0     # start value of a stamp input (a sensor's t_truth, an estimator's t_meas): unconnected
 TIME_TOL = 1e-9      # s: two times closer than this are one instant (hosts round times)
@@ -27,12 +27,12 @@ def intervals(t0: float, t1: float, step: float) -> tuple[int, float]:
     """The prediction from ``t0`` to ``t1`` as ``n`` equal intervals of about ``step`` (the
     estimator's sample period: its discrete model and noise are per sample), ``(n, length)``.
 
-    The length is rounded as :func:`fmus.common.fmi._nominal_step` rounds the host's step, so
+    The length is rounded as :func:`fmus.common.fmi.nominal_step` rounds the host's step, so
     one interval of one communication step has the same bits as the step itself.
     """
     span = t1 - t0
     n = max(1, round(span / step)) if step > 0.0 else 1     # NaN before the first step: 1
-    return n, _nominal_step(span / n)
+    return n, nominal_step(span / n)
 
 
 __all__ = ["UNSTAMPED", "TIME_TOL", "T_MEAS_DESCRIPTION", "measurement_time", "intervals"]

@@ -137,11 +137,12 @@ def system_structure(name: str, components: list[SspComponent],
         source = (sources or {}).get(comp.name, f"resources/{comp.fmu.name}")
         el = SubElement(elements, _q("ssd", "Component"), name=comp.name,
                         type="application/x-fmu-sharedlibrary", source=source)
-        connectors = SubElement(el, _q("ssd", "Connectors"))
-        for kind, names in (("input", comp.inputs), ("output", comp.outputs)):
-            for var in names:
-                c = SubElement(connectors, _q("ssd", "Connector"), name=var, kind=kind)
-                SubElement(c, _q("ssc", "Real"))
+        if comp.inputs or comp.outputs:
+            connectors = SubElement(el, _q("ssd", "Connectors"))
+            for kind, names in (("input", comp.inputs), ("output", comp.outputs)):
+                for var in names:
+                    c = SubElement(connectors, _q("ssd", "Connector"), name=var, kind=kind)
+                    SubElement(c, _q("ssc", "Real"))
         if comp.parameters:
             bindings = SubElement(el, _q("ssd", "ParameterBindings"))
             binding = SubElement(bindings, _q("ssd", "ParameterBinding"))
@@ -150,7 +151,7 @@ def system_structure(name: str, components: list[SspComponent],
             params = SubElement(pset, _q("ssv", "Parameters"))
             for pname, pvalue in comp.parameters.items():
                 _value_element(SubElement(params, _q("ssv", "Parameter"), name=pname), pvalue)
-        if host == "libcosim" and abs(comp.step - base_step) > 1e-12 * base_step:
+        if host == "libcosim" and _own_step(comp.step, base_step):
             SubElement(_annotation(el, OSP_ANNOTATION), _q("osp", "StepSizeHint"), value=repr(comp.step))
     conns = SubElement(system, _q("ssd", "Connections"))
     for src, svar, dst, dvar in connections:
@@ -171,6 +172,11 @@ def system_structure(name: str, components: list[SspComponent],
     if scenario is not None:
         _write_flexfusion(_annotation(experiment, FF_ANNOTATION), scenario)
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
+
+
+def _own_step(step: float, base_step: float) -> bool:
+    """Whether a component's communication step is not the base step."""
+    return abs(step - base_step) > 1e-12 * base_step
 
 
 _METRIC_KEYS = ("kind", "name", "estimate", "truth", "truth_time", "after", "low", "high", "order")
@@ -262,7 +268,7 @@ def export_scenario(sc: Scenario, out: Path, host: str = "libcosim") -> Path:
 
 
 def _warn_omsimulator(sc: Scenario, comps: list[SspComponent]) -> None:
-    multirate = [c.name for c in comps if c.step != sc.base_step]
+    multirate = [c.name for c in comps if _own_step(c.step, sc.base_step)]
     if multirate:
         warnings.warn(f"OMSimulator takes no step size per component: {', '.join(multirate)} will be "
                       f"stepped at the base step {sc.base_step:g} s there instead of their own",
@@ -515,7 +521,10 @@ def ssp_document(ssd: Path, label: str) -> dict[str, Any]:
 
     ours = [e for e in _annotations(experiment, FF_ANNOTATION) if e.tag == _q("ff", "Scenario")]
     if ours:
-        _read_flexfusion(ours[0], doc, declared)
+        try:
+            _read_flexfusion(ours[0], doc, declared)
+        except (TypeError, ValueError) as exc:
+            raise ScenarioError(f"{label}: malformed {FF_ANNOTATION} annotation: {exc}") from None
     for name, params in declared.items():
         for pname, value in params.items():     # packed files: relative to the package
             if pname.endswith("_file") and isinstance(value, str) and value and not Path(value).is_absolute():

@@ -549,6 +549,13 @@ def test_a_hand_written_ssp_in_another_tools_style_runs_as_its_scenario(tmp_path
     assert (sc.base_step, sc.components["spring"].step, sc.stop_time) == (0.002, 0.004, 0.048)
     assert [str(c) for c in sc.connections] == ["source.ys -> gain.uv", "source.y -> gain.u",
                                                 "gain.y -> sink.u"]
+    with zipfile.ZipFile(ssp) as z:           # unpacked, as a .ssd beside its resources
+        z.extractall(tmp_path / "unpacked")
+    unpacked = tmp_path / "unpacked" / "SystemStructure.ssd"
+    with opened(unpacked) as ssd:
+        again = load_ssp(unpacked, ssd)
+    assert ({n: (c.parameters, c.step) for n, c in again.components.items()}
+            == {n: (c.parameters, c.step) for n, c in sc.components.items()})
     assert main(["run", str(ssp), "--out", str(tmp_path / "ssp"), "--no-progress"]) == 0
     assert main(["run", str(write(tmp_path, HANDMADE_TOML)), "--out", str(tmp_path / "toml"),
                  "--no-progress"]) == 0

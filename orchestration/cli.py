@@ -162,6 +162,8 @@ def cmd_export_ssp(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from .ssp import HOSTS
+
     parser = argparse.ArgumentParser(prog="flexfusion", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("build", help="build and validate every FMU into dist/fmus", add_help=False)
@@ -180,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     p_ssp.add_argument("scenario", type=Path, help="scenario file (TOML)")
     p_ssp.add_argument("-o", "--output", required=True, type=Path, help="the .ssp file to write")
     p_ssp.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE", help="override a parameter")
-    p_ssp.add_argument("--host", choices=("libcosim", "omsimulator"), default="libcosim",
+    p_ssp.add_argument("--host", choices=HOSTS, default=HOSTS[0],
                        help="the engine's annotations: libcosim (default) gives each component with "
                             "its own step an osp:StepSizeHint, which OMSimulator rejects")
 

@@ -12,13 +12,14 @@ carries what each engine reads, in the order each reads it:
 
 * OMSimulator (``org.openmodelica``): ``oms:SimulationInformation`` with a ``oms:FixedStepMaster``
   on the system (without it OMSimulator cannot tell the system's kind) and the logging interval
-  in the ``DefaultExperiment``, as OMSimulator writes them itself (its testsuite,
-  ``testsuite/api/addExternalResources3.py``). OMSimulator looks at the *first* annotation of an
-  ``Annotations`` element only (``Model::importFromSSD``), so ours comes first; it rejects any
-  element of a component besides connectors, geometry and parameter bindings
-  (``ComponentFMUCS::NewComponent``: "Wrong xml schema detected"), so it cannot take a
-  component's step size hint, and it ignores ``ssv:String`` values (``Values::
-  importStartValuesHelper`` reads Real, Integer and Boolean only).
+  in the ``DefaultExperiment``, as OMSimulator writes them itself (the expected SSDs of its
+  testsuite, e.g. ``addExternalResources3.py``). In its sources (``src/OMSimulatorLib/``):
+  ``Model.cpp`` reads the system's kind and the experiment from the *first* ``ssc:Annotation``
+  of an ``Annotations`` element only, so ours comes first; ``ComponentFMUCS.cpp``
+  (``NewComponent`` from XML) rejects any element of a component besides connectors, geometry
+  and parameter bindings ("Wrong xml schema detected"), so it cannot take a component's step
+  size hint; ``Values.cpp`` (``importStartValuesHelper``) binds ``ssv:Real``, ``ssv:Integer``
+  and ``ssv:Boolean`` only, so it ignores ``ssv:String`` values.
 * libcosim (``com.opensimulationplatform``): the base step as ``osp:FixedStepAlgorithm`` and each
   component's own communication step as ``osp:StepSizeHint``. The hint is written only where a
   component's step differs from the base step, so a single-rate scenario loads in both engines

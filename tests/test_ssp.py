@@ -443,6 +443,12 @@ HANDMADE = """<?xml version="1.0" encoding="UTF-8"?>
         </ParameterBindings>
       </Component>
       <Component name="gain" type="application/x-fmu-sharedlibrary" source="resources/Gain.fmu">
+        <Connectors>
+          <Connector name="u" kind="input"><c:Real/></Connector>
+          <Connector name="uv[1]" kind="input"><c:Real/></Connector>
+          <Connector name="uv[2]" kind="input"><c:Real/></Connector>
+          <Connector name="y" kind="output"><c:Real/></Connector>
+        </Connectors>
         <ParameterBindings>
           <ParameterBinding>
             <ParameterValues>
@@ -473,7 +479,9 @@ HANDMADE = """<?xml version="1.0" encoding="UTF-8"?>
           <c:Annotation type="com.opensimulationplatform"><a:StepSizeHint value="0.004"/></c:Annotation>
         </Annotations>
       </Component>
-      <Component name="sink" source="resources/Gain.fmu"/>
+      <Component name="sink" source="resources/Gain.fmu">
+        <Connectors><Connector name="u" kind="input"><c:Real/></Connector></Connectors>
+      </Component>
     </Elements>
     <Connections>
       <Connection startElement="source" startConnector="ys[1]" endElement="gain" endConnector="uv[1]"/>
@@ -526,13 +534,14 @@ fmu = "Gain"
 """
 
 
-def handmade(tmp_path: Path, toy_dir: Path, edit=lambda text: text, name: str = "handmade.ssp") -> Path:
-    """The hand-written package, its SSD changed by ``edit``."""
+def handmade(tmp_path: Path, toy_dir: Path, edit=lambda text: text, name: str = "handmade.ssp",
+             edit_ssv=lambda text: text) -> Path:
+    """The hand-written package, its SSD changed by ``edit``, its SSVs by ``edit_ssv``."""
     out = tmp_path / name
     with zipfile.ZipFile(out, "w") as z:
         z.writestr("SystemStructure.ssd", edit(HANDMADE))
-        z.writestr("resources/source.ssv", SOURCE_SSV)
-        z.writestr("resources/root.ssv", ROOT_SSV)
+        z.writestr("resources/source.ssv", edit_ssv(SOURCE_SSV))
+        z.writestr("resources/root.ssv", edit_ssv(ROOT_SSV))
         for fmu in ("Source", "Gain", "MassSpring"):
             z.write(toy_dir / f"{fmu}.fmu", f"resources/{fmu}.fmu")
     return out
@@ -564,6 +573,33 @@ def test_a_hand_written_ssp_in_another_tools_style_runs_as_its_scenario(tmp_path
     r = Result.load(tmp_path / "ssp")
     assert_allclose(r.time, 0.002 * np.arange(25), rtol=0, atol=1e-15)
     assert_allclose(r["gain.y"], -1.5 * 2.0 * r.time + 0.5, rtol=0, atol=1e-14)
+
+
+def _usual_prefixes(ssd: str) -> str:
+    """The hand-written SSD with the prefixes libcosim expects (ssd:, ssc:, ssv:, osp:) and
+    without the system-level binding (libcosim does not apply it)."""
+    ssd = re.sub(r"<ParameterBindings>\s*<ParameterBinding source=\"resources/root.ssv\"/>\s*</ParameterBindings>",
+                 "", ssd, count=1)
+    ssd = re.sub(r"<(/?)([A-Z]\w*)", r"<\1ssd:\2", ssd).replace('xmlns="', 'xmlns:ssd="')
+    for theirs, usual in (("c", "ssc"), ("pv", "ssv"), ("a", "osp")):
+        ssd = re.sub(rf"(</?|xmlns:){theirs}([:=])", rf"\g<1>{usual}\2", ssd)
+    return ssd
+
+
+def test_libcosim_reads_the_hand_written_package_as_we_do(tmp_path, toy_dir):
+    """An independent reading of the same package: the .ssv and inline bindings give the same
+    values in libcosim as in our import. (libcosim's parser matches the prefixes literally and
+    skips system-level bindings: with other prefixes it cannot load the package at all.)"""
+    ssp = handmade(tmp_path, toy_dir, _usual_prefixes,
+                   edit_ssv=lambda t: re.sub(r"(</?|xmlns:)p2([:=])", r"\g<1>ssv\2", t))
+    assert_valid_ssp(ssp)
+    assert main(["run", str(ssp), "--out", str(tmp_path / "ours"), "--no-progress"]) == 0
+    from orchestration.results import Result
+    r = Result.load(tmp_path / "ours")
+    lc = cosim(ssp, 0.002, 24, ["source.y", "gain.y"])
+    assert_allclose(lc["source.y"], r["source.y"][1:], rtol=0, atol=1e-15)     # slope from the .ssv
+    assert_allclose(lc["gain.y"], r["gain.y"][:-1], rtol=0, atol=1e-14)       # Jacobi: one step late
+    assert_allclose(r["gain.y"], -1.5 * 2.0 * r.time + 9.0, rtol=0, atol=1e-14)   # inline gain, offset
 
 
 def test_without_step_annotations_the_base_step_is_the_documented_default(tmp_path, toy_dir):

@@ -576,9 +576,13 @@ def load_ssp(path: str | Path, ssd: Path, overrides: Iterable[str] = ()) -> Scen
     label = str(path)
     doc = ssp_document(ssd, label)
     try:
-        sc = load_scenario(doc, overrides)
+        with warnings.catch_warnings(record=True) as caught:   # named after the package, as errors
+            warnings.simplefilter("always")
+            sc = load_scenario(doc, overrides)
     except ScenarioError as exc:
         raise ScenarioError(f"{label}: {str(exc).removeprefix('<scenario>: ')}") from None
+    for w in caught:
+        warnings.warn(str(w.message).replace("<scenario>", label, 1), w.category, stacklevel=2)
     return sc
 
 

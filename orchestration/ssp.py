@@ -59,6 +59,8 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Iterable, Iterator
 from xml.etree.ElementTree import Element, ParseError, SubElement, parse, register_namespace, tostring
 
+import numpy as np
+
 from .scenario import ParamValue, Scenario, ScenarioError, load_scenario, read_variables, stable_seed
 
 NS = {
@@ -160,19 +162,25 @@ def system_structure(name: str, components: list[SspComponent],
                    endElement=dst, endConnector=dvar)
     info = SubElement(SubElement(_annotation(system, OMS_ANNOTATION), _q("oms", "Annotations")),
                       _q("oms", "SimulationInformation"))
-    SubElement(info, _q("oms", "FixedStepMaster"), description="oms-ma", stepSize=repr(base_step),
+    SubElement(info, _q("oms", "FixedStepMaster"), description="oms-ma", stepSize=_decimal(base_step),
                absoluteTolerance=OMS_TOLERANCE, relativeTolerance=OMS_TOLERANCE)
 
     experiment = SubElement(root, _q("ssd", "DefaultExperiment"), startTime="0.0", stopTime=repr(stop_time))
     extra = scenario or {}
     SubElement(SubElement(_annotation(experiment, OMS_ANNOTATION), _q("oms", "Annotations")),
                _q("oms", "SimulationInformation"), resultFile=f"{name}_res.mat",
-               loggingInterval=repr(extra.get("record_interval", base_step)))
+               loggingInterval=_decimal(extra.get("record_interval", base_step)))
     algorithm = SubElement(_annotation(experiment, OSP_ANNOTATION), _q("osp", "Algorithm"))
     SubElement(algorithm, _q("osp", "FixedStepAlgorithm"), baseStepSize=repr(base_step))
     if scenario is not None:
         _write_flexfusion(_annotation(experiment, FF_ANNOTATION), scenario)
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
+
+
+def _decimal(x: float) -> str:
+    """``x`` exactly as an ``xs:decimal`` (no exponent: 1e-05 -> 0.00001), the type of
+    OMSimulator's step and interval attributes (its ``schema/oms.xsd``)."""
+    return np.format_float_positional(x, trim="-")
 
 
 def _own_step(step: float, base_step: float) -> bool:

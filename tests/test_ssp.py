@@ -309,6 +309,17 @@ def test_omsimulator_export_has_its_annotations_first_and_no_component_annotatio
     master = first_annotation(system).find(
         f"{{{NS['oms']}}}Annotations/{{{NS['oms']}}}SimulationInformation/{{{NS['oms']}}}FixedStepMaster")
     assert float(master.get("stepSize")) == 0.001 and master.get("description") == "oms-ma"
+    # OMSimulator's schema (schema/oms.xsd) types the step and the tolerances as xs:decimal:
+    # no exponent, also for a small step
+    small = tmp_path / "small.ssp"
+    assert main(["export-ssp", str(path), "-o", str(small), "--host", "omsimulator",
+                 "--set", "scenario.base_step=1e-5"]) == 0
+    steps = [el.attrib for el in ET.fromstring(zipfile.ZipFile(small).read("SystemStructure.ssd")).iter()
+             if el.tag in (f"{{{NS['oms']}}}FixedStepMaster", f"{{{NS['oms']}}}SimulationInformation")]
+    values = [v for a in steps for k, v in a.items() if k in ("stepSize", "absoluteTolerance",
+                                                              "relativeTolerance", "loggingInterval")]
+    assert len(values) == 4 and "0.00001" in values
+    assert all(re.fullmatch(r"\d+(\.\d+)?", v) for v in values), values
     assert not [c for c in root.iter(f"{{{NS['ssd']}}}Component") if c.find(f"{{{NS['ssd']}}}Annotations")]
 
 

@@ -24,13 +24,21 @@ def _show_warning(message: Any, category: Any, filename: str, lineno: int, file:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from . import fork
     from .master import RunError, run
     from .scenario import ScenarioError, load_scenario
 
+    if (args.save_state_at is None) != (args.state_out is None):
+        return _error("--save-state-at T and --state-out FILE go together")
+    if args.from_state is not None and args.save_state_at is not None:
+        return _error("--from-state and --save-state-at cannot be combined")
     try:
         scenario = load_scenario(args.scenario, args.set or ())
         out = args.out or Path("results") / scenario.name
-        result = run(scenario, out_dir=out, progress=not args.no_progress)
+        hook = (fork.from_state(scenario, args.from_state) if args.from_state is not None else
+                fork.saving(scenario, args.save_state_at, args.state_out)
+                if args.save_state_at is not None else None)
+        result = run(scenario, out_dir=out, progress=not args.no_progress, hook=hook)
     except (ScenarioError, RunError) as exc:
         msg = str(exc)
         out_dir = getattr(exc, "out_dir", None)
@@ -38,6 +46,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             msg += f" (results up to the failure in {out_dir})"
         return _error(msg)
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
+    if args.state_out is not None:
+        print(f"  state at t = {args.save_state_at:g} s in {args.state_out}")
     for name, value in result.metrics.items():
         print(f"  {name:<32} {value:.6g}")
     return 0
@@ -174,6 +184,12 @@ def main(argv: list[str] | None = None) -> int:
                        help="override a parameter (repeatable); also scenario.seed=N, scenario.stop_time=T")
     p_run.add_argument("--out", type=Path, help="output folder (default results/<scenario name>)")
     p_run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p_run.add_argument("--save-state-at", type=float, metavar="T",
+                       help="save the whole co-simulation's state at time T (s) into --state-out")
+    p_run.add_argument("--state-out", type=Path, metavar="FILE", help="the state file to write")
+    p_run.add_argument("--from-state", type=Path, metavar="FILE",
+                       help="start from a saved state (results from its time on); a fork may "
+                            "change stop_time, record, metrics and tunable parameters only")
 
     p_plot = sub.add_parser("plot", help="PNG plots of a run folder")
     p_plot.add_argument("dir", type=Path, help="a run folder (flexfusion run --out)")

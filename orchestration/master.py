@@ -615,8 +615,10 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     described: dict[str, dict[str, Any]] = {}
     for spec in sc.metrics:
         try:
-            computed = _metrics.compute(spec, result.time, result[spec.estimate], result[spec.truth],
-                                        result[spec.truth_time] if spec.truth_time else None)
+            computed = _metrics.compute(spec, result.time, result[spec.estimate],
+                                        result[spec.truth] if spec.truth else None,
+                                        result[spec.truth_time] if spec.truth_time else None,
+                                        result[spec.covariance] if spec.covariance else None)
         except ValueError as exc:
             raise ScenarioError(f"metric '{spec.name}': {exc}") from None
         values.update(computed)

@@ -1,6 +1,7 @@
 """LogReplay: a recorded log as outputs (fmus/robot_plant/log_replay_model.py and _fmu.py)."""
 from __future__ import annotations
 
+import json
 import math
 import sys
 import warnings
@@ -173,6 +174,12 @@ def test_the_shipped_example_runs_the_estimators_on_the_log(tmp_path: Path) -> N
     assert len(r.time) == 2001
     # the EKF (motor angles and accelerometer) beats rigid kinematics on the replayed robot
     assert r.metrics["ekf_position_rmse"] < r.metrics["rigid_position_rmse"] < 1e-3
+    # consistency metrics in metrics.json, with their degrees of freedom and 95 % band
+    saved = json.loads((tmp_path / "metrics.json").read_text())
+    assert saved["ekf_nis"]["dof"] == 4 and saved["ekf_nis"]["against"] == "innovations"
+    assert saved["ekf_angle_nees"]["dof"] == 2 and saved["ekf_angle_nees"]["covariance"] == "ekf.P_x"
+    assert saved["ekf_angle_nees"]["band_95"] == pytest.approx([0.0506, 7.378], rel=1e-3)
+    assert 0.0 <= r.metrics["ekf_nis_in_band"] <= 1.0 and r.metrics["ekf_nis"] > 0.0
 
 
 def test_the_log_truth_feeding_an_estimator_is_an_oracle(tmp_path: Path) -> None:

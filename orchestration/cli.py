@@ -1,4 +1,4 @@
-"""The ``flexfusion`` command line: build, run, plot, export-ssp, study.
+"""The ``flexfusion`` command line: build, run, plot, export-ssp, check-estimator, study.
 
 Every error a user can cause ends in one line ``error: ...`` on stderr and exit status 2.
 """
@@ -173,6 +173,11 @@ def cmd_export_ssp(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_check_estimator(args: argparse.Namespace) -> int:
+    from .contract import main as check
+    return check(args.fmus)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="flexfusion", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -199,6 +204,10 @@ def main(argv: list[str] | None = None) -> int:
     p_ssp.add_argument("-o", "--output", required=True, type=Path, help="the .ssp file to write")
     p_ssp.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE", help="override a parameter")
 
+    p_check = sub.add_parser("check-estimator", help="check FMUs against the estimator contract "
+                             "(docs/estimator_contract.md): one line per failed rule, exit 2 if any")
+    p_check.add_argument("fmus", type=Path, nargs="+", metavar="FILE.fmu")
+
     p_study = sub.add_parser("study", help="studies: Monte Carlo, tuning, robustness, ...")
     kinds = p_study.add_subparsers(dest="study", required=True, metavar="KIND")
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -214,7 +223,8 @@ def main(argv: list[str] | None = None) -> int:
         return build.main(rest)
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
-    handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp, "study": cmd_study}
+    handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp, "study": cmd_study,
+                "check-estimator": cmd_check_estimator}
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         return handlers[args.command](args)

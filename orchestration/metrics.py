@@ -122,13 +122,20 @@ def at_sample_times(time: np.ndarray, estimate: np.ndarray, truth: np.ndarray, t
     return stamps, interp.reshape((len(stamps),) + np.shape(estimate)[1:]), truth[fresh]
 
 
+def packed_dimension(m: int) -> int | None:
+    """``n`` of a covariance packed as its lower triangle in ``m = n (n + 1) / 2`` elements
+    (None when ``m`` is no such number)."""
+    n = int(round((np.sqrt(8 * m + 1) - 1) / 2))
+    return n if n * (n + 1) // 2 == m else None
+
+
 def unpack_covariance(packed: np.ndarray) -> np.ndarray:
     """Covariances (K, n, n) from their lower triangles packed row by row (K, n (n + 1) / 2),
     ``numpy.tril_indices(n)`` order (the estimator contract's ``P_x``)."""
     packed = np.atleast_2d(np.asarray(packed, dtype=float))
     m = packed.shape[1]
-    n = int(round((np.sqrt(8 * m + 1) - 1) / 2))
-    if n * (n + 1) // 2 != m:
+    n = packed_dimension(m)
+    if n is None:
         raise ValueError(f"a packed covariance has n (n + 1) / 2 elements, got {m}")
     rows, cols = np.tril_indices(n)
     P = np.zeros((packed.shape[0], n, n))
@@ -249,5 +256,6 @@ def entries(spec: Any, values: dict[str, float]) -> dict[str, dict[str, Any]]:
                    "against": spec.against, **extra} for name, v in values.items()}
 
 
-__all__ = ["rmse", "max_error", "bandpass_errors", "at_sample_times", "unpack_covariance", "nees", "nis",
+__all__ = ["rmse", "max_error", "bandpass_errors", "at_sample_times", "packed_dimension",
+           "unpack_covariance", "nees", "nis",
            "chi2_band", "monte_carlo_consistency", "compute", "entries"]

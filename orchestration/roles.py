@@ -1,8 +1,9 @@
 """What each component is, by FMU model identifier, and the honest-signals rule built on it.
 
 The plant (and its environment) is the truth; everything else must see it only through
-sensors. A connection from a truth output (or a recorded truth a log player replays) into anything but a sensor, the environment, the
-plant itself or the reference measurement system is an oracle: :func:`dishonest_connections`
+sensors. A connection from a truth output (or a recorded truth that a LogReplay plays) into
+anything but a sensor, the environment, the plant itself or the reference measurement system
+is an oracle: :func:`dishonest_connections`
 finds them, and the scenario loader warns (:class:`HonestSignalWarning`) unless the scenario
 lists the connection under ``oracles``. The one exception is the drive's own motor feedback:
 the MotionController may read the plant's ``q_m`` and ``dq_m``.
@@ -43,8 +44,9 @@ ROLES: dict[str, str] = {
 TRUTH_ROLES = frozenset({"plant", "environment"})
 #: Roles that may take a truth output as input.
 TRUTH_READERS = frozenset({"plant", "environment", "sensor", "reference"})
-#: Outputs of the log player that carry a recorded truth (fmus.common.estimator_contract.TRUTH):
-#: truth like the plant's, for metrics only.
+#: Outputs of the LogReplay that carry a recorded truth, for metrics only: the names of
+#: fmus.common.estimator_contract.TRUTH (not imported: a run never imports the working tree's
+#: fmus; tests/test_log_replay.py checks they agree).
 LOG_TRUTH = frozenset({"q_a", "dq_a", "ddq_a", "p_tool"})
 #: The drive's own motor feedback: these plant outputs may feed the MotionController.
 DRIVE_FEEDBACK = frozenset({"q_m", "dq_m"})

@@ -757,8 +757,9 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
         if m["kind"] in ("nees", "nis") and (isinstance(dof, bool) or not isinstance(dof, int) or dof < 1):
             raise ScenarioError(f"{where}: dof must be a positive integer, got {dof!r}")
         if m["kind"] == "nees":
-            n = int(round((math.sqrt(8 * sizes[2] + 1) - 1) / 2))
-            if n * (n + 1) // 2 != sizes[2] or n < sizes[0]:
+            from .metrics import packed_dimension
+            n = packed_dimension(sizes[2])
+            if n is None or n < sizes[0]:
                 raise ScenarioError(f"{where}: covariance {m['covariance']!r} has {sizes[2]} elements: "
                                     f"not a packed covariance (n (n + 1) / 2 elements) of at least the "
                                     f"{sizes[0]} states of the estimate")

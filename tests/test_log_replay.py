@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from fmus.common.estimator_contract import TRUTH
 from fmus.common.parameters import ParameterError
 from fmus.robot_plant.log_replay_fmu import SIGNALS
 from fmus.robot_plant.log_replay_model import LogReplayParameters, RecordedLog, read_columns
 from orchestration.master import RunError, run
 from orchestration.results import Result
-from orchestration.roles import HonestSignalWarning
+from orchestration.roles import LOG_TRUTH, HonestSignalWarning
 from orchestration.scenario import load_scenario
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "orchestration" / "scenarios"
@@ -199,3 +200,4 @@ fmu = "ComplementaryFilter"
         load_scenario(tmp_path / "s.toml")
     texts = [str(w.message) for w in caught if issubclass(w.category, HonestSignalWarning)]
     assert len(texts) == 1 and "log.p_tool -> cf.p_fk" in texts[0]
+    assert LOG_TRUTH == {s.name for s in TRUTH}

@@ -30,9 +30,9 @@ def _csv(tmp_path: Path, text: str, name: str = "log.csv") -> Path:
     return p
 
 
-def _log(path: Path, columns: str, **kw) -> RecordedLog:
+def _log(path: Path, columns: str, stamp: str | None = None, **kw) -> RecordedLog:
     kw.setdefault("max_gap", 0.5)
-    return RecordedLog(LogReplayParameters(log_file=str(path), columns=columns, **kw), OUTPUTS)
+    return RecordedLog(LogReplayParameters(log_file=str(path), columns=columns, **kw), OUTPUTS, stamp)
 
 
 RAMP = "t,a,b,stamp\n0.0,0.0,10.0,0.0\n0.1,1.0,20.0,0.1\n0.2,2.0,30.0,0.2\n"
@@ -62,6 +62,16 @@ def test_time_offset_shifts_the_log(tmp_path: Path) -> None:
     assert stamp == 0.0
     with pytest.raises(ParameterError, match=r"outside the log .* 'time_offset'"):
         log.sample(0.15)
+
+
+def test_a_mapped_stamp_column_gives_the_sample_time(tmp_path: Path) -> None:
+    path = _csv(tmp_path, "time,a,b,stamp\n10.0,1,2,9.9995\n10.001,3,4,10.0005\n")
+    log = _log(path, "q_m_meas[1] = a; t_meas = stamp", time_offset=10.0, stamp="t_meas")
+    values, taken = log.sample(0.0005)
+    assert values[0] == 1.0 and taken == pytest.approx(-0.0005, abs=1e-12)   # stamp - offset
+    assert log.sample(0.001)[1] == pytest.approx(0.0005, abs=1e-12)
+    with pytest.raises(ParameterError, match="'t_meas' is mapped, but with interpolation = 'linear'"):
+        _log(path, "t_meas = stamp", interpolation="linear", stamp="t_meas")
 
 
 def test_units_are_converted_to_si(tmp_path: Path) -> None:
@@ -139,6 +149,19 @@ def test_a_replayed_log_reproduces_the_live_estimates_bit_for_bit(live: Result, 
         assert_array_equal(replay[estimate], live[estimate], err_msg=estimate)
     assert_array_equal(replay["log.p_tool"], live["plant.p_tool"])     # the truth, replayed
     assert replay.against["ekf_position_rmse"] == "log"
+
+
+def test_an_hdf5_log_replays_as_its_csv(live: Result, tmp_path: Path) -> None:
+    """The same log as HDF5 (one dataset per column, h5py inside the FMU) gives the same bits."""
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(tmp_path / "log.h5", "w") as f:
+        f["time"] = live.time
+        for j, name in enumerate(live.columns):
+            f[name] = live.data[:, j]
+    replay = run(SCENARIOS / "replay_log.toml",
+                 ["scenario.stop_time=1.0", f"log.log_file={str(tmp_path / 'log.h5')!r}"],
+                 out_dir=tmp_path / "r")
+    assert_array_equal(replay["ekf.p_tool_hat"], live["ekf.p_tool_hat"])
 
 
 def test_hold_at_half_the_recording_rate_is_not_the_live_run(live: Result, tmp_path: Path) -> None:

@@ -51,12 +51,8 @@ class LogReplay(FlexFusionSlave):
             self.log("no log_file given: every output is 0 and t_meas unstamped", Fmi2Status.warning)
             return
         outputs = {s.name: (s.size, s.unit) for s in SIGNALS}
-        self.log_data = RecordedLog(p, outputs)
-        self._stamped = any(m.output == "t_meas" for m in self.log_data.mappings)
-        if self._stamped and not self.log_data.hold:
-            raise ParameterError("column map: 't_meas' is mapped, but with interpolation = "
-                                 "'linear' the values stand for the current time: map no stamp")
-        # each mapped scalar -> (array, index) to write
+        self.log_data = RecordedLog(p, outputs, stamp="t_meas")
+        # each mapped scalar -> (attribute, index) to write
         self._targets = []
         for m in self.log_data.mappings:
             base, _, index = m.output.partition("[")
@@ -70,10 +66,7 @@ class LogReplay(FlexFusionSlave):
                 setattr(self, base, v)
             else:
                 getattr(self, base)[i] = v
-        if self._stamped:
-            self.t_meas = self.t_meas - self.log_data.offset
-        else:
-            self.t_meas = t_sample
+        self.t_meas = t_sample
 
     def step(self, t: float, dt: float) -> None:
         if self.log_data is not None:

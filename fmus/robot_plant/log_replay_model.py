@@ -205,10 +205,14 @@ def _h5py(path: Path):
 class RecordedLog:
     """A checked log: its times and the mapped outputs' values, sampled by :meth:`sample`.
 
-    Immutable once built (read-only arrays), so a saved FMU state shares it instead of copying.
+    ``stamp`` names the output that, when a column is mapped to it, holds each row's sample
+    time in log time (a sensor's recorded ``t_meas``): :meth:`sample` then gives it as the time
+    the values stand for. Immutable once built (read-only arrays), so a saved FMU state shares
+    it instead of copying.
     """
 
-    def __init__(self, p: LogReplayParameters, outputs: dict[str, tuple[int | None, str]]) -> None:
+    def __init__(self, p: LogReplayParameters, outputs: dict[str, tuple[int | None, str]],
+                 stamp: str | None = None) -> None:
         if not p.log_file:
             raise ParameterError("parameter 'log_file' is empty: give the log to replay")
         path = Path(p.log_file)
@@ -248,6 +252,10 @@ class RecordedLog:
                                        for m in self.mappings])
         self.offset = float(p.time_offset)
         self.hold = p.interpolation == "hold"
+        self._stamp = next((j for j, m in enumerate(self.mappings) if m.output == stamp), None)
+        if self._stamp is not None and not self.hold:
+            raise ParameterError(f"{where}: column map: '{stamp}' is mapped, but with interpolation "
+                                 "= 'linear' the values stand for the current time: map no stamp")
         for a in (self.times, self.values):
             a.flags.writeable = False
 
@@ -267,10 +275,13 @@ class RecordedLog:
 
     def sample(self, t: float) -> tuple[np.ndarray, float]:
         """The mapped values at simulation time ``t`` and the simulation time they stand for:
-        the held row's time (hold) or ``t`` (linear)."""
+        the held row's stamp or time (hold), or ``t`` (linear)."""
         i, t_log = self._row(t)
-        if self.hold or i == len(self.times) - 1:
-            return self.values[i], float(self.times[i] - self.offset) if self.hold else t
+        if self.hold:
+            taken = self.values[i, self._stamp] if self._stamp is not None else self.times[i]
+            return self.values[i], float(taken - self.offset)
+        if i == len(self.times) - 1:
+            return self.values[i], t
         w = (t_log - self.times[i]) / (self.times[i + 1] - self.times[i])
         if w <= 0.0:
             return self.values[i], t

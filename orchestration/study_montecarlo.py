@@ -61,7 +61,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import study
-from .metrics import chi2_band, nees   # NEES e^T P^-1 e of the EKF's packed P_x (6 states)
+from .metrics import monte_carlo_consistency, nees   # NEES e^T P^-1 e of the packed P_x
 
 FILTER_FMUS = ("EkfAccelerometer", "ParticleFilter")
 PLANT_FMU = "FlexibleRobot2DOF"
@@ -169,8 +169,7 @@ def _summarise(results: Sequence[dict], filters: Sequence[FilterInfo], keep: np.
     """Per filter: eq. 27's RMSE per time and group, its time average over ``keep``, and for a
     filter with a recorded covariance the average NEES over the runs (ANEES) per time, its time
     average and the fraction of times inside the two-sided 95 % chi-square band of the ANEES
-    (``chi2(6 N) / N`` for ``N`` runs)."""
-    n_runs = len(results)
+    (``chi2(6 N) / N`` for ``N`` runs, :func:`orchestration.metrics.monte_carlo_consistency`)."""
     summary: dict[str, Any] = {}
     per_time: dict[str, Any] = {}
     for f in filters:
@@ -183,12 +182,11 @@ def _summarise(results: Sequence[dict], filters: Sequence[FilterInfo], keep: np.
             pt[g] = rmse_t
             entry[f"rmse_{g}"] = float(np.mean(rmse_t[keep]))
         if f.has_covariance:
-            anees = np.mean(np.stack([r[f.name + ".nees"] for r in results]), axis=0)
-            band = chi2_band(6, n_runs)
-            pt["anees"] = anees
-            entry["anees"] = float(np.mean(anees[keep]))
-            entry["anees_band_95"] = [float(band[0]), float(band[1])]
-            entry["anees_fraction_in_band"] = float(np.mean((anees[keep] >= band[0]) & (anees[keep] <= band[1])))
+            runs = np.stack([r[f.name + ".nees"] for r in results])          # (runs, K)
+            pt["anees"] = runs.mean(axis=0)
+            c = monte_carlo_consistency(runs[:, keep], dof=6)
+            entry.update(anees=c["mean"], anees_band_95=list(c["band"]),
+                         anees_fraction_in_band=c["fraction_in_band"])
         per_time[f.name] = pt
         summary[f.name] = entry
     return summary, per_time

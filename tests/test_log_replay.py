@@ -79,6 +79,9 @@ def test_units_are_converted_to_si(tmp_path: Path) -> None:
     log = _log(path, "q_m_meas[1] = e1 [deg]; q_m_meas[2] = e2 [deg]\n acc_s[1] = ax [g]")
     values, _ = log.sample(0.0)
     assert_allclose(values, [math.pi / 2, -math.pi, 9.80665], rtol=1e-15)
+    named = _log(_csv(tmp_path, "time,ax [g]\n0,1\n0.001,2\n", "named.csv"), "acc_s[1] = ax [g] [g]; "
+                 "acc_s[2] = ax [g]")                  # a unit in the header is part of the name
+    assert_allclose(named.sample(0.0)[0], [9.80665, 1.0])
     with pytest.raises(ParameterError, match=r"unit 'mm' of column 'e1' cannot be converted to the "
                                              r"unit rad of 'q_m_meas\[1\]'"):
         _log(path, "q_m_meas[1] = e1 [mm]")

@@ -6,7 +6,8 @@ Column map (parameter ``columns``): entries ``output = column`` or ``output = co
 separated by ``;`` or new lines. ``output`` is a scalar output (``acc_s[3]``) or a whole vector
 (``q_m_meas = encoder.q_m_meas`` maps ``q_m_meas[i]`` to the column ``encoder.q_m_meas[i]``).
 The optional ``[unit]`` is the column's unit; it is converted to the output's SI unit by
-:data:`UNIT_FACTORS` (e.g. ``acc_s[1] = ax [g]``, ``q_m_meas[1] = enc1 [deg]``).
+:data:`UNIT_FACTORS` (e.g. ``acc_s[1] = ax [g]``, ``q_m_meas[1] = enc1 [deg]``). A column whose
+name ends in a unit (``acc x [g]``) is that column, in SI; ``acc x [g] [g]`` converts it.
 
 Time: the column ``time_column`` holds the log's time in seconds; the log time of simulation
 time ``t`` is ``t + time_offset``. It must increase strictly, and no interval between rows may
@@ -86,8 +87,8 @@ def parse_columns(text: str, outputs: dict[str, tuple[int | None, str]], availab
         if not eq or not out or not col:
             raise ParameterError(f"{where}: column map entry {entry!r} is not 'output = column [unit]'")
         unit = None
-        if col.endswith("]") and " [" in col:
-            col, unit = col[:-1].rsplit(" [", 1)
+        if col.endswith("]") and " [" in col and col not in available:   # "name [unit]" is a
+            col, unit = col[:-1].rsplit(" [", 1)                            # column name too
             col, unit = col.strip(), unit.strip()
         base, _, index = out.partition("[")
         if base not in outputs:

@@ -13,7 +13,7 @@ all: demo
 $(STAMP): pyproject.toml requirements.lock
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -c requirements.lock -e '.[dask,cosim,test]'
+	$(BIN)/pip install -q -c requirements.lock -e '.[dask,cosim,test,replay]'
 	touch $@
 
 env: $(STAMP)

@@ -2,7 +2,8 @@
 
 An FMU script is any ``fmus/<group>/*_fmu.py``; its model identifier is the name of its
 FMU class. Each FMU carries ``resources/requirements.txt`` naming the third-party packages the
-importer's Python must have.
+importer's Python must have, and ``resources/optional-requirements.txt`` those one feature needs
+(the LogReplay FMU's HDF5 logs: h5py), imported only when used.
 
 Self-contained FMUs in any Python host. A pythonfmu FMU runs in the host's interpreter, where a
 package is imported once per process, from the first folder that provides it; hosts delete
@@ -32,6 +33,8 @@ FMU_SOURCES = REPO / "fmus"
 DEFAULT_DEST = REPO / "dist" / "fmus"
 # What the FMUs import besides the standard library and the bundled `fmus` package.
 FMU_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11"]
+# What one feature imports when it is used (pyproject's optional dependencies).
+FMU_OPTIONAL_REQUIREMENTS = ["h5py>=3.8"]
 
 
 # Hash of the bundled package, in every FMU (provenance; its first 12 hex name the vendored package).
@@ -69,6 +72,7 @@ def _stage_package(stage: Path) -> Path:
         out.write_text(_vendored(f.read_text(), target.name))
     (target / BUNDLE_ID_FILE).write_text(bundle_id + "\n")
     (stage / "requirements.txt").write_text("\n".join(FMU_REQUIREMENTS) + "\n")
+    (stage / "optional-requirements.txt").write_text("\n".join(FMU_OPTIONAL_REQUIREMENTS) + "\n")
     return target
 
 
@@ -161,7 +165,8 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
             t0 = time.perf_counter()
             try:
                 fmu = FmuBuilder.build_FMU(_stage_script(script, package), dest=dest,
-                                           project_files=[package, stage / "requirements.txt"])
+                                           project_files=[package, stage / "requirements.txt",
+                                                          stage / "optional-requirements.txt"])
             except Exception as exc:  # noqa: BLE001 - collect and report every failure at once
                 failures.append(f"{_shown(script)}: build failed: {type(exc).__name__}: {exc}")
                 continue

@@ -1,4 +1,4 @@
-"""The ``flexfusion`` command line: build, run, plot, export-ssp, study.
+"""The ``flexfusion`` command line: build, run, plot, export-ssp, check-estimator, study.
 
 Every error a user can cause ends in one line ``error: ...`` on stderr and exit status 2.
 """
@@ -38,13 +38,21 @@ def loaded(path: Path, overrides: list[str] | tuple[str, ...] = ()) -> Iterator[
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from . import fork
     from .master import RunError, run
     from .scenario import ScenarioError
 
+    if (args.save_state_at is None) != (args.state_out is None):
+        return _error("--save-state-at T and --state-out FILE go together")
+    if args.from_state is not None and args.save_state_at is not None:
+        return _error("--from-state and --save-state-at cannot be combined")
     try:
         with loaded(args.scenario, args.set or ()) as scenario:
             out = args.out or Path("results") / scenario.name
-            result = run(scenario, out_dir=out, progress=not args.no_progress)
+            hook = (fork.from_state(scenario, args.from_state) if args.from_state is not None else
+                    fork.saving(scenario, args.save_state_at, args.state_out)
+                    if args.save_state_at is not None else None)
+            result = run(scenario, out_dir=out, progress=not args.no_progress, hook=hook)
     except (ScenarioError, RunError) as exc:
         msg = str(exc)
         out_dir = getattr(exc, "out_dir", None)
@@ -52,6 +60,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             msg += f" (results up to the failure in {out_dir})"
         return _error(msg)
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
+    if args.state_out is not None:
+        print(f"  state at t = {args.save_state_at:g} s in {args.state_out}")
     for name, value in result.metrics.items():
         print(f"  {name:<32} {value:.6g}")
     return 0
@@ -161,6 +171,11 @@ def cmd_export_ssp(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_check_estimator(args: argparse.Namespace) -> int:
+    from .contract import main as check
+    return check(args.fmus)
+
+
 def main(argv: list[str] | None = None) -> int:
     from .ssp import HOSTS
 
@@ -174,6 +189,12 @@ def main(argv: list[str] | None = None) -> int:
                        help="override a parameter (repeatable); also scenario.seed=N, scenario.stop_time=T")
     p_run.add_argument("--out", type=Path, help="output folder (default results/<scenario name>)")
     p_run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p_run.add_argument("--save-state-at", type=float, metavar="T",
+                       help="save the whole co-simulation's state at time T (s) into --state-out")
+    p_run.add_argument("--state-out", type=Path, metavar="FILE", help="the state file to write")
+    p_run.add_argument("--from-state", type=Path, metavar="FILE",
+                       help="start from a saved state (results from its time on); a fork may "
+                            "change stop_time, record, metrics and tunable parameters only")
 
     p_plot = sub.add_parser("plot", help="PNG plots of a run folder")
     p_plot.add_argument("dir", type=Path, help="a run folder (flexfusion run --out)")
@@ -185,6 +206,10 @@ def main(argv: list[str] | None = None) -> int:
     p_ssp.add_argument("--host", choices=HOSTS, default=HOSTS[0],
                        help="the engine's annotations: libcosim (default) gives each component with "
                             "its own step an osp:StepSizeHint, which OMSimulator rejects")
+
+    p_check = sub.add_parser("check-estimator", help="check FMUs against the estimator contract "
+                             "(docs/estimator_contract.md): one line per failed rule, exit 2 if any")
+    p_check.add_argument("fmus", type=Path, nargs="+", metavar="FILE.fmu")
 
     p_study = sub.add_parser("study", help="studies: Monte Carlo, tuning, robustness, ...")
     kinds = p_study.add_subparsers(dest="study", required=True, metavar="KIND")
@@ -201,7 +226,8 @@ def main(argv: list[str] | None = None) -> int:
         return build.main(rest)
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
-    handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp, "study": cmd_study}
+    handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp, "study": cmd_study,
+                "check-estimator": cmd_check_estimator}
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         return handlers[args.command](args)

@@ -299,9 +299,14 @@ class _Slot:
     out_names: list[str]
 
 
-def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | None = None) -> list[str]:
+def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | None = None,
+             hook: Any = None) -> list[str]:
     """Run the scenario; ``sink(t, values)`` gets every recorded row (values in
     ``scenario.record_columns()`` order, t = 0 first). Returns the coupling warnings given.
+
+    ``hook`` (:mod:`orchestration.fork`) may save the whole state at its base step
+    (``hook.step``) or, after initialisation, set a saved one and return the base step to go
+    on from: ``hook.start(instances, values, offsets)`` and ``hook.save(k, ...)``.
 
     Raises
     ------
@@ -419,13 +424,15 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
                     s.inst.fmu.fmi2GetReal(s.inst.handle, s.out_vr, s.n_out, s.out_ptr)
                     _check_nan(s, values, 0.0)
         current = None
-        sink(0.0, values[record_idx])
+        k0 = hook.start(by_name, values, offsets) if hook is not None else 0
+        sink(round(k0 * h, 12), values[record_idx])
 
         # ---- stepping --------------------------------------------------------------------
         n_steps = scenario.n_steps
         every = scenario.record_every
         tick = max(1, n_steps // 200)
-        for k in range(n_steps):
+        save_at = getattr(hook, "step", None)
+        for k in range(k0, n_steps):
             t_now = k * h
             for s in slots:
                 if k % s.ratio:
@@ -449,6 +456,8 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
                             _check_nan(s, values, (k + 1) * h)
             if (k + 1) % every == 0:
                 sink(round((k + 1) * h, 12), values[record_idx])
+            if k + 1 == save_at:
+                hook.save(k + 1, by_name, values, offsets)
             if progress is not None and ((k + 1) % tick == 0 or k + 1 == n_steps):
                 progress(k + 1)
         t_now = scenario.stop_time
@@ -517,7 +526,7 @@ def _check_nan(s: _Slot, values: np.ndarray, t: float) -> None:
 # the public entry point
 # ---------------------------------------------------------------------------------------------
 def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[str] = (),
-        out_dir: str | Path | None = None, progress: bool = False) -> "Result":
+        out_dir: str | Path | None = None, progress: bool = False, hook: Any = None) -> "Result":
     """Run a scenario and write its results.
 
     Parameters
@@ -531,6 +540,8 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
         temporary folder.
     progress
         Show a tqdm progress bar on stderr.
+    hook
+        Save the state at a time, or start from a saved one (:mod:`orchestration.fork`).
 
     Returns
     -------
@@ -581,7 +592,7 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CouplingWarning)
             with CsvWriter(out / CSV_NAME, columns) as writer:
-                notes = simulate(sc, writer, report)
+                notes = simulate(sc, writer, report, hook)
         for w in caught:  # re-issue once, outside the recording context
             warnings.warn(w.message, w.category, stacklevel=2)
     except RunError as exc:
@@ -604,8 +615,10 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     described: dict[str, dict[str, Any]] = {}
     for spec in sc.metrics:
         try:
-            computed = _metrics.compute(spec, result.time, result[spec.estimate], result[spec.truth],
-                                        result[spec.truth_time] if spec.truth_time else None)
+            computed = _metrics.compute(spec, result.time, result[spec.estimate],
+                                        result[spec.truth] if spec.truth else None,
+                                        result[spec.truth_time] if spec.truth_time else None,
+                                        result[spec.covariance] if spec.covariance else None)
         except ValueError as exc:
             raise ScenarioError(f"metric '{spec.name}': {exc}") from None
         values.update(computed)

@@ -5,6 +5,13 @@
 * :func:`bandpass_errors` -- max and mean of the error norm after a 3–30 Hz band-pass, as in
   Table I of the 2009 paper (Karlsson & Norrlöf / Henriksson et al., tool position estimation).
 * :func:`max_error` -- largest Euclidean error.
+* :func:`nees`, :func:`nis` -- consistency of a filter: the normalised estimation error squared
+  against the truth with the filter's own covariance, and the normalised innovation squared
+  (Bar-Shalom, Li, Kirubarajan 2001, "Estimation with applications to tracking and
+  navigation", section 5.4). For a consistent filter each is chi-square distributed with as
+  many degrees of freedom as states (measurements); :func:`chi2_band` gives the two-sided 95 %
+  band, and :func:`monte_carlo_consistency` the average over N runs (ANEES, ANIS) with its band
+  ``chi2(N dof) / N`` (ibid., eqs. 5.4.2-4 to 5.4.2-6).
 
 A scenario's "truth" may be the plant's truth or a reference system's measurement (the papers'
 laser tracker, with its own noise, rate and time skew): :func:`entries` records which.
@@ -15,6 +22,7 @@ from typing import Any
 
 import numpy as np
 from scipy.signal import butter, filtfilt
+from scipy.stats import chi2
 
 
 def _error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -114,14 +122,112 @@ def at_sample_times(time: np.ndarray, estimate: np.ndarray, truth: np.ndarray, t
     return stamps, interp.reshape((len(stamps),) + np.shape(estimate)[1:]), truth[fresh]
 
 
-def compute(spec: Any, time: np.ndarray, estimate: np.ndarray, truth: np.ndarray,
-            truth_time: np.ndarray | None = None) -> dict[str, float]:
+def packed_dimension(m: int) -> int | None:
+    """``n`` of a covariance packed as its lower triangle in ``m = n (n + 1) / 2`` elements
+    (None when ``m`` is no such number)."""
+    n = int(round((np.sqrt(8 * m + 1) - 1) / 2))
+    return n if n * (n + 1) // 2 == m else None
+
+
+def unpack_covariance(packed: np.ndarray) -> np.ndarray:
+    """Covariances (K, n, n) from their lower triangles packed row by row (K, n (n + 1) / 2),
+    ``numpy.tril_indices(n)`` order (the estimator contract's ``P_x``)."""
+    packed = np.atleast_2d(np.asarray(packed, dtype=float))
+    m = packed.shape[1]
+    n = packed_dimension(m)
+    if n is None:
+        raise ValueError(f"a packed covariance has n (n + 1) / 2 elements, got {m}")
+    rows, cols = np.tril_indices(n)
+    P = np.zeros((packed.shape[0], n, n))
+    P[:, rows, cols] = packed
+    P[:, cols, rows] = packed
+    return P
+
+
+def nees(error: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """Normalised estimation error squared ``e_k^T P_k^-1 e_k`` per time (Bar-Shalom et al.
+    2001, eq. 5.4.2-1).
+
+    Parameters
+    ----------
+    error
+        (K, d) estimate minus truth.
+    covariance
+        (K, n (n + 1) / 2) the filter's covariances packed (:func:`unpack_covariance`), n >= d:
+        the error's d states are the covariance's first d (their marginal covariance).
+    """
+    e = np.asarray(error, dtype=float)
+    e = e[:, None] if e.ndim == 1 else e
+    P = unpack_covariance(covariance)
+    d = e.shape[1]
+    if P.shape[1] < d:
+        raise ValueError(f"the covariance is {P.shape[1]}x{P.shape[1]}, the error has {d} states")
+    return np.einsum("ki,ki->k", e, np.linalg.solve(P[:, :d, :d], e[:, :, None])[:, :, 0])
+
+
+def nis(statistic: np.ndarray, squared: bool = True) -> np.ndarray:
+    """Normalised innovation squared ``nu_k^T S_k^-1 nu_k`` per time, from a filter's output of
+    it (``squared``) or of its square root, the normalised innovation norm (``innovation_norm``
+    of the estimator contract)."""
+    s = np.asarray(statistic, dtype=float).reshape(-1)
+    return s if squared else s * s
+
+
+def chi2_band(dof: int, n_runs: int = 1, level: float = 0.95) -> tuple[float, float]:
+    """Two-sided ``level`` band of the average of ``n_runs`` independent chi-square(``dof``)
+    values: ``chi2.ppf((1 -+ level) / 2, n_runs dof) / n_runs`` (Bar-Shalom et al. 2001,
+    eq. 5.4.2-5)."""
+    a = (1.0 - level) / 2.0
+    lo, hi = chi2.ppf([a, 1.0 - a], dof * n_runs) / n_runs
+    return float(lo), float(hi)
+
+
+def monte_carlo_consistency(statistic: np.ndarray, dof: int, level: float = 0.95) -> dict[str, Any]:
+    """The Monte Carlo average of a consistency statistic (NEES or NIS) over runs.
+
+    Parameters
+    ----------
+    statistic
+        (N, K): the statistic of N independent runs at K common times.
+    dof
+        Its degrees of freedom (states for NEES, measurements for NIS).
+
+    Returns
+    -------
+    dict
+        ``average`` (K,) the average over the runs per time (ANEES / ANIS), ``band`` its
+        two-sided ``level`` band :func:`chi2_band` (dof, N), ``mean`` its time average and
+        ``fraction_in_band`` the fraction of times inside the band (about ``level`` for a
+        consistent filter).
+    """
+    s = np.atleast_2d(np.asarray(statistic, dtype=float))
+    average = s.mean(axis=0)
+    lo, hi = chi2_band(dof, s.shape[0], level)
+    return {"average": average, "band": (lo, hi), "mean": float(average.mean()),
+            "fraction_in_band": float(np.mean((average >= lo) & (average <= hi))),
+            "runs": s.shape[0], "dof": dof}
+
+
+def compute(spec: Any, time: np.ndarray, estimate: np.ndarray, truth: np.ndarray | None,
+            truth_time: np.ndarray | None = None, covariance: np.ndarray | None = None) -> dict[str, float]:
     """Evaluate one scenario metric spec (:class:`orchestration.scenario.MetricSpec`).
 
     Returns ``{name: value}`` for ``rmse`` and ``max``, ``{name_max: .., name_mean: ..}`` for
-    ``bandpass``. Samples with ``time < spec.after`` are left out. With ``truth_time`` (the
-    truth's sample time stamps) only its fresh samples count (:func:`at_sample_times`).
+    ``bandpass``, ``{name: time average, name_in_band: fraction of samples inside the two-sided
+    95 % chi-square band of one sample}`` for ``nees`` (with ``covariance``) and ``nis`` (the
+    estimate is the filter's ``nis`` output or its ``innovation_norm``; no truth). Samples with
+    ``time < spec.after`` are left out. With ``truth_time`` (the truth's sample time stamps)
+    only its fresh samples count (:func:`at_sample_times`).
     """
+    if spec.kind in ("nees", "nis"):
+        keep = np.asarray(time, dtype=float) >= spec.after - 1e-12
+        if spec.kind == "nees":
+            stat = nees(_error(estimate, truth)[keep], np.asarray(covariance)[keep])
+        else:
+            stat = nis(np.asarray(estimate)[keep], squared=not spec.estimate.endswith("innovation_norm"))
+        lo, hi = chi2_band(spec.dof)
+        return {spec.name: float(np.mean(stat)) if len(stat) else float("nan"),
+                f"{spec.name}_in_band": float(np.mean((stat >= lo) & (stat <= hi))) if len(stat) else float("nan")}
     if truth_time is not None:
         time, estimate, truth = at_sample_times(time, estimate, truth, truth_time)
     time = np.asarray(time, dtype=float)
@@ -143,8 +249,13 @@ def entries(spec: Any, values: dict[str, float]) -> dict[str, dict[str, Any]]:
     reference system's measurement (``against``: ``"truth"`` | ``"reference"`` | another role,
     :func:`orchestration.roles.against`)."""
     extra = {"truth_time": spec.truth_time} if spec.truth_time else {}
+    if spec.kind in ("nees", "nis"):
+        extra.update(dof=spec.dof, band_95=list(chi2_band(spec.dof)),
+                     **({"covariance": spec.covariance} if spec.covariance else {}))
     return {name: {"value": v, "kind": spec.kind, "estimate": spec.estimate, "truth": spec.truth,
                    "against": spec.against, **extra} for name, v in values.items()}
 
 
-__all__ = ["rmse", "max_error", "bandpass_errors", "at_sample_times", "compute", "entries"]
+__all__ = ["rmse", "max_error", "bandpass_errors", "at_sample_times", "packed_dimension",
+           "unpack_covariance", "nees", "nis",
+           "chi2_band", "monte_carlo_consistency", "compute", "entries"]

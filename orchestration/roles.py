@@ -1,8 +1,9 @@
 """What each component is, by FMU model identifier, and the honest-signals rule built on it.
 
 The plant (and its environment) is the truth; everything else must see it only through
-sensors. A connection from a truth output into anything but a sensor, the environment, the
-plant itself or the reference measurement system is an oracle: :func:`dishonest_connections`
+sensors. A connection from a truth output (or a recorded truth that a LogReplay plays) into
+anything but a sensor, the environment, the plant itself or the reference measurement system
+is an oracle: :func:`dishonest_connections`
 finds them, and the scenario loader warns (:class:`HonestSignalWarning`) unless the scenario
 lists the connection under ``oracles``. The one exception is the drive's own motor feedback:
 the MotionController may read the plant's ``q_m`` and ``dq_m``.
@@ -37,11 +38,16 @@ ROLES: dict[str, str] = {
     "ComplementaryFilter": "estimator",
     "ImuEkf": "estimator",
     "ForceObserver": "estimator",
+    "LogReplay": "log",
 }
 #: Roles whose outputs are the truth.
 TRUTH_ROLES = frozenset({"plant", "environment"})
 #: Roles that may take a truth output as input.
 TRUTH_READERS = frozenset({"plant", "environment", "sensor", "reference"})
+#: Outputs of the LogReplay that carry a recorded truth, for metrics only: the names of
+#: fmus.common.estimator_contract.TRUTH (not imported: a run never imports the working tree's
+#: fmus; tests/test_log_replay.py checks they agree).
+LOG_TRUTH = frozenset({"q_a", "dq_a", "ddq_a", "p_tool"})
 #: The drive's own motor feedback: these plant outputs may feed the MotionController.
 DRIVE_FEEDBACK = frozenset({"q_m", "dq_m"})
 
@@ -51,14 +57,15 @@ class HonestSignalWarning(UserWarning):
 
 
 def role(component: "Component") -> str:
-    """``plant``, ``environment``, ``sensor``, ``reference``, ``controller`` or ``estimator``
-    (also for an FMU this table does not know)."""
+    """``plant``, ``environment``, ``sensor``, ``reference``, ``controller``, ``log`` (a
+    recorded log's player) or ``estimator`` (also for an FMU this table does not know)."""
     return ROLES.get(component.model_identifier, "estimator")
 
 
 def against(component: "Component") -> str:
     """What a metric compares with when its ``truth`` variable comes from ``component``:
-    ``"truth"`` (plant or environment), ``"reference"`` (the reference measurement system), or
+    ``"truth"`` (plant or environment), ``"reference"`` (the reference measurement system),
+    ``"log"`` (a column of a recorded log: a simulation's truth or a real robot's reference), or
     the component's role otherwise (e.g. ``"controller"`` for a tracking error)."""
     r = role(component)
     return "truth" if r in TRUTH_ROLES else r
@@ -67,7 +74,8 @@ def against(component: "Component") -> str:
 def is_honest(connection: "Connection", components: dict[str, "Component"]) -> bool:
     """Whether a connection obeys the honest-signals rule (see the module docstring)."""
     src, dst = components[connection.src], components[connection.dst]
-    if role(src) not in TRUTH_ROLES or role(dst) in TRUTH_READERS:
+    truth = role(src) in TRUTH_ROLES or (role(src) == "log" and connection.src_var in LOG_TRUTH)
+    if not truth or role(dst) in TRUTH_READERS:
         return True
     return (role(src) == "plant" and connection.src_var in DRIVE_FEEDBACK
             and dst.model_identifier == "MotionController")
@@ -79,5 +87,5 @@ def dishonest_connections(connections: Iterable["Connection"], components: dict[
     return [c for c in connections if not is_honest(c, components)]
 
 
-__all__ = ["ROLES", "TRUTH_ROLES", "TRUTH_READERS", "DRIVE_FEEDBACK", "HonestSignalWarning",
+__all__ = ["ROLES", "TRUTH_ROLES", "TRUTH_READERS", "LOG_TRUTH", "DRIVE_FEEDBACK", "HonestSignalWarning",
            "role", "against", "is_honest", "dishonest_connections"]

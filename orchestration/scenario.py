@@ -45,7 +45,7 @@ Format::
     interval = 0.001               # default: base_step
 
     [[metrics]]
-    kind = "rmse"                  # rmse | bandpass | max
+    kind = "rmse"                  # rmse | bandpass | max | nees | nis
     name = "rigid_position"
     estimate = "rigid.p_tool_hat"
     truth = "plant.p_tool"
@@ -55,6 +55,9 @@ Format::
     truth_time = "tracker.t_meas"  # optional: the truth's sample times; compare only at fresh
                                    # samples, the estimate interpolated to their time stamps
     # bandpass only: low = 3.0, high = 30.0, order = 4 (Hz, Hz, Butterworth order)
+    # nees: also covariance = "ekf.P_x" (packed lower triangle; the estimate's d states are
+    #   its first d), dof = d; nis: estimate = "ekf.innovation_norm" (or a `nis` output), no
+    #   truth, dof = the measurement dimension (orchestration.metrics.nees / nis)
 
 Honest signals (:mod:`orchestration.roles`): a truth output (of the plant, the contact
 environment or a force pulse) may feed only sensors, the environment, the plant and the
@@ -165,6 +168,8 @@ class MetricSpec:
     order: int = 4
     against: str = "truth"   # what `truth` is: truth | reference | another role (roles.against)
     truth_time: str | None = None   # the truth's sample time stamps (a held, skewed measurement)
+    covariance: str | None = None   # nees: the filter's packed covariance
+    dof: int | None = None          # nees, nis: degrees of freedom of the statistic
 
 
 @dataclass
@@ -721,22 +726,44 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     for i, m in enumerate(metrics_doc):
         where = f"{label}: [[metrics]] #{i + 1}"
         _check_keys(where, m, {"kind", "name", "estimate", "truth", "truth_time", "after", "low", "high",
-                               "order"})
-        for key in ("kind", "estimate", "truth"):
+                               "order", "covariance", "dof"})
+        if "kind" not in m:
+            raise ScenarioError(f"{where}: 'kind' is missing")
+        if m["kind"] not in ("rmse", "bandpass", "max", "nees", "nis"):
+            raise ScenarioError(f"{where}: unknown kind {m.get('kind')!r} (rmse, bandpass, max, nees, nis)")
+        needed = {"nis": ("estimate", "dof"), "nees": ("estimate", "truth", "covariance")}.get(
+            m["kind"], ("estimate", "truth"))
+        for key in needed:
             if key not in m:
-                raise ScenarioError(f"{where}: '{key}' is missing")
-        if m["kind"] not in ("rmse", "bandpass", "max"):
-            raise ScenarioError(f"{where}: unknown kind {m['kind']!r} (rmse, bandpass, max)")
+                raise ScenarioError(f"{where}: '{key}' is missing (kind {m['kind']!r})")
         mname = m.get("name", f"{m['kind']}_{m['estimate']}")
         where = f"{label}: metric '{mname}'"
         sizes = []
-        for key in ("estimate", "truth"):
+        for key in ("estimate", "truth", "covariance"):
+            if key not in m:
+                continue
             comp, var, group = _lookup(f"{where}: {key}", components, m[key])
             sizes.append(len(group))
             ref = f"{comp.name}.{var}"
             if ref not in record:
                 record.append(ref)
-        if sizes[0] != sizes[1]:
+        dof = m.get("dof", sizes[0])
+        if m["kind"] == "nees" and dof != sizes[0]:
+            raise ScenarioError(f"{where}: the NEES of {sizes[0]} states has {sizes[0]} degrees of "
+                                f"freedom, got dof = {dof!r}")
+        if m["kind"] == "nis" and sizes[0] != 1:
+            raise ScenarioError(f"{where}: estimate {m['estimate']!r} must be a scalar (the filter's "
+                                "nis or innovation_norm output)")
+        if m["kind"] in ("nees", "nis") and (isinstance(dof, bool) or not isinstance(dof, int) or dof < 1):
+            raise ScenarioError(f"{where}: dof must be a positive integer, got {dof!r}")
+        if m["kind"] == "nees":
+            from .metrics import packed_dimension
+            n = packed_dimension(sizes[2])
+            if n is None or n < sizes[0]:
+                raise ScenarioError(f"{where}: covariance {m['covariance']!r} has {sizes[2]} elements: "
+                                    f"not a packed covariance (n (n + 1) / 2 elements) of at least the "
+                                    f"{sizes[0]} states of the estimate")
+        if len(sizes) > 1 and sizes[0] != sizes[1]:
             raise ScenarioError(f"{where}: size mismatch: estimate {m['estimate']!r} has {sizes[0]} "
                                 f"element(s), truth {m['truth']!r} has {sizes[1]}")
         truth_time = m.get("truth_time")
@@ -758,9 +785,11 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
                                     f"of the record interval, got low={low:g}, high={high:g}")
         if isinstance(order, bool) or not isinstance(order, int) or order < 1:
             raise ScenarioError(f"{where}: order must be a positive integer")
-        truth_comp = components[_split_ref(where, m["truth"])[0]]
-        metrics.append(MetricSpec(m["kind"], mname, m["estimate"], m["truth"], after, low, high, order,
-                                  roles.against(truth_comp), truth_time))
+        against = (roles.against(components[_split_ref(where, m["truth"])[0]]) if "truth" in m
+                   else "innovations")      # nis: the filter's innovations against its own S
+        metrics.append(MetricSpec(m["kind"], mname, m["estimate"], m.get("truth", ""), after, low, high,
+                                  order, against, truth_time, m.get("covariance"),
+                                  dof if m["kind"] in ("nees", "nis") else None))
     names = [m.name for m in metrics]
     dup = {n for n in names if names.count(n) > 1}
     if dup:

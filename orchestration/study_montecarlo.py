@@ -61,13 +61,13 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import study
+from .metrics import monte_carlo_consistency, nees   # NEES e^T P^-1 e of the packed P_x
 
 FILTER_FMUS = ("EkfAccelerometer", "ParticleFilter")
 PLANT_FMU = "FlexibleRobot2DOF"
 GROUPS = ("position", "velocity", "acceleration")
 _ESTIMATES = {"position": "q_a_hat", "velocity": "dq_a_hat", "acceleration": "ddq_a_hat"}
 _TRUTH = {"position": "q_a", "velocity": "dq_a", "acceleration": "ddq_a"}
-_TRIL = np.tril_indices(6)      # the packing of the EKF's covariance output P_x
 
 #: Table 1 of the paper (EKF, 500 runs): RMSE of q_a [rad], dq_a [rad/s], ddq_a [rad/s^2].
 PAPER_TABLE1 = {
@@ -161,18 +161,6 @@ def run_one(scenario: str, overrides: Sequence[str], filters: Sequence[FilterInf
     return out
 
 
-def nees(err: np.ndarray, P_packed: np.ndarray) -> np.ndarray:
-    """Normalised estimation error squared ``e^T P^-1 e`` per time (Bar-Shalom, Li, Kirubarajan
-    2001, section 5.4), for errors ``e`` (K, 6) of (q_a, dq_a, ddq_a) and the filter's
-    covariances packed as the EKF's output ``P_x`` (K, 21; lower triangle row by row). A
-    consistent filter's NEES is chi-square distributed with 6 degrees of freedom (mean 6)."""
-    K = err.shape[0]
-    P = np.zeros((K, 6, 6))
-    P[:, _TRIL[0], _TRIL[1]] = P_packed
-    P[:, _TRIL[1], _TRIL[0]] = P_packed
-    return np.einsum("ki,ki->k", err, np.linalg.solve(P, err[:, :, None])[:, :, 0])
-
-
 # ---------------------------------------------------------------------------------------------
 # the study
 # ---------------------------------------------------------------------------------------------
@@ -181,10 +169,7 @@ def _summarise(results: Sequence[dict], filters: Sequence[FilterInfo], keep: np.
     """Per filter: eq. 27's RMSE per time and group, its time average over ``keep``, and for a
     filter with a recorded covariance the average NEES over the runs (ANEES) per time, its time
     average and the fraction of times inside the two-sided 95 % chi-square band of the ANEES
-    (``chi2(6 N) / N`` for ``N`` runs)."""
-    from scipy.stats import chi2
-
-    n_runs = len(results)
+    (``chi2(6 N) / N`` for ``N`` runs, :func:`orchestration.metrics.monte_carlo_consistency`)."""
     summary: dict[str, Any] = {}
     per_time: dict[str, Any] = {}
     for f in filters:
@@ -197,12 +182,11 @@ def _summarise(results: Sequence[dict], filters: Sequence[FilterInfo], keep: np.
             pt[g] = rmse_t
             entry[f"rmse_{g}"] = float(np.mean(rmse_t[keep]))
         if f.has_covariance:
-            anees = np.mean(np.stack([r[f.name + ".nees"] for r in results]), axis=0)
-            band = chi2.ppf([0.025, 0.975], 6 * n_runs) / n_runs
-            pt["anees"] = anees
-            entry["anees"] = float(np.mean(anees[keep]))
-            entry["anees_band_95"] = [float(band[0]), float(band[1])]
-            entry["anees_fraction_in_band"] = float(np.mean((anees[keep] >= band[0]) & (anees[keep] <= band[1])))
+            runs = np.stack([r[f.name + ".nees"] for r in results])          # (runs, K)
+            pt["anees"] = runs.mean(axis=0)
+            c = monte_carlo_consistency(runs[:, keep], dof=6)
+            entry.update(anees=c["mean"], anees_band_95=list(c["band"]),
+                         anees_fraction_in_band=c["fraction_in_band"])
         per_time[f.name] = pt
         summary[f.name] = entry
     return summary, per_time

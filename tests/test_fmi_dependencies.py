@@ -1,4 +1,5 @@
-"""What an FMU needs from the importer's Python: exactly its ``resources/requirements.txt``.
+"""What an FMU needs from the importer's Python: exactly its ``resources/requirements.txt``,
+and for a feature imported only when used, its ``resources/optional-requirements.txt``.
 
 Third-party packages are not bundled (numpy, scipy): an FMU must name every one it imports,
 and nothing else. The LQR design no longer uses python-control (one Riccati solve in scipy).
@@ -37,9 +38,9 @@ def _third_party_imports(fmu: Path) -> set[str]:
     return names - set(sys.stdlib_module_names) - bundled - {"__future__"}
 
 
-def _requirements(fmu: Path) -> set[str]:
+def _requirements(fmu: Path, name: str = "requirements.txt") -> set[str]:
     with zipfile.ZipFile(fmu) as z:
-        lines = z.read("resources/requirements.txt").decode().splitlines()
+        lines = z.read(f"resources/{name}").decode().splitlines()
     return {re.split(r"[<>=!~;\[ ]", line.strip())[0].lower() for line in lines if line.strip()}
 
 
@@ -49,7 +50,10 @@ def test_every_fmu_requires_exactly_what_it_imports(tmp_path_factory) -> None:
     for fmu in fmus:
         imported = _third_party_imports(fmu)
         assert "numpy" in imported, fmu.name        # the scan sees through the bundle
-        assert _requirements(fmu) == imported, fmu.name
+        required, optional = _requirements(fmu), _requirements(fmu, "optional-requirements.txt")
+        assert not required & optional, fmu.name
+        assert required | optional == imported, fmu.name
+        assert {"numpy", "scipy"} <= required, fmu.name
 
 
 def test_lqr_gain_equals_python_control() -> None:

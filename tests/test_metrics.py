@@ -62,3 +62,93 @@ def test_at_sample_times_keeps_fresh_samples_at_their_stamps():
     assert_allclose(s, [0.0, 0.3, 0.6])
     assert_allclose(e, tr, atol=1e-12)
     assert_allclose(e, np.column_stack([2.0 * s, -s]), atol=1e-12)
+
+
+# ---- consistency: NEES and NIS --------------------------------------------------------------
+
+def test_nees_uses_the_unpacked_covariance_and_its_marginal_block():
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(5, 3, 3))
+    P = A @ A.transpose(0, 2, 1) + np.eye(3)
+    rows, cols = np.tril_indices(3)
+    packed = P[:, rows, cols]
+    assert_allclose(m.unpack_covariance(packed), P)
+    e = rng.normal(size=(5, 3))
+    assert_allclose(m.nees(e, packed), [ei @ np.linalg.inv(Pi) @ ei for ei, Pi in zip(e, P)], rtol=1e-12)
+    e2 = e[:, :2]                  # the first two states: their marginal covariance P[:2, :2]
+    assert_allclose(m.nees(e2, packed), [ei @ np.linalg.inv(Pi[:2, :2]) @ ei for ei, Pi in zip(e2, P)],
+                    rtol=1e-12)
+    with pytest.raises(ValueError, match="n \\(n \\+ 1\\) / 2 elements, got 4"):
+        m.unpack_covariance(np.zeros((1, 4)))
+    assert_allclose(m.nis([1.0, 2.0], squared=False), [1.0, 4.0])
+
+
+def test_chi2_band_of_two_dof_is_the_exponential_quantiles():
+    # chi-square with 2 dof is exponential with mean 2: quantile q is -2 ln(1 - q)
+    assert_allclose(m.chi2_band(2), (-2 * np.log(0.975), -2 * np.log(0.025)), rtol=1e-10)
+    lo, hi = m.chi2_band(6, 50)             # the average of 50 runs: narrower, around 6
+    assert 5.0 < lo < 6.0 < hi < 7.2
+
+
+def _kalman_monte_carlo(q_filter: float, runs: int = 50, steps: int = 200, seed: int = 7):
+    """A linear-Gaussian Kalman filter on a 1-D constant-velocity target (white-noise
+    acceleration of intensity q = 1, position measured with R = 0.25, T = 0.1 s; Bar-Shalom
+    et al. 2001, section 6.3.2) whose model uses ``q_filter``: NEES (2 states) and NIS (1
+    measurement) per run and step."""
+    T, q, R = 0.1, 1.0, 0.25
+    F = np.array([[1.0, T], [0.0, 1.0]])
+    Qn = np.array([[T ** 3 / 3, T ** 2 / 2], [T ** 2 / 2, T]])
+    H = np.array([[1.0, 0.0]])
+    rng = np.random.default_rng(seed)
+    L = np.linalg.cholesky(q * Qn)
+    nees, nis = np.zeros((runs, steps)), np.zeros((runs, steps))
+    for r in range(runs):
+        P = np.diag([1.0, 1.0])
+        x = rng.multivariate_normal([0.0, 1.0], P)      # the truth drawn from the prior
+        xh = np.array([0.0, 1.0])
+        for k in range(steps):
+            x = F @ x + L @ rng.normal(size=2)
+            y = H @ x + np.sqrt(R) * rng.normal(size=1)
+            xh, P = F @ xh, F @ P @ F.T + q_filter * Qn
+            S = H @ P @ H.T + R
+            nu = y - H @ xh
+            K = P @ H.T / S
+            xh, P = xh + (K @ nu), (np.eye(2) - K @ H) @ P
+            nis[r, k] = float(nu @ nu / S[0, 0])
+            rows, cols = np.tril_indices(2)
+            nees[r, k] = m.nees((xh - x)[None, :], P[rows, cols][None, :])[0]
+    return nees, nis
+
+
+def test_nees_and_nis_of_a_kalman_filter_stay_in_their_95_percent_bands():
+    nees, nis = _kalman_monte_carlo(q_filter=1.0)
+    a = m.monte_carlo_consistency(nees, dof=2)
+    assert a["band"] == m.chi2_band(2, 50)
+    assert_allclose(a["mean"], 2.0, rtol=0.05)            # E[NEES] = number of states
+    assert a["fraction_in_band"] >= 0.9                     # about 95 % of the times
+    b = m.monte_carlo_consistency(nis, dof=1)
+    assert_allclose(b["mean"], 1.0, rtol=0.05)
+    assert b["fraction_in_band"] >= 0.9
+
+
+def test_a_mistuned_kalman_filter_leaves_the_band():
+    nees, nis = _kalman_monte_carlo(q_filter=0.01)          # 100 times too little process noise
+    a = m.monte_carlo_consistency(nees, dof=2)
+    assert a["mean"] > 2 * a["band"][1] and a["fraction_in_band"] < 0.1    # overconfident
+    assert m.monte_carlo_consistency(nis, dof=1)["fraction_in_band"] < 0.5
+
+
+def test_compute_nees_and_nis_specs():
+    t = np.arange(6) * 0.1
+    e = np.array([[1.0, 0.0]] * 6)
+    P = np.array([[4.0, 0.0, 1.0]] * 6)               # diag(4, 1): NEES = 1 / 4
+    spec = MetricSpec("nees", "c", "f.q_hat", "p.q", after=0.2, covariance="f.P", dof=2)
+    out = m.compute(spec, t, e, np.zeros_like(e), covariance=P)
+    lo, hi = m.chi2_band(2)
+    assert_allclose(out["c"], 0.25)
+    assert out["c_in_band"] == float(lo <= 0.25 <= hi)
+    spec = MetricSpec("nis", "n", "f.innovation_norm", "", dof=1)
+    out = m.compute(spec, t, np.array([0.0, 1.0, 2.0, 1.0, 0.0, 3.0]), None)
+    assert_allclose(out["n"], (0 + 1 + 4 + 1 + 0 + 9) / 6)
+    entry = m.entries(spec, out)["n"]
+    assert entry["dof"] == 1 and entry["band_95"] == list(m.chi2_band(1))

@@ -121,6 +121,13 @@ def test_fmu_given_as_path_relative_to_the_scenario(tmp_path, toy_dir):
     (("interval = 0.002", "interval = 0.0015"), r"\[record\] interval = 0\.0015 is not an integer multiple"),
     (('estimate = "g.yv"', 'estimate = "g.y"'), r"metric 'e': size mismatch"),
     (('kind = "rmse"', 'kind = "median"'), r"unknown kind 'median'"),
+    (('kind = "rmse"', 'kind = "nees"'), r"'covariance' is missing \(kind 'nees'\)"),
+    (('kind = "rmse"', 'kind = "nis"'), r"'dof' is missing \(kind 'nis'\)"),
+    (('kind = "rmse"', 'kind = "nees"\ncovariance = "src.ys"'),
+     r"metric 'e': covariance 'src.ys' has 2 elements: not a packed covariance"),
+    (('kind = "rmse"', 'kind = "nees"\ncovariance = "src.ys"\ndof = 3'),
+     r"the NEES of 2 states has 2 degrees of freedom, got dof = 3"),
+    (('kind = "rmse"', 'kind = "nis"\ndof = 1'), r"estimate 'g.yv' must be a scalar"),
     (("stop_time = 0.1", "stop_time = -1"), r"stop_time must be > 0"),
     (("[record]", "[recrod]"), r"s\.toml: unknown key\(s\) recrod"),
 ])

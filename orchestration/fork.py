@@ -1,0 +1,222 @@
+"""Forking runs: save a whole co-simulation's state at a time and start runs from it.
+
+A **state file** (JSON, ``format = "flexfusion-state-1"``) holds, at time ``T`` (a multiple of
+the base step):
+
+* every component's FMI state (``fmi2GetFMUstate`` + ``fmi2SerializeFMUstate``, base64): for
+  our FMUs the complete internal state, bit-exact (models, filter covariances, particles, RNG
+  states, held samples, inputs, outputs);
+* the master's: the step index, and every value on its buffer (the connected and recorded
+  outputs as last read, which multi-rate components hold and Jacobi edges read next); the
+  master itself draws no random numbers;
+* what the scenario's structure was (components with model identifier, GUID, step and
+  parameters; connections; base step), to refuse a state for another system.
+
+A run started from the state (:func:`resume`, ``flexfusion run SCENARIO --from-state F``)
+instantiates and initialises every FMU as usual, then sets each one's saved state and the
+master's, and steps on from ``T``: its ``results.csv`` rows from ``T`` on are bit-identical to
+those of the uninterrupted run (tests/test_fork.py).
+
+What a fork may change: FMI 2.0 lets a master change only **tunable** parameters after
+initialisation (and ``fmi2SetFMUstate`` restores the parameters with everything else), so a
+fork may override ``scenario.stop_time``, ``scenario.name``, the record and the metrics, and a
+parameter whose variability is ``tunable`` (set after the state). Every FlexFusion parameter is
+``fixed``, the noise seeds included, so with our FMUs a fork continues the saved run exactly:
+a Monte Carlo after a common warm-up needs sensors whose seed is tunable. Changing a fixed
+parameter, a component, a connection or a step is refused with a :class:`ScenarioError`.
+"""
+from __future__ import annotations
+
+import base64
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Iterable
+
+import numpy as np
+
+from .scenario import Scenario, ScenarioError, load_scenario
+
+if TYPE_CHECKING:
+    from .results import Result
+
+FORMAT = "flexfusion-state-1"
+
+
+def structure(sc: Scenario) -> dict[str, Any]:
+    """What a state belongs to: the components (FMU, GUID, step, parameters), connections and
+    base step (JSON-able, compared as a whole)."""
+    return {"base_step": sc.base_step,
+            "components": {c.name: {"model_identifier": c.model_identifier, "guid": c.guid,
+                                    "step": c.step, "parameters": c.parameters}
+                           for c in sc.components.values()},
+            "connections": sorted(str(c) for c in sc.connections)}
+
+
+@dataclass
+class SaveState:
+    """Master hook: write the state file at the base step ``step`` (time ``step * h``)."""
+
+    scenario: Scenario
+    step: int
+    path: Path
+
+    def start(self, instances: dict[str, Any], values: np.ndarray, offsets: dict) -> int:
+        return 0
+
+    def save(self, k: int, instances: dict[str, Any], values: np.ndarray, offsets: dict) -> None:
+        fmus = {}
+        for name, inst in instances.items():
+            state = inst.fmu.getFMUstate()
+            try:
+                fmus[name] = base64.b64encode(inst.fmu.serializeFMUstate(state)).decode()
+            finally:
+                inst.fmu.freeFMUstate(state)
+        doc = {"format": FORMAT, "time": k * self.scenario.base_step, "step": k,
+               "scenario": self.scenario.name, "structure": structure(self.scenario),
+               "values": {f"{c}.{v}": float(values[i]) for (c, v), i in offsets.items()},
+               "fmus": fmus}
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.path.write_text(json.dumps(doc, indent=1) + "\n")
+
+
+@dataclass
+class FromState:
+    """Master hook: after initialisation, set the saved states and step on from their time."""
+
+    scenario: Scenario
+    doc: dict[str, Any]
+
+    def start(self, instances: dict[str, Any], values: np.ndarray, offsets: dict) -> int:
+        for name, inst in instances.items():
+            state = inst.fmu.deSerializeFMUstate(base64.b64decode(self.doc["fmus"][name]))
+            try:
+                inst.fmu.setFMUstate(state)
+            finally:
+                inst.fmu.freeFMUstate(state)
+        saved = self.doc["values"]
+        for (c, v), i in offsets.items():
+            if f"{c}.{v}" in saved:
+                values[i] = saved[f"{c}.{v}"]
+            else:            # recorded now, not then: the output as the FMU holds it
+                info = self.scenario.components[c].variables[v]
+                values[i] = instances[c].fmu.getReal([info.value_reference])[0]
+        self._set_tunable(instances)
+        return int(self.doc["step"])
+
+    def _set_tunable(self, instances: dict[str, Any]) -> None:
+        saved = self.doc["structure"]["components"]
+        for name, comp in self.scenario.components.items():
+            for var, value in comp.parameters.items():
+                if saved[name]["parameters"].get(var) != value:      # checked tunable in load
+                    info = comp.variables[var]
+                    setter = {"Real": instances[name].fmu.setReal, "Integer": instances[name].fmu.setInteger,
+                              "Boolean": instances[name].fmu.setBoolean}[info.type]
+                    setter([info.value_reference], [value])
+
+    def save(self, k: int, instances: dict[str, Any], values: np.ndarray, offsets: dict) -> None:
+        pass
+
+
+def read_state(path: str | Path) -> dict[str, Any]:
+    """A state file's document, checked for its format."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise ScenarioError(f"state file not found: {path}") from None
+    except (OSError, ValueError) as exc:
+        raise ScenarioError(f"{path}: not a FlexFusion state file: {exc}") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise ScenarioError(f"{path}: not a FlexFusion state file (format {FORMAT!r} expected)")
+    return doc
+
+
+def check_fork(sc: Scenario, doc: dict[str, Any], where: str) -> None:
+    """Refuse a state of another system, or a fork that changes what FMI 2.0 does not allow to
+    change after initialisation (the module docstring)."""
+    then, now = doc["structure"], structure(sc)
+    if then["base_step"] != now["base_step"]:
+        raise ScenarioError(f"{where}: base_step {now['base_step']} differs from the state's "
+                            f"{then['base_step']}")
+    if set(then["components"]) != set(now["components"]):
+        raise ScenarioError(f"{where}: the components ({', '.join(now['components'])}) are not "
+                            f"those of the state ({', '.join(then['components'])})")
+    if then["connections"] != now["connections"]:
+        extra = sorted(set(now["connections"]) ^ set(then["connections"]))
+        raise ScenarioError(f"{where}: the connections differ from the state's ({', '.join(extra)})")
+    for name, c in now["components"].items():
+        t = then["components"][name]
+        for key in ("model_identifier", "guid", "step"):
+            if t[key] != c[key]:
+                raise ScenarioError(f"{where}: component '{name}': {key} {c[key]!r} differs from "
+                                    f"the state's {t[key]!r}")
+        for var in sorted(set(c["parameters"]) | set(t["parameters"])):
+            if c["parameters"].get(var) != t["parameters"].get(var):
+                info = sc.components[name].variables[var]
+                if info.variability != "tunable" or var not in c["parameters"]:
+                    def shown(params: dict) -> str:
+                        return repr(params[var]) if var in params else "(the FMU's default)"
+                    raise ScenarioError(
+                        f"{where}: parameter '{name}.{var}' = {shown(c['parameters'])} differs "
+                        f"from the state's {shown(t['parameters'])}, and it is {info.variability}: "
+                        "FMI 2.0 allows a change after initialisation only for a tunable parameter "
+                        "(a fork continues the saved state)")
+    T = float(doc["time"])
+    if not T < sc.stop_time:
+        raise ScenarioError(f"{where}: stop_time {sc.stop_time:g} s is not after the state's time "
+                            f"{T:g} s")
+
+
+def check_capable(sc: Scenario) -> None:
+    """Every FMU must get, set and serialise its state (modelDescription capability flags)."""
+    from fmpy import read_model_description
+    for c in sc.components.values():
+        cs = read_model_description(str(c.fmu), validate=False).coSimulation
+        if not (cs.canGetAndSetFMUstate and cs.canSerializeFMUstate):
+            raise ScenarioError(f"component '{c.name}' ({c.fmu.name}) cannot save its state "
+                                "(canGetAndSetFMUstate and canSerializeFMUstate must be true): a "
+                                "run with it cannot be forked")
+
+
+def save_step(sc: Scenario, t: float) -> int:
+    """The base step at which to save the state of time ``t`` (checked)."""
+    k = int(round(t / sc.base_step))
+    if not 0 < k < sc.n_steps or abs(k * sc.base_step - t) > 1e-9 * max(1.0, abs(t)):
+        raise ScenarioError(f"--save-state-at {t!r}: must be a multiple of the base step "
+                            f"{sc.base_step:g} s, after 0 and before stop_time {sc.stop_time:g} s")
+    return k
+
+
+def saving(sc: Scenario, t: float, state_out: str | Path) -> SaveState:
+    """The hook that saves the state of time ``t`` into ``state_out`` (checked)."""
+    check_capable(sc)
+    return SaveState(sc, save_step(sc, t), Path(state_out))
+
+
+def from_state(sc: Scenario, state: str | Path) -> FromState:
+    """The hook that starts from the state file ``state`` (checked against the scenario)."""
+    doc = read_state(state)
+    check_fork(sc, doc, f"{sc.path or sc.name} from state {state}")
+    check_capable(sc)
+    return FromState(sc, doc)
+
+
+def run_saving(scenario: str | Path, t: float, state_out: str | Path, overrides: Iterable[str] = (),
+               out_dir: str | Path | None = None) -> "Result":
+    """Run a scenario and save its whole state at time ``t`` into ``state_out``."""
+    from .master import run
+    sc = load_scenario(scenario, overrides)
+    return run(sc, out_dir=out_dir, hook=saving(sc, t, state_out))
+
+
+def resume(scenario: str | Path, state: str | Path, overrides: Iterable[str] = (),
+           out_dir: str | Path | None = None) -> "Result":
+    """Run a scenario on from a saved state (``results.csv`` starts at the state's time)."""
+    from .master import run
+    sc = load_scenario(scenario, overrides)
+    return run(sc, out_dir=out_dir, hook=from_state(sc, state))
+
+
+__all__ = ["FORMAT", "SaveState", "FromState", "read_state", "check_fork", "check_capable",
+           "structure", "save_step", "saving", "from_state",
+           "run_saving", "resume"]

@@ -1,0 +1,121 @@
+"""Forking runs (orchestration/fork.py): a run from a saved state equals the uninterrupted one."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+
+from orchestration import fork
+from orchestration.cli import main
+from orchestration.results import Result
+from orchestration.scenario import ScenarioError, scenario_document
+
+SCENARIO = Path(__file__).resolve().parent.parent / "orchestration" / "scenarios" / "replay_record.toml"
+STOP = ["scenario.stop_time=0.6"]
+T = 0.237        # not a multiple of the EKF's step: mid-way for a multi-rate part
+
+
+def _multirate() -> dict:
+    """The recording scenario with its EKF at 100 Hz (held between its steps)."""
+    doc = scenario_document(SCENARIO)
+    doc["components"]["ekf"]["step"] = 0.01
+    return doc
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory) -> tuple[Result, Path]:
+    """The uninterrupted run (plant, controller, noisy sensors, 2012 EKF at 100 Hz: every
+    component with a state of its own, the noise streams included), saving its state at T."""
+    d = tmp_path_factory.mktemp("saved")
+    result = fork.run_saving(_multirate(), T, d / "state.json", STOP, out_dir=d / "run")
+    return result, d / "state.json"
+
+
+def test_a_forked_run_equals_the_uninterrupted_one(saved, tmp_path: Path) -> None:
+    whole, state = saved
+    doc = json.loads(state.read_text())
+    assert doc["time"] == pytest.approx(T) and set(doc["fmus"]) == {
+        "controller", "plant", "encoder", "imu", "rigid", "ekf"}
+    first = np.searchsorted(whole.time, T - 1e-9)
+    for k in range(2):                   # many runs from one state: each the same
+        forked = fork.resume(_multirate(), state, STOP, out_dir=tmp_path / str(k))
+        assert forked.columns == whole.columns
+        assert_array_equal(forked.time, whole.time[first:])
+        assert_array_equal(forked.data, whole.data[first:])
+
+
+def test_the_fork_can_fail(saved, tmp_path: Path) -> None:
+    """Not trivially equal: with the encoder's state of another time (its noise stream and held
+    sample) the forked run differs."""
+    whole, state = saved
+    fork.run_saving(_multirate(), 0.001, tmp_path / "s0.json", STOP, out_dir=tmp_path / "early")
+    mixed = json.loads(state.read_text())
+    mixed["fmus"]["encoder"] = json.loads((tmp_path / "s0.json").read_text())["fmus"]["encoder"]
+    (tmp_path / "mixed.json").write_text(json.dumps(mixed))
+    forked = fork.resume(_multirate(), tmp_path / "mixed.json", STOP, out_dir=tmp_path / "mixed")
+    first = np.searchsorted(whole.time, T - 1e-9)
+    assert not np.array_equal(forked["encoder.q_m_meas"][1:], whole["encoder.q_m_meas"][first + 1:])
+
+
+def test_a_fork_may_change_stop_time_and_record(saved, tmp_path: Path) -> None:
+    whole, state = saved
+    doc = _multirate()
+    doc["record"]["variables"] = ["plant.p_tool", "ekf.p_tool_hat"]
+    forked = fork.resume(doc, state, ["scenario.stop_time=0.4"], out_dir=tmp_path)
+    first = np.searchsorted(whole.time, T - 1e-9)
+    assert forked.time[-1] == pytest.approx(0.4)
+    for name in ("plant.p_tool", "ekf.p_tool_hat"):
+        assert_array_equal(forked[name], whole[name][first:first + len(forked.time)])
+
+
+@pytest.mark.parametrize("overrides, match", [
+    (["encoder.noise=1e-4"], r"parameter 'encoder.noise' = 0.0001 differs from the state's \(the FMU's default\), and "
+                             r"it is fixed: FMI 2.0 allows a change after initialisation only for a tunable"),
+    (["scenario.seed=2"], r"parameter 'encoder.seed' = .* it is fixed"),
+    (["scenario.stop_time=0.2"], r"stop_time 0.2 s is not after the state's time 0.237 s"),
+])
+def test_a_fork_that_fmi_does_not_allow_is_refused(saved, tmp_path: Path, overrides, match) -> None:
+    _, state = saved
+    with pytest.raises(ScenarioError, match=match):
+        fork.resume(_multirate(), state, STOP + overrides, out_dir=tmp_path)
+
+
+def test_a_fork_with_another_step_is_refused(saved, tmp_path: Path) -> None:
+    _, state = saved
+    with pytest.raises(ScenarioError, match=r"component 'ekf': step 0.001 differs from the state's 0.01"):
+        fork.resume(SCENARIO, state, STOP, out_dir=tmp_path)
+
+
+def test_a_state_of_another_scenario_is_refused(saved, tmp_path: Path) -> None:
+    _, state = saved
+    other = SCENARIO.parent / "replay_log.toml"
+    with pytest.raises(ScenarioError, match=r"the components \(log, rigid, ekf\) are not those of the state"):
+        fork.resume(other, state, ["scenario.stop_time=0.6"], out_dir=tmp_path)
+
+
+def test_cli_saves_and_forks(tmp_path: Path, capsys) -> None:
+    base = ["run", str(SCENARIO), "--set", "scenario.stop_time=0.05", "--no-progress"]
+    assert main(base + ["--out", str(tmp_path / "a"), "--save-state-at", "0.02",
+                        "--state-out", str(tmp_path / "s.json")]) == 0
+    assert "state at t = 0.02 s in" in capsys.readouterr().out
+    assert main(base + ["--out", str(tmp_path / "b"), "--from-state", str(tmp_path / "s.json")]) == 0
+    whole = (tmp_path / "a" / "results.csv").read_text().splitlines()
+    forked = (tmp_path / "b" / "results.csv").read_text().splitlines()
+    assert forked[0] == whole[0] and forked[1:] == whole[21:]        # header; rows from 0.02 s
+
+
+@pytest.mark.parametrize("extra, match", [
+    (["--save-state-at", "0.02"], "--save-state-at T and --state-out FILE go together"),
+    (["--save-state-at", "0.0205", "--state-out", "x.json"], "must be a multiple of the base step"),
+    (["--save-state-at", "0.05", "--state-out", "x.json"], "before stop_time"),
+    (["--from-state", "nope.json"], "state file not found: nope.json"),
+])
+def test_cli_fork_errors_exit_2(tmp_path: Path, capsys, monkeypatch, extra, match) -> None:
+    monkeypatch.chdir(tmp_path)
+    code = main(["run", str(SCENARIO), "--set", "scenario.stop_time=0.05", "--no-progress", *extra])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and match in err and len(err.strip().splitlines()) == 1

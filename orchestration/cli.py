@@ -217,14 +217,26 @@ def study_modules() -> list[Any]:
 
 
 def cmd_study(args: argparse.Namespace) -> int:
+    """A study in its ``--out`` folder (:class:`orchestration.study.StudyFolder`): checked and
+    locked before any run, each finished run kept, ``--resume`` reuses them."""
     from .master import RunError
     from .scenario import ScenarioError
-    from .study import StudyError
+    from .study import StudyError, StudyInterrupted, study_folder
 
+    command = " ".join(["flexfusion", *sys.argv[1:]]) if sys.argv[1:2] == ["study"] else ""
+    folder = None
     try:
-        return args.func(args)
+        with study_folder(args.out, resume=args.resume, command=command) as folder:
+            return args.func(args)
+    except StudyInterrupted as exc:
+        kept = (f"{folder.stored()} finished runs are kept in {args.out}; add --resume to continue"
+                if folder else "no run had started")
+        print(f"error: interrupted by {exc}: {kept}", file=sys.stderr)
+        return 128 + exc.signum
     except (StudyError, ScenarioError, RunError) as exc:
         return _error(str(exc))
+    except OSError as exc:
+        return _error(f"{exc.filename or args.out}: {exc.strerror or exc}")
 
 
 def console_main() -> None:

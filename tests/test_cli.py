@@ -73,6 +73,14 @@ BAD = [
     (("seed = 4", "seed = 4\n[components.src]\nstep = 0.0015"), "malformed TOML"),
     (('fmu = "Source"', 'fmu = "Source"\nstep = 0.0015'), "not an integer multiple of the base step"),
     (("stop_time = 0.2", "stop_time = = 0.2"), "line 5"),
+    (("[components.g]", '[components."g,x"]'), "component name 'g,x' must be an identifier"),
+    (("[components.g]", '[components."g\\nx"]'), "component name 'g\\nx' must be an identifier"),
+    (('[components.g]\nfmu = "Gain"\nparameters = { gain = 1.0 }', "[components]\ng = 5"),
+     "[components.g] must be a table, got an integer"),
+    (('[components.g]\nfmu = "Gain"\nparameters = { gain = 1.0 }', '[components.g]\nfmu = "Gain"\nparameters = 2'),
+     "[parameters] must be a table"),
+    (("seed = 4", "seed = 4\ninclude = 5"), "include must be a file name or a list of file names, got 5"),
+    (("seed = 4", "seed = 4\ninclude = [[1]]"), "include must be a file name or a list of file names"),
 ]
 
 
@@ -84,6 +92,26 @@ def test_user_errors_exit_2_with_one_line(tmp_path, capsys, change, message):
     assert err.startswith("error: ") and err.count("\n") == 1, err
     assert message in err and "Traceback" not in err
     assert str(path) in err
+
+
+ZIP = b"PK\x03\x04"
+
+
+@pytest.mark.parametrize("content, message", [
+    (GOOD.encode("utf-16"), "the file is UTF-16; a TOML scenario must be UTF-8"),
+    (GOOD.replace('"toy"', '"t\u00ff"').encode("latin-1"),
+     "not UTF-8 text (Latin-1?): a TOML scenario must be UTF-8; the first byte that is not is at line 4, column 10"),
+    (b"\x7fELF\x02\x01\x00\x00\xff\xfe", "a binary file: a TOML scenario must be UTF-8"),
+    (ZIP + b"\x14\x00 rest of an SSP package", "this is a zip archive (an SSP package or an FMU?), not a TOML scenario"),
+])
+@pytest.mark.parametrize("command", ["run", "export-ssp"])
+def test_a_scenario_that_is_not_utf8_text_is_one_error_line(tmp_path, capsys, content, message, command):
+    path = tmp_path / "scenario.ssp"
+    path.write_bytes(content)
+    argv = [command, str(path)] + (["-o", str(tmp_path / "x.ssp")] if command == "export-ssp" else ["--no-progress"])
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {path}: {message}") and err.count("\n") == 1, err
 
 
 @pytest.mark.parametrize("mode, message", [

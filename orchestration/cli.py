@@ -37,6 +37,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         if out_dir is not None:
             msg += f" (results up to the failure in {out_dir})"
         return _error(msg)
+    except OSError as exc:          # the output folder: not creatable, not writable, disk full
+        return _error(f"cannot use the output folder {exc.filename or args.out}: {exc.strerror or exc}")
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
     for name, value in result.metrics.items():
         print(f"  {name:<32} {value:.6g}")
@@ -236,7 +238,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     except (StudyError, ScenarioError, RunError) as exc:
         return _error(str(exc))
     except OSError as exc:
-        return _error(f"{exc.filename or args.out}: {exc.strerror or exc}")
+        return _error(f"cannot use the output folder {exc.filename or args.out}: {exc.strerror or exc}")
 
 
 def console_main() -> None:

@@ -214,17 +214,38 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
 
 
 def _connect(address: str, timeout: float) -> Any:
-    """A Dask client of the scheduler at ``address``, or :class:`StudyError` within ``timeout``
-    (a service that accepts the connection but does not answer as a scheduler would otherwise
-    keep the handshake waiting)."""
-    import dask
+    """A Dask client of the scheduler at ``address``, or :class:`StudyError` within ``timeout``.
+
+    The scheduler is asked who it is first, under a deadline: ``Client`` alone waits forever on
+    a service that accepts the connection and stays silent, and fails with odd errors (a
+    ``MemoryError`` for an HTTP server's reply) on one that answers something else.
+    """
+    import asyncio
+
     from distributed import Client
-    with dask.config.set({"distributed.comm.timeouts.connect": f"{timeout}s"}):
-        try:
-            return Client(address, timeout=timeout)
-        except (OSError, TimeoutError, ValueError, TypeError) as exc:
-            cause = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise StudyError(f"cannot reach the Dask scheduler at {address}: {cause}") from None
+    try:
+        reply = asyncio.run(asyncio.wait_for(_identity(address, timeout), 2 * timeout))
+    except TimeoutError:        # connected (within ``timeout``), then no answer
+        raise StudyError(f"no Dask scheduler answered at {address} within {2 * timeout:g} s") from None
+    except (OSError, ValueError, TypeError) as exc:            # no such host, port, scheme
+        cause = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise StudyError(f"cannot reach the Dask scheduler at {address}: {cause}") from None
+    except Exception as exc:  # noqa: BLE001 - what another protocol's reply makes Dask's raise
+        raise StudyError(f"the service at {address} does not answer as a Dask scheduler "
+                         f"({type(exc).__name__})") from None
+    if not (isinstance(reply, dict) and reply.get("type") == "Scheduler"):
+        raise StudyError(f"the service at {address} is not a Dask scheduler")
+    return Client(address, timeout=timeout)
+
+
+async def _identity(address: str, timeout: float) -> Any:
+    from distributed.comm import connect
+    comm = await connect(address, timeout=timeout)
+    try:
+        await comm.write({"op": "identity", "reply": True})
+        return await comm.read()
+    finally:
+        comm.abort()
 
 
 class ProcessPool(Executor):

@@ -114,6 +114,24 @@ def test_a_scenario_that_is_not_utf8_text_is_one_error_line(tmp_path, capsys, co
     assert err.startswith(f"error: {path}: {message}") and err.count("\n") == 1, err
 
 
+def test_os_errors_on_the_output_folder_are_one_line(tmp_path, capsys, monkeypatch):
+    import errno
+
+    from orchestration import master
+    path = write(tmp_path, GOOD)
+    (tmp_path / "file").write_text("")
+    for out, reason in ((tmp_path / "file", "File exists"), (tmp_path / "file" / "sub", "Not a directory")):
+        assert main(["run", str(path), "--out", str(out), "--no-progress"]) == 2
+        assert capsys.readouterr().err == f"error: cannot use the output folder {out}: {reason}\n"
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "o" / "results.csv"))
+    monkeypatch.setattr(master, "run", full)
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    assert capsys.readouterr().err == (f"error: cannot use the output folder {tmp_path / 'o' / 'results.csv'}: "
+                                       "No space left on device\n")
+
+
 @pytest.mark.parametrize("mode, message", [
     ("error", "component 'bad' failed at t = 0.05 s: fmi2DoStep returned discard; FMU log: "
               "[error] bad: step at t = 0.05 s: toy failure"),

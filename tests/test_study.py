@@ -236,3 +236,42 @@ def test_a_signal_ends_a_study_with_one_message_and_resume_finishes_it(tmp_path,
         assert study.map_jobs(_square_logged, [(k, str(log)) for k in range(20)], ex, star=True,
                               progress=False) == [k * k for k in range(20)]
     assert len(_ran(log)) == 20 - kept
+
+
+@pytest.mark.parametrize("reply, message", [
+    (None, r"no Dask scheduler answered at tcp://127\.0\.0\.1:\d+ within 2 s"),
+    (b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n",
+     r"the service at tcp://127\.0\.0\.1:\d+ does not answer as a Dask scheduler"),
+])
+def test_a_service_that_is_not_a_scheduler_is_one_clear_error_not_a_hang(reply, message):
+    pytest.importorskip("distributed")
+    import socket
+    import threading
+    server = socket.create_server(("127.0.0.1", 0))
+    accepted = []
+
+    def serve():
+        conn, _ = server.accept()
+        accepted.append(conn)
+        if reply:
+            conn.sendall(reply)
+    threading.Thread(target=serve, daemon=True).start()
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    with pytest.raises(study.StudyError, match=message):
+        with study.open_executor(scheduler=address, connect_timeout=1):
+            pass
+    server.close()
+
+
+@pytest.mark.parametrize("address, message", [
+    ("nonsense", "missing port number"), ("foo://bar", "unknown address scheme 'foo'"),
+    ("tcp://host:notaport", "invalid literal"),
+])
+def test_a_malformed_scheduler_address_is_one_line(tmp_path, capsys, address, message):
+    pytest.importorskip("distributed")
+    from orchestration import cli
+    code = cli.main(["study", "robustness", "--out", str(tmp_path / "out"), "--scheduler", address,
+                     "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith(f"error: cannot reach the Dask scheduler at {address}: ") and message in err

@@ -745,12 +745,8 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
             if comp.variables[group[0]].type != "Real":
                 raise ScenarioError(f"{label}: [record] variable {ref!r} is not Real")
             record.append(f"{comp.name}.{var}")
-    else:
-        record = []
-        for c in connections:
-            ref = f"{c.src}.{c.src_var}"
-            if ref not in record:
-                record.append(ref)
+    else:                          # every connected output once (a dict: linear in the connections)
+        record = list(dict.fromkeys(f"{c.src}.{c.src_var}" for c in connections))
     interval = _number(f"{label}: [record] interval", rec.get("interval", base_step))
     _multiple(f"{label}: [record] interval", interval, base_step)
 

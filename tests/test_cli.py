@@ -194,3 +194,26 @@ def test_export_ssp(tmp_path, capsys, toy_dir):
     assert 'startElement="src" startConnector="ys[2]" endElement="g" endConnector="uv[2]"' in ssd
     assert 'name="gain"' in ssd and 'value="3.0"' in ssd
     assert 'baseStepSize="0.001"' in ssd
+
+
+def _commands() -> list[list[str]]:
+    import argparse
+
+    from orchestration.cli import study_modules
+    kinds = argparse.ArgumentParser().add_subparsers()
+    for module in study_modules():
+        module.register(kinds)
+    return [[], ["build"], ["run"], ["plot"], ["export-ssp"], ["study"]] + [["study", k] for k in kinds.choices]
+
+
+@pytest.mark.parametrize("command", _commands(), ids=" ".join)
+def test_every_help_exits_0_and_reads_as_text(capsys, command):
+    """An unescaped % in a help string made argparse print a Python dict."""
+    import re
+    with pytest.raises(SystemExit) as exit_:
+        main(command + ["--help"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: flexfusion")
+    assert "{'" not in out and "Traceback" not in out
+    assert not re.search(r"issue\s*#?\d", out, re.I)

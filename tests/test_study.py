@@ -275,3 +275,17 @@ def test_a_malformed_scheduler_address_is_one_line(tmp_path, capsys, address, me
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1
     assert err.startswith(f"error: cannot reach the Dask scheduler at {address}: ") and message in err
+
+
+def test_a_dask_cluster_recovers_a_killed_worker_and_the_folder_keeps_every_run(tmp_path):
+    pytest.importorskip("distributed")
+    log, out = tmp_path / "log", tmp_path / "study"
+    log.mkdir()
+    (log / "exit1.once").touch()          # job 1's worker is killed (SIGKILL) the first time
+    jobs = [(k, str(log)) for k in range(4)]
+    with study.StudyFolder(out), study.open_executor(workers=2, scheduler="local") as ex:
+        assert study.map_jobs(_square_logged, jobs, ex, star=True, progress=False) == [0, 1, 4, 9]
+    assert _ran(log).count(1) == 2        # the killed run was rescheduled by Dask
+    with study.StudyFolder(out, resume=True), study.open_executor(workers=1) as ex:
+        assert study.map_jobs(_square_logged, jobs, ex, star=True, progress=False) == [0, 1, 4, 9]
+    assert _ran(log) == []

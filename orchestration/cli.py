@@ -200,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         return build.main(rest)
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    args.argv = argv                     # recorded in a study folder's status.json
     handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp, "study": cmd_study}
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
@@ -225,7 +226,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     from .scenario import ScenarioError
     from .study import StudyError, StudyInterrupted, study_folder
 
-    command = " ".join(["flexfusion", *sys.argv[1:]]) if sys.argv[1:2] == ["study"] else ""
+    command = " ".join(["flexfusion", *getattr(args, "argv", [])])
     folder = None
     try:
         with study_folder(args.out, resume=args.resume, command=command) as folder:

@@ -5,6 +5,7 @@ The FMUs come from dist/fmus (``flexfusion build``), as for every scenario run.
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -197,9 +198,20 @@ def test_resume_recomputes_only_the_missing_runs_with_the_same_numbers(tmp_path,
     assert cli.main(argv + ["--resume"]) == 0
     status = json.loads((tmp_path / "status.json").read_text())
     assert (status["status"], status["jobs_computed_now"], status["jobs_reused_now"]) == ("ok", 1, 2)
+    assert status["command"] == " ".join(["flexfusion", *argv, "--resume"])
     again = json.loads((tmp_path / "study.json").read_text())
     first = json.loads(first)
     assert again["summary"] == first["summary"] and again["per_time"] == first["per_time"]
+
+
+def test_an_unusable_out_folder_fails_before_any_run(tmp_path, capsys):
+    (tmp_path / "file").write_text("")
+    t0 = time.perf_counter()
+    code = cli.main(["study", "montecarlo", str(SCENARIO), "--runs", "500", "--out", str(tmp_path / "file" / "mc"),
+                     "--no-progress"])
+    assert code == 2
+    assert capsys.readouterr().err == f"error: --out {tmp_path / 'file' / 'mc'}: Not a directory\n"
+    assert time.perf_counter() - t0 < 60              # hang guard: 500 runs would take minutes
 
 
 def test_a_scenario_lacking_needed_variables_fails_before_any_run(tmp_path, capsys):

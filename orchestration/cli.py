@@ -18,6 +18,10 @@ def _error(message: str) -> int:
     return EXIT_USER_ERROR
 
 
+def _output_folder_error(exc: OSError, out: Any) -> int:
+    return _error(f"cannot use the output folder {exc.filename or out}: {exc.strerror or exc}")
+
+
 def _show_warning(message: Any, category: Any, filename: str, lineno: int, file: Any = None,
                   line: Any = None) -> None:
     print(f"warning: {message}", file=sys.stderr)
@@ -38,7 +42,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             msg += f" (results up to the failure in {out_dir})"
         return _error(msg)
     except OSError as exc:          # the output folder: not creatable, not writable, disk full
-        return _error(f"cannot use the output folder {exc.filename or args.out}: {exc.strerror or exc}")
+        return _output_folder_error(exc, args.out)
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
     for name, value in result.metrics.items():
         print(f"  {name:<32} {value:.6g}")
@@ -239,7 +243,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     except (StudyError, ScenarioError, RunError) as exc:
         return _error(str(exc))
     except OSError as exc:
-        return _error(f"cannot use the output folder {exc.filename or args.out}: {exc.strerror or exc}")
+        return _output_folder_error(exc, args.out)
 
 
 def console_main() -> None:

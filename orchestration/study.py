@@ -7,6 +7,11 @@ given (``"local"`` starts a ``LocalCluster`` on this machine). :func:`map_jobs` 
 a progress bar and returns their results in job order, so a study's numbers do not depend on the
 executor or the number of workers.
 
+Nothing finished is lost: within a :class:`StudyFolder` (the ``--out`` of ``flexfusion study``),
+:func:`map_jobs` stores each job's result as it completes and ``--resume`` takes them back; a
+lost local worker costs only the jobs it was running, and SIGINT/SIGTERM leave status
+``interrupted`` with every finished job on disk.
+
 Worker processes are forked from a clean server process (``forkserver``), not from this one
 (which may hold threads and loaded FMUs), and live as long as the executor; each run frees its
 FMU instances and unloads their libraries. (Replacing workers with ``max_tasks_per_child``
@@ -35,6 +40,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from .safe_io import FolderLock, FolderLockedError, atomic_write_bytes, atomic_write_json
 
 
 class StudyError(RuntimeError):
@@ -339,7 +346,6 @@ class StudyFolder:
 
     # -- life cycle ------------------------------------------------------------------------
     def __enter__(self) -> StudyFolder:
-        from .safe_io import FolderLock, FolderLockedError
         status = self.path / self.STATUS
         try:
             if self.path.exists() and not self.path.is_dir():
@@ -387,7 +393,6 @@ class StudyFolder:
             return "unreadable"
 
     def _write_status(self, status: str, cause: str | None = None) -> None:
-        from .safe_io import atomic_write_json
         atomic_write_json(self.path / self.STATUS, {
             "status": status, "cause": cause, "command": self.command,
             "jobs_stored": self.stored(), "jobs_computed_now": self.computed,
@@ -415,7 +420,6 @@ class StudyFolder:
         return True, value
 
     def store(self, key: str, value: Any) -> None:
-        from .safe_io import atomic_write_bytes
         atomic_write_bytes(self._file(key), pickle.dumps(value, protocol=5))
         self.computed += 1
 

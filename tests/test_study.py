@@ -184,16 +184,19 @@ def test_a_study_folder_is_checked_and_locked_before_any_job(tmp_path):
             study.StudyFolder(out, resume=True).__enter__()
     with pytest.raises(study.StudyError, match=r"holds a study already \(status 'ok'\): add --resume"):
         study.StudyFolder(out).__enter__()
-    ro = tmp_path / "ro"
-    ro.mkdir()
-    ro.chmod(0o500)
-    try:
-        if os.access(ro, os.W_OK):
-            pytest.skip("running as a user who may write anywhere")
-        with pytest.raises(study.StudyError, match="ro: Permission denied"):
-            study.StudyFolder(ro / "study").__enter__()
-    finally:
-        ro.chmod(0o700)
+
+
+def test_a_full_disk_at_the_start_of_a_study_is_one_error_and_frees_the_folder(tmp_path, monkeypatch):
+    import errno
+
+    def full(path, obj):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+    monkeypatch.setattr(study, "atomic_write_json", full)
+    with pytest.raises(study.StudyError, match=r"--out .*/out: cannot write: No space left on device"):
+        study.StudyFolder(tmp_path / "out").__enter__()
+    monkeypatch.undo()
+    with study.StudyFolder(tmp_path / "out"):      # the lock was released
+        pass
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])

@@ -352,10 +352,10 @@ class StudyFolder:
                 raise StudyError(f"--out {self.path}: not a folder")
             if self.resume and not status.is_file():
                 raise StudyError(f"--resume: {self.path} is not a study folder (no {self.STATUS})")
-            if status.is_file() and not self.resume:
-                raise StudyError(f"--out {self.path} holds a study already (status "
-                                 f"'{self._previous_status()}'): add --resume to continue it with "
-                                 "its finished runs, or choose another --out")
+            if not self.resume and self.path.is_dir() and self.stored():
+                raise StudyError(f"--out {self.path} holds {self.stored()} finished runs of a study "
+                                 f"(status '{self._previous_status()}'): add --resume to continue it "
+                                 "with them, or choose another --out")
             (self.path / self.JOBS).mkdir(parents=True, exist_ok=True)
             self._lock = FolderLock(self.path)
             self._lock.acquire()

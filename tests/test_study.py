@@ -179,10 +179,12 @@ def test_a_study_folder_is_checked_and_locked_before_any_job(tmp_path):
     with pytest.raises(study.StudyError, match="--resume: .* is not a study folder"):
         study.StudyFolder(tmp_path / "new", resume=True).__enter__()
     out = tmp_path / "out"
-    with study.StudyFolder(out):
+    with study.StudyFolder(out) as folder:
         with pytest.raises(study.StudyError, match="another study writes there"):
             study.StudyFolder(out, resume=True).__enter__()
-    with pytest.raises(study.StudyError, match=r"holds a study already \(status 'ok'\): add --resume"):
+    with study.StudyFolder(out) as folder:         # no run stored: a new study may start there
+        folder.store("k", 1.0)
+    with pytest.raises(study.StudyError, match=r"holds 1 finished runs of a study \(status 'ok'\): add --resume"):
         study.StudyFolder(out).__enter__()
 
 

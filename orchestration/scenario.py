@@ -312,8 +312,7 @@ def _utf8(path: Path, data: bytes) -> str:
     """The text of a TOML file (UTF-8, TOML 1.0), or a ScenarioError saying what the file is
     and where it stops being UTF-8 (line, column; never its content)."""
     if data.startswith(b"PK\x03\x04"):
-        raise ScenarioError(f"{path}: this is a zip archive (an SSP package or an FMU?), not a TOML "
-                            "scenario; give the scenario's .toml file")
+        raise ScenarioError(f"{path}: {_zip_kind(data)}, not a TOML scenario; give a scenario's .toml file")
     if data.startswith((b"\xff\xfe", b"\xfe\xff")):
         raise ScenarioError(f"{path}: the file is UTF-16; a TOML scenario must be UTF-8 (save it as UTF-8)")
     try:
@@ -324,6 +323,21 @@ def _utf8(path: Path, data: bytes) -> str:
         kind = "a binary file" if b"\0" in data[:4096] else "not UTF-8 text (Latin-1?)"
         raise ScenarioError(f"{path}: {kind}: a TOML scenario must be UTF-8; the first byte that "
                             f"is not is at line {line}, column {column}") from None
+
+
+def _zip_kind(data: bytes) -> str:
+    """What a zip file given as a scenario is: an SSP package, an FMU or another archive."""
+    import io
+    import zipfile
+    try:
+        names = set(zipfile.ZipFile(io.BytesIO(data)).namelist())
+    except zipfile.BadZipFile:
+        names = set()
+    if "SystemStructure.ssd" in names:
+        return "this is an SSP package (flexfusion writes SSP with export-ssp but runs TOML scenarios)"
+    if "modelDescription.xml" in names:
+        return "this is an FMU (name it in a scenario: [components.NAME] fmu = \"path/to/it.fmu\")"
+    return "this is a zip archive"
 
 
 def _table(where: str, value: Any) -> dict[str, Any]:

@@ -97,12 +97,24 @@ def test_user_errors_exit_2_with_one_line(tmp_path, capsys, change, message):
 ZIP = b"PK\x03\x04"
 
 
+def _zipped(*names: str) -> bytes:
+    import io
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as z:
+        for name in names:
+            z.writestr(name, "")
+    return buffer.getvalue()
+
+
 @pytest.mark.parametrize("content, message", [
     (GOOD.encode("utf-16"), "the file is UTF-16; a TOML scenario must be UTF-8"),
     (GOOD.replace('"toy"', '"t\u00ff"').encode("latin-1"),
      "not UTF-8 text (Latin-1?): a TOML scenario must be UTF-8; the first byte that is not is at line 4, column 10"),
     (b"\x7fELF\x02\x01\x00\x00\xff\xfe", "a binary file: a TOML scenario must be UTF-8"),
-    (ZIP + b"\x14\x00 rest of an SSP package", "this is a zip archive (an SSP package or an FMU?), not a TOML scenario"),
+    (ZIP + b"\x14\x00 a torn zip", "this is a zip archive, not a TOML scenario"),
+    (_zipped("SystemStructure.ssd", "resources/Gain.fmu"), "this is an SSP package (flexfusion writes SSP with "
+     "export-ssp but runs TOML scenarios), not a TOML scenario"),
+    (_zipped("modelDescription.xml", "binaries/linux64/Gain.so"), "this is an FMU (name it in a scenario"),
 ])
 @pytest.mark.parametrize("command", ["run", "export-ssp"])
 def test_a_scenario_that_is_not_utf8_text_is_one_error_line(tmp_path, capsys, content, message, command):

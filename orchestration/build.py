@@ -140,7 +140,8 @@ def validate_fmu(path: Path) -> list[str]:
 
 def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: bool = False,
               scripts: list[Path] | None = None) -> list[Path]:
-    """Build (and validate) every FMU, or those whose script stem or class is in ``only``.
+    """Build (and validate) every FMU, or those whose script stem or class is in ``only``
+    (a name that is neither is an error, before anything is built).
 
     ``scripts`` replaces the FMU scripts found below ``fmus/`` (e.g. the test toys in
     ``tests/fmus``); they still bundle the ``fmus`` package.
@@ -151,6 +152,13 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
         Naming every FMU that failed to build or validate, with the reason.
     """
     from orchestration import native   # our FMI layer replaces pythonfmu's binary (native/README.md)
+    scripts = fmu_scripts() if scripts is None else [Path(p) for p in scripts]
+    classes = {p: _CLASS.findall(p.read_text()) for p in scripts}
+    names = {p: {p.stem, *classes[p]} for p in scripts}
+    unknown = sorted(set(only or ()) - set().union(*names.values()))
+    if unknown:
+        known = sorted(c for cs in classes.values() for c in cs)
+        raise BuildError(f"no FMU named {', '.join(unknown)} (known: {', '.join(known)})")
     library = native.build_library()
     dest.mkdir(parents=True, exist_ok=True)
     built: list[Path] = []
@@ -159,8 +167,8 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
         stage = Path(tmp)
         package = _stage_package(stage)
         FmuBuilder = stack.enter_context(_installed_builder(package.name))  # noqa: N806 - a class
-        for script in (fmu_scripts() if scripts is None else [Path(p) for p in scripts]):
-            if only and script.stem not in only and not set(only) & set(_CLASS.findall(script.read_text())):
+        for script in scripts:
+            if only and not set(only) & names[script]:
                 continue
             t0 = time.perf_counter()
             try:

@@ -19,6 +19,10 @@ def _error(message: str) -> int:
     return EXIT_USER_ERROR
 
 
+def _output_folder_error(exc: OSError, out: Any) -> int:
+    return _error(f"cannot use the output folder {exc.filename or out}: {exc.strerror or exc}")
+
+
 def _show_warning(message: Any, category: Any, filename: str, lineno: int, file: Any = None,
                   line: Any = None) -> None:
     print(f"warning: {message}", file=sys.stderr)
@@ -59,6 +63,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         if out_dir is not None:
             msg += f" (results up to the failure in {out_dir})"
         return _error(msg)
+    except OSError as exc:          # the output folder: not creatable, not writable, disk full
+        return _output_folder_error(exc, args.out)
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
     if args.state_out is not None:
         print(f"  state at t = {args.save_state_at:g} s in {args.state_out}")
@@ -226,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
         return build.main(rest)
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    args.argv = argv                     # recorded in a study folder's status.json
     handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp, "study": cmd_study,
                 "check-estimator": cmd_check_estimator}
     with warnings.catch_warnings():
@@ -246,14 +253,26 @@ def study_modules() -> list[Any]:
 
 
 def cmd_study(args: argparse.Namespace) -> int:
+    """A study in its ``--out`` folder (:class:`orchestration.study.StudyFolder`): checked and
+    locked before any run, each finished run kept, ``--resume`` reuses them."""
     from .master import RunError
     from .scenario import ScenarioError
-    from .study import StudyError
+    from .study import StudyError, StudyInterrupted, study_folder
 
+    command = " ".join(["flexfusion", *getattr(args, "argv", [])])
+    folder = None
     try:
-        return args.func(args)
+        with study_folder(args.out, resume=args.resume, command=command) as folder:
+            return args.func(args)
+    except StudyInterrupted as exc:
+        kept = (f"{folder.stored()} finished runs are kept in {args.out}; add --resume to continue"
+                if folder else "no run had started")
+        print(f"error: interrupted by {exc}: {kept}", file=sys.stderr)
+        return 128 + exc.signum
     except (StudyError, ScenarioError, RunError) as exc:
         return _error(str(exc))
+    except OSError as exc:
+        return _output_folder_error(exc, args.out)
 
 
 def console_main() -> None:

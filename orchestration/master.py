@@ -21,6 +21,7 @@
 from __future__ import annotations
 
 import ctypes
+import heapq
 import shutil
 import sys
 import tempfile
@@ -133,7 +134,8 @@ def plan(scenario: Scenario) -> Plan:
         if len(order) == len(names):
             result.order = order
             return result
-        rest = [n for n in names if n not in order]
+        placed = set(order)
+        rest = [n for n in names if n not in placed]
         cycle = _find_cycle(rest, active, rank)
         # prefer an edge whose consumer inputs have no direct feedthrough (a true delay)
         def cost(e: tuple[str, str]) -> tuple[int, int, int]:
@@ -146,20 +148,22 @@ def plan(scenario: Scenario) -> Plan:
 
 
 def _kahn(names: list[str], edges: set[tuple[str, str]], rank: dict[str, int]) -> list[str]:
+    """Kahn's topological sort, the ready component of lowest rank first; O((V + E) log V)."""
     indeg = {n: 0 for n in names}
-    for (_, d) in edges:
+    succ: dict[str, list[str]] = {n: [] for n in names}
+    for (s, d) in edges:
         indeg[d] += 1
-    ready = sorted((n for n in names if indeg[n] == 0), key=rank.get)
+        succ[s].append(d)
+    ready = [(rank[n], n) for n in names if indeg[n] == 0]
+    heapq.heapify(ready)
     order: list[str] = []
     while ready:
-        n = ready.pop(0)
+        _, n = heapq.heappop(ready)
         order.append(n)
-        for (s, d) in sorted(edges):
-            if s == n:
-                indeg[d] -= 1
-                if indeg[d] == 0:
-                    ready.append(d)
-                    ready.sort(key=rank.get)
+        for d in succ[n]:
+            indeg[d] -= 1
+            if indeg[d] == 0:
+                heapq.heappush(ready, (rank[d], d))
     return order
 
 
@@ -167,15 +171,18 @@ def _find_cycle(nodes: list[str], edges: set[tuple[str, str]], rank: dict[str, i
     """Edges of one cycle among ``nodes``, the ones Kahn's sort left.
 
     Each of them has a predecessor among them (else the sort would have taken it), so a walk
-    backwards through predecessors must repeat a node; the repeated part is a cycle. (A forward
-    walk can end at a node that is only downstream of a cycle.)
+    backwards through predecessors (the one of lowest rank) must repeat a node; the repeated
+    part is a cycle. (A forward walk can end at a node that is only downstream of a cycle.)
     """
     node_set = set(nodes)
-    pred = {n: sorted((s for (s, d) in edges if d == n and s in node_set), key=rank.get) for n in nodes}
+    pred: dict[str, str] = {}
+    for (s, d) in edges:
+        if s in node_set and d in node_set and (d not in pred or rank[s] < rank[pred[d]]):
+            pred[d] = s
     path = [nodes[0]]
     seen = {nodes[0]: 0}
     while True:
-        n = pred[path[-1]][0]
+        n = pred[path[-1]]
         if n in seen:
             cyc = (path[seen[n]:] + [n])[::-1]
             return list(zip(cyc[:-1], cyc[1:]))

@@ -302,15 +302,59 @@ def parse_override(text: str) -> tuple[str, str, int | None, Any]:
 # ---------------------------------------------------------------------------------------------
 def _read_toml(path: Path) -> dict[str, Any]:
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except FileNotFoundError:
         raise ScenarioError(f"scenario file not found: {path}") from None
     except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read: {exc}") from None
+        raise ScenarioError(f"{path}: cannot read: {exc.strerror or exc}") from None
     try:
-        return tomllib.loads(text)
+        return tomllib.loads(_utf8(path, data))
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: malformed TOML: {exc}") from None
+
+
+def _utf8(path: Path, data: bytes) -> str:
+    """The text of a TOML file (UTF-8, TOML 1.0), or a ScenarioError saying what the file is
+    and where it stops being UTF-8 (line, column; never its content)."""
+    if data.startswith(b"PK\x03\x04"):
+        raise ScenarioError(f"{path}: {_zip_kind(data)}, not a TOML scenario; give a scenario's .toml file")
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise ScenarioError(f"{path}: the file is UTF-16; a TOML scenario must be UTF-8 (save it as UTF-8)")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
+        kind = "a binary file" if b"\0" in data[:4096] else "not UTF-8 text (Latin-1?)"
+        raise ScenarioError(f"{path}: {kind}: a TOML scenario must be UTF-8; the first byte that "
+                            f"is not is at line {line}, column {column}") from None
+
+
+def _zip_kind(data: bytes) -> str:
+    """What a zip file given as a scenario is: an SSP package, an FMU or another archive."""
+    import io
+    import zipfile
+    try:
+        names = set(zipfile.ZipFile(io.BytesIO(data)).namelist())
+    except zipfile.BadZipFile:
+        names = set()
+    if "SystemStructure.ssd" in names:
+        return "this is an SSP package (flexfusion writes SSP with export-ssp but runs TOML scenarios)"
+    if "modelDescription.xml" in names:
+        return "this is an FMU (name it in a scenario: [components.NAME] fmu = \"path/to/it.fmu\")"
+    return "this is a zip archive"
+
+
+def _table(where: str, value: Any) -> dict[str, Any]:
+    """``value`` if it is a TOML table, else a ScenarioError."""
+    if not isinstance(value, dict):
+        raise ScenarioError(f"{where} must be a table, got {_type_name(value)}")
+    return value
+
+
+def _type_name(value: Any) -> str:
+    return {str: "a string", int: "an integer", float: "a number", bool: "a boolean", list: "a list",
+            dict: "a table"}.get(type(value), type(value).__name__)
 
 
 def _number(where: str, value: Any, *, positive: bool = True) -> float:
@@ -467,13 +511,13 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
                              "parameter_sets"})
     head = doc.get("scenario", {})
     _check_keys(f"{label}: [scenario]", head, _SCENARIO_KEYS)
-    comps_doc = doc.get("components", {})
-    _check_keys(f"{label}: [components]", comps_doc, comps_doc.keys())
+    comps_doc = _table(f"{label}: [components]", doc.get("components", {}))
     if not comps_doc:
         raise ScenarioError(f"{label}: no [components.*] given")
-
-    for ctab in comps_doc.values():
-        if isinstance(ctab, dict) and isinstance(ctab.get("parameters"), dict):
+    for cname, ctab in comps_doc.items():
+        _check_component_name(label, cname)
+        _table(f"{label}: [components.{cname}]", ctab)
+        if isinstance(ctab.get("parameters"), dict):
             resolve_file_parameters(ctab["parameters"], base_dir)
 
     sets = _parameter_sets(label, doc.get("parameter_sets", {}), base_dir)
@@ -482,6 +526,9 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
     includes = head.get("include", [])
     if isinstance(includes, str):
         includes = [includes]
+    if not isinstance(includes, list) or not all(isinstance(i, str) and i for i in includes):
+        raise ScenarioError(f"{label}: [scenario] include must be a file name or a list of file "
+                            f"names, got {includes!r}")
     for inc in includes:
         inc_path = base_dir / inc
         inc_doc = _read_toml(inc_path)
@@ -489,13 +536,11 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
         for sname, table in _parameter_sets(str(inc_path), inc_doc.get("parameter_sets", {}),
                                             inc_path.resolve().parent).items():
             sets.setdefault(sname, {}).update(table)
-        for cname, ctab in inc_doc.get("components", {}).items():
+        for cname, ctab in _table(f"{inc_path}: [components]", inc_doc.get("components", {})).items():
             if cname not in comps_doc:
                 raise ScenarioError(f"{inc_path}: unknown component '{cname}' (not in {label})")
-            if not isinstance(ctab, dict):
-                raise ScenarioError(f"{inc_path}: [components.{cname}] must be a table")
             _check_keys(f"{inc_path}: [components.{cname}]", ctab, {"parameters"})
-            params = dict(ctab.get("parameters", {}))
+            params = dict(_table(f"{inc_path}: [components.{cname}.parameters]", ctab.get("parameters", {})))
             resolve_file_parameters(params, inc_path.resolve().parent)
             comps_doc[cname].setdefault("parameters", {}).update(params)
 
@@ -525,7 +570,8 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
         if pname == "parameter_sets" and index is None:
             comps_doc[cname]["parameter_sets"] = value
             continue
-        params = comps_doc[cname].setdefault("parameters", {})
+        params = _table(f"{label}: [components.{cname}.parameters]",
+                        comps_doc[cname].setdefault("parameters", {}))
         if index is None:
             params[pname] = value
         else:
@@ -534,6 +580,17 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
     doc["scenario"] = head
     doc["parameter_sets"] = sets
     return doc, path, label, base_dir
+
+
+_COMPONENT_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _check_component_name(label: str, name: str) -> None:
+    """A component name is an identifier: it becomes a CSV column prefix (``name.var``), an SSP
+    element name and a part of ``--set name.param=value``."""
+    if not _COMPONENT_NAME.fullmatch(name):
+        raise ScenarioError(f"{label}: component name {name!r} must be an identifier (letters, digits "
+                            "and '_', not starting with a digit)")
 
 
 def _parameter_sets(where: str, table: Any, base_dir: Path) -> dict[str, dict[str, Any]]:
@@ -622,9 +679,7 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     components: dict[str, Component] = {}
     for cname, ctab in comps_doc.items():
         where = f"{label}: component '{cname}'"
-        if "." in cname or "[" in cname:
-            raise ScenarioError(f"{where}: a component name must not contain '.' or '['")
-        if isinstance(ctab, dict) and "connections" in ctab:
+        if "connections" in ctab:
             raise ScenarioError(f"{where}: 'connections' ended up inside [components.{cname}]: "
                                 "put the top-level connections = [...] before the first [table]")
         _check_keys(where, ctab, {"fmu", "step", "parameters", "parameter_sets"})
@@ -709,12 +764,8 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
             if comp.variables[group[0]].type != "Real":
                 raise ScenarioError(f"{label}: [record] variable {ref!r} is not Real")
             record.append(f"{comp.name}.{var}")
-    else:
-        record = []
-        for c in connections:
-            ref = f"{c.src}.{c.src_var}"
-            if ref not in record:
-                record.append(ref)
+    else:                          # every connected output once (a dict: linear in the connections)
+        record = list(dict.fromkeys(f"{c.src}.{c.src_var}" for c in connections))
     interval = _number(f"{label}: [record] interval", rec.get("interval", base_step))
     _multiple(f"{label}: [record] interval", interval, base_step)
 

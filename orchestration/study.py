@@ -7,6 +7,11 @@ given (``"local"`` starts a ``LocalCluster`` on this machine). :func:`map_jobs` 
 a progress bar and returns their results in job order, so a study's numbers do not depend on the
 executor or the number of workers.
 
+Nothing finished is lost: within a :class:`StudyFolder` (the ``--out`` of ``flexfusion study``),
+:func:`map_jobs` stores each job's result as it completes and ``--resume`` takes them back; a
+lost local worker costs only the jobs it was running, and SIGINT/SIGTERM leave status
+``interrupted`` with every finished job on disk.
+
 Worker processes are forked from a clean server process (``forkserver``), not from this one
 (which may hold threads and loaded FMUs), and live as long as the executor; each run frees its
 FMU instances and unloads their libraries. (Replacing workers with ``max_tasks_per_child``
@@ -16,17 +21,27 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
+import json
 import multiprocessing
 import os
+import pickle
+import signal
+import sys
 import time
 import warnings
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from .safe_io import FolderLock, FolderLockedError, atomic_write_bytes, atomic_write_json
 
 
 class StudyError(RuntimeError):
@@ -103,6 +118,9 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (
 
     sc = load_scenario(scenario, tuple(overrides))
     columns = sc.record_columns()
+    missing = unrecorded(sc, variables or ())
+    if missing:                                  # before the run, not after it
+        raise ScenarioError(f"{sc.name}: not recorded: {', '.join(missing)}")
     rows: list[np.ndarray] = []
     times: list[float] = []
 
@@ -125,12 +143,25 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (
             raise ScenarioError(f"{sc.name}: metric '{spec.name}': {exc}") from None
     if variables is not None:
         keep = [i for i, c in enumerate(columns) if c.split("[", 1)[0] in set(variables)]
-        missing = set(variables) - {columns[i].split("[", 1)[0] for i in keep}
-        if missing:
-            raise ScenarioError(f"{sc.name}: not recorded: {', '.join(sorted(missing))}")
         run.columns = [columns[i] for i in keep]
         run.data = data[:, keep]
     return run
+
+
+def unrecorded(sc: Any, variables: Iterable[str]) -> list[str]:
+    """The whole variables (``comp.var``) among ``variables`` that the loaded scenario ``sc``
+    does not record, sorted."""
+    have = {c.split("[", 1)[0] for c in sc.record_columns()}
+    return sorted(set(variables) - have)
+
+
+def require_recorded(sc: Any, variables: Iterable[str], purpose: str) -> None:
+    """:class:`StudyError` naming what ``purpose`` (e.g. "the Monte Carlo study") needs and the
+    scenario does not record: checked before any job runs, so that none runs in vain."""
+    missing = unrecorded(sc, variables)
+    if missing:
+        raise StudyError(f"scenario '{sc.name}' does not record what {purpose} needs: "
+                         f"{', '.join(missing)} (add them to [record] variables)")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -147,8 +178,9 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
         Number of local worker processes (default: the machine's cores). With
         ``scheduler="local"``, the number of workers of the Dask ``LocalCluster``.
     scheduler
-        ``None``: a local process pool. An address (``tcp://host:8786``): the executor of a
-        Dask ``distributed`` client connected to that scheduler. ``"local"``: a Dask
+        ``None``: a local process pool (:class:`ProcessPool`, which :func:`map_jobs` restarts
+        when a worker dies). An address (``tcp://host:8786``): the executor of a Dask
+        ``distributed`` client connected to that scheduler. ``"local"``: a Dask
         ``LocalCluster`` started here (one thread per worker process).
     connect_timeout
         Seconds to wait for a remote scheduler.
@@ -156,12 +188,14 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
     if workers is not None and workers < 1:
         raise StudyError(f"--workers must be at least 1, not {workers}")
     if scheduler is None:
-        ctx = multiprocessing.get_context("forkserver")
-        # the fork server may be older than this process's settings: pass them on
-        with ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, mp_context=ctx,
-                                 initializer=_set_environment,
-                                 initargs=(_flexfusion_environment(),)) as ex:
-            yield ex
+        pool = ProcessPool(workers or os.cpu_count() or 1)
+        try:
+            yield pool
+        except BaseException:
+            pool.terminate()      # an interrupt or an error: do not wait for the running jobs
+            raise
+        finally:
+            pool.shutdown()
         return
     try:
         import dask
@@ -177,16 +211,84 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
             client.run(_set_environment, _flexfusion_environment())
         else:
             cluster = None
-            try:
-                client = Client(scheduler, timeout=connect_timeout)
-            except OSError as exc:
-                raise StudyError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+            client = _connect(scheduler, connect_timeout)
         try:
             yield client.get_executor(pure=False)
         finally:
             client.close()
             if cluster is not None:
                 cluster.close()
+
+
+def _connect(address: str, timeout: float) -> Any:
+    """A Dask client of the scheduler at ``address``, or :class:`StudyError` within ``timeout``.
+
+    The scheduler is asked who it is first, under a deadline: ``Client`` alone waits forever on
+    a service that accepts the connection and stays silent, and fails with odd errors (a
+    ``MemoryError`` for an HTTP server's reply) on one that answers something else.
+    """
+    import asyncio
+
+    from distributed import Client
+    try:
+        reply = asyncio.run(asyncio.wait_for(_identity(address, timeout), 2 * timeout))
+    except TimeoutError:        # connected (within ``timeout``), then no answer
+        raise StudyError(f"no Dask scheduler answered at {address} within {2 * timeout:g} s") from None
+    except (OSError, ValueError, TypeError) as exc:            # no such host, port, scheme
+        cause = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise StudyError(f"cannot reach the Dask scheduler at {address}: {cause}") from None
+    except Exception as exc:  # noqa: BLE001 - what another protocol's reply makes Dask's raise
+        raise StudyError(f"the service at {address} does not answer as a Dask scheduler "
+                         f"({type(exc).__name__})") from None
+    if not (isinstance(reply, dict) and reply.get("type") == "Scheduler"):
+        raise StudyError(f"the service at {address} is not a Dask scheduler")
+    return Client(address, timeout=timeout)
+
+
+async def _identity(address: str, timeout: float) -> Any:
+    from distributed.comm import connect
+    comm = await connect(address, timeout=timeout)
+    try:
+        await comm.write({"op": "identity", "reply": True})
+        return await comm.read()
+    finally:
+        comm.abort()
+
+
+class ProcessPool(Executor):
+    """A ``ProcessPoolExecutor`` on ``forkserver`` workers that can be restarted after one of
+    its workers died (``BrokenProcessPool`` breaks a pool for good) and terminated at once.
+
+    The fork server may be older than this process's settings: the ``FLEXFUSION_*`` environment
+    is passed on. Workers ignore SIGINT: a Ctrl-C reaches the whole process group, and it is
+    this process that ends the study (and terminates them).
+    """
+
+    def __init__(self, workers: int) -> None:
+        self.max_workers = workers
+        self._pool = self._new()
+
+    def _new(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(max_workers=self.max_workers,
+                                   mp_context=multiprocessing.get_context("forkserver"),
+                                   initializer=_init_worker, initargs=(_flexfusion_environment(),))
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:
+        return self._pool.submit(fn, *args, **kwargs)
+
+    def restart(self) -> None:
+        """A fresh pool in place of a broken one."""
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._pool = self._new()
+
+    def terminate(self) -> None:
+        """Kill the workers (their running jobs are lost) and cancel the queued jobs."""
+        for proc in list((self._pool._processes or {}).values()):   # no public API before 3.14
+            proc.terminate()
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self._pool.shutdown(wait=wait, cancel_futures=cancel_futures)
 
 
 def _flexfusion_environment() -> dict[str, str]:
@@ -199,44 +301,250 @@ def _set_environment(env: dict[str, str]) -> None:
     os.environ.update(env)
 
 
+def _init_worker(env: dict[str, str]) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _set_environment(env)
+
+
+# ---------------------------------------------------------------------------------------------
+# the study folder: finished jobs kept on disk, resumable
+# ---------------------------------------------------------------------------------------------
+class StudyInterrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM during a study (``signum``)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+class StudyFolder:
+    """A study's ``--out`` folder, which keeps every finished job.
+
+    Entering it (before any job runs) creates the folder, takes its lock (one study at a time)
+    and writes ``status.json`` (which also proves the folder writable). While it is active,
+    :func:`map_jobs` stores each job's result as it completes in ``jobs/<key>.pickle`` (written
+    atomically; the key is a hash of the job's function and arguments) and takes the results
+    already there instead of computing them again: that is ``--resume``. On leaving,
+    ``status.json`` says ``ok``, ``failed`` or ``interrupted`` (with the cause).
+
+    A resumed study reuses a stored result whenever the job is the same call; it does not know
+    whether the FMUs or the code changed meanwhile (start a new folder then). The job files are
+    pickles: like an FMU, a study folder from someone else runs code when it is resumed.
+    """
+
+    STATUS = "status.json"
+    JOBS = "jobs"
+
+    def __init__(self, path: str | Path, *, resume: bool = False, command: str = "") -> None:
+        self.path = Path(path)
+        self.resume = resume
+        self.command = command
+        self.computed = 0          # jobs computed (and stored) in this session
+        self.reused = 0            # jobs taken from the folder
+        self._lock: Any = None
+        self._token: Any = None
+
+    # -- life cycle ------------------------------------------------------------------------
+    def __enter__(self) -> StudyFolder:
+        status = self.path / self.STATUS
+        try:
+            if self.path.exists() and not self.path.is_dir():
+                raise StudyError(f"--out {self.path}: not a folder")
+            if self.resume and not status.is_file():
+                raise StudyError(f"--resume: {self.path} is not a study folder (no {self.STATUS})")
+            if not self.resume and self.path.is_dir() and self.stored():
+                raise StudyError(f"--out {self.path} holds {self.stored()} finished runs of a study "
+                                 f"(status '{self._previous_status()}'): add --resume to continue it "
+                                 "with them, or choose another --out")
+            (self.path / self.JOBS).mkdir(parents=True, exist_ok=True)
+            self._lock = FolderLock(self.path)
+            self._lock.acquire()
+        except FolderLockedError as exc:
+            raise StudyError(f"--out {exc}: another study writes there") from None
+        except OSError as exc:
+            raise StudyError(f"--out {self.path}: {exc.strerror or exc}") from None
+        try:
+            self._write_status("running")
+        except OSError as exc:
+            self._lock.release()
+            raise StudyError(f"--out {self.path}: cannot write: {exc.strerror or exc}") from None
+        self._token = _ACTIVE_FOLDER.set(self)
+        return self
+
+    def __exit__(self, kind: type | None, exc: BaseException | None, tb: Any) -> None:
+        _ACTIVE_FOLDER.reset(self._token)
+        if kind is None:
+            status, cause = "ok", None
+        elif issubclass(kind, KeyboardInterrupt):
+            status, cause = "interrupted", str(exc) or "SIGINT"
+        else:
+            status, cause = "failed", f"{kind.__name__}: {exc}"
+        try:
+            self._write_status(status, cause)
+        except OSError:
+            pass                   # the disk is what failed: the stored jobs are what counts
+        finally:
+            self._lock.release()
+
+    def _previous_status(self) -> str:
+        try:
+            return str(json.loads((self.path / self.STATUS).read_text())["status"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return "unreadable"
+
+    def _write_status(self, status: str, cause: str | None = None) -> None:
+        atomic_write_json(self.path / self.STATUS, {
+            "status": status, "cause": cause, "command": self.command,
+            "jobs_stored": self.stored(), "jobs_computed_now": self.computed,
+            "jobs_reused_now": self.reused, "time": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+
+    # -- jobs ------------------------------------------------------------------------------
+    @staticmethod
+    def key(fn: Callable[..., Any], job: Any) -> str:
+        """The name a job's result is stored under: a hash of the pickled call."""
+        return hashlib.sha256(pickle.dumps((fn, job), protocol=5)).hexdigest()[:32]
+
+    def _file(self, key: str) -> Path:
+        return self.path / self.JOBS / f"{key}.pickle"
+
+    def load(self, key: str) -> tuple[bool, Any]:
+        """``(True, result)`` for a stored job, ``(False, None)`` otherwise (or if unreadable)."""
+        try:
+            value = pickle.loads(self._file(key).read_bytes())
+        except FileNotFoundError:
+            return False, None
+        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError) as exc:
+            warnings.warn(f"{self._file(key)}: cannot read it ({exc}); the job runs again")
+            return False, None
+        self.reused += 1
+        return True, value
+
+    def store(self, key: str, value: Any) -> None:
+        atomic_write_bytes(self._file(key), pickle.dumps(value, protocol=5))
+        self.computed += 1
+
+    def stored(self) -> int:
+        return sum(1 for _ in (self.path / self.JOBS).glob("*.pickle"))
+
+
+_ACTIVE_FOLDER: ContextVar[StudyFolder | None] = ContextVar("study_folder", default=None)
+
+
+@contextmanager
+def study_folder(path: str | Path, *, resume: bool = False, command: str = "") -> Iterator[StudyFolder]:
+    """:class:`StudyFolder` for a study run from the command line: SIGTERM also ends it as a
+    :class:`StudyInterrupted` (as SIGINT does), so either leaves status ``interrupted``."""
+    def interrupt(signum: int, frame: Any) -> None:
+        raise StudyInterrupted(signum)
+
+    previous = {s: signal.signal(s, interrupt) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with StudyFolder(path, resume=resume, command=command) as folder:
+            yield folder
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+# ---------------------------------------------------------------------------------------------
+# running the jobs
+# ---------------------------------------------------------------------------------------------
+class WorkerLost(RuntimeError):
+    """The worker process running a job died (killed by a signal, out of memory, os._exit)."""
+
+
 def map_jobs(fn: Callable[..., Any], jobs: Sequence[Any], executor: Executor, *, desc: str = "",
              progress: bool = True, star: bool = False) -> list[Any]:
     """Run ``fn(job)`` (``fn(*job)`` with ``star``) for every job on ``executor``.
 
     Returns the results in job order. All jobs run to their end even when some fail; then
     :class:`StudyError` names the failed jobs and their errors, with the other results on
-    ``exc.results``.
+    ``exc.results``. Within an active :class:`StudyFolder`, each result is stored as it
+    completes, and results stored earlier are taken instead of running their jobs again.
+
+    When a worker of a :class:`ProcessPool` dies, the pool is restarted and the jobs it was
+    running are retried once, each alone (so that a job that kills its worker again takes no
+    other job with it); the pool holds only as many jobs as it has workers, so the jobs that
+    were lost are known. (A Dask cluster reschedules the jobs of a lost worker itself.)
     """
-    futures: dict[Future, int] = {}
-    for i, job in enumerate(jobs):
-        futures[executor.submit(fn, *job) if star else executor.submit(fn, job)] = i
-    results: list[Any] = [None] * len(futures)
-    errors: list[tuple[int, BaseException]] = []
+    folder = _ACTIVE_FOLDER.get()
+    n = len(jobs)
+    keys = [StudyFolder.key(fn, job) for job in jobs] if folder else []
+    results: list[Any] = [None] * n
+    errors: dict[int, BaseException] = {}
+    todo: deque[int] = deque()
+    for i in range(n):
+        found, value = folder.load(keys[i]) if folder else (False, None)
+        if found:
+            results[i] = value
+        else:
+            todo.append(i)
+    restartable = isinstance(executor, ProcessPool)
+    window = executor.max_workers if restartable else max(n, 1)
+    retry: deque[int] = deque()           # jobs whose worker died once
+    lost: set[int] = set()
+    running: dict[Future, int] = {}
+    broken = False
     bar = None
     if progress:
-        import sys
-
         from tqdm import tqdm
-        bar = tqdm(total=len(futures), desc=desc or getattr(fn, "__name__", "jobs"), unit="run",
-                   file=sys.stderr, leave=False)
+        bar = tqdm(total=n, initial=n - len(todo), desc=desc or getattr(fn, "__name__", "jobs"),
+                   unit="run", file=sys.stderr, leave=False)
     try:
-        for fut in as_completed(futures):
-            i = futures[fut]
-            try:
-                results[i] = fut.result()
-            except Exception as exc:  # noqa: BLE001 - collected and reported below
-                errors.append((i, exc))
-            if bar is not None:
-                bar.update(1)
+        while todo or retry or running:
+            if broken and not running:
+                executor.restart()
+                broken = False
+            if not broken:
+                if retry and not running:
+                    queue, count = retry, 1
+                else:
+                    queue, count = todo, 0 if retry else window - len(running)
+                for _ in range(min(count, len(queue))):
+                    i = queue.popleft()
+                    try:
+                        running[executor.submit(fn, *jobs[i]) if star else executor.submit(fn, jobs[i])] = i
+                    except BrokenProcessPool:     # a worker died since the last wait
+                        if not restartable:
+                            raise
+                        queue.appendleft(i)
+                        broken = True
+                        break
+            if not running:
+                continue
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for fut in done:
+                i = running.pop(fut)
+                try:
+                    results[i] = fut.result()
+                except BrokenProcessPool as exc:
+                    if not restartable:
+                        errors[i] = exc
+                    elif i in lost:
+                        errors[i] = WorkerLost("its worker process died twice (killed by a signal, "
+                                               "out of memory, or the job ended the process)")
+                    else:
+                        lost.add(i)
+                        retry.append(i)
+                    broken = restartable
+                    continue
+                except Exception as exc:  # noqa: BLE001 - collected and reported below
+                    errors[i] = exc
+                else:
+                    if folder:
+                        folder.store(keys[i], results[i])
+                if bar is not None:
+                    bar.update(1)
     finally:
         if bar is not None:
             bar.close()
     if errors:
-        errors.sort(key=lambda e: e[0])
-        first = "; ".join(f"job {i} ({_describe(jobs[i])}): {type(e).__name__}: {e}"
-                          for i, e in errors[:3])
-        more = f" (and {len(errors) - 3} more)" if len(errors) > 3 else ""
-        raise StudyError(f"{len(errors)} of {len(results)} jobs failed: {first}{more}", results)
+        failed = sorted(errors)
+        first = "; ".join(f"job {i} ({_describe(jobs[i])}): {type(errors[i]).__name__}: {errors[i]}"
+                          for i in failed[:3])
+        more = f" (and {len(failed) - 3} more)" if len(failed) > 3 else ""
+        kept = f"; the {n - len(failed)} finished are kept in {folder.path}" if folder else ""
+        raise StudyError(f"{len(failed)} of {n} jobs failed: {first}{more}{kept}", results)
     return results
 
 
@@ -246,17 +554,21 @@ def _describe(job: Any, limit: int = 120) -> str:
 
 
 def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--workers K``, ``--scheduler ADDRESS`` and ``--no-progress`` for a study's sub-command."""
+    """``--workers K``, ``--scheduler ADDRESS``, ``--no-progress`` and ``--resume`` for a
+    study's sub-command."""
     parser.add_argument("--workers", type=int, metavar="K",
                         help="local worker processes (default: the number of cores)")
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="run on a Dask distributed cluster (tcp://host:port), or 'local' "
                              "to start a Dask LocalCluster here")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the study in --out: reuse its finished runs, compute the rest")
 
 
-__all__ = ["StudyError", "RunArrays", "simulate", "open_executor", "map_jobs",
-           "add_executor_arguments", "dataclass_from_scalars"]
+__all__ = ["StudyError", "RunArrays", "simulate", "open_executor", "ProcessPool", "map_jobs",
+           "StudyFolder", "study_folder", "unrecorded", "require_recorded", "StudyInterrupted", "WorkerLost", "add_executor_arguments",
+           "dataclass_from_scalars"]
 
 
 def dataclass_from_scalars(cls: type, scalars: dict[str, Any]) -> Any:

@@ -54,7 +54,7 @@ from fmus.common.parameters import ParameterError, validate
 
 from . import identification as ident
 from .study import (StudyError, add_executor_arguments, dataclass_from_scalars, map_jobs,
-                    open_executor, simulate)
+                    open_executor, require_recorded, simulate)
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
 DEFAULT_SCENARIO = SCENARIOS / "identify_experiment.toml"
@@ -152,6 +152,7 @@ def run_experiments(scenario: str | Path, points: Sequence[Sequence[float]], exe
     from .study_tune import load_document
     doc = load_document(scenario)
     sc = load_scenario(doc, overrides)                        # bad input fails here, once
+    require_recorded(sc, recorded(sc), "the identification")
     names = {"controller": _component(sc, "MotionController").name,
              "plant": _component(sc, "FlexibleRobot2DOF").name}
     per_exp = [list(overrides) + experiment_overrides(k, pt, amplitude, **names) for k, pt in enumerate(points)]

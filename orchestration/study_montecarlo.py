@@ -122,6 +122,7 @@ def _scenario_parts(scenario: str | Path, overrides: Sequence[str]):
     if len(plants) != 1:
         raise study.StudyError(f"scenario '{sc.name}' needs exactly one {PLANT_FMU} component for the "
                                f"true states, found {len(plants)}")
+    study.require_recorded(sc, needed(filters, plants[0]), "the Monte Carlo study")
     ratios = {f.ratio for f in filters}
     if len(ratios) != 1:
         raise study.StudyError("the filters of scenario '%s' run at different steps (%s); the study "
@@ -142,10 +143,7 @@ def run_one(scenario: str, overrides: Sequence[str], filters: Sequence[FilterInf
         (q_m, dq_m, ddq_m) (``ddq_m`` by central differences of the recorded ``dq_m``), and per
         filter ``"<name>"`` (K, 6): estimate minus truth.
     """
-    extra = [f"{plant}.{x}" for x in ("q_a", "dq_a", "ddq_a", "q_m", "dq_m")]
-    wanted = list(dict.fromkeys(extra + [f"{f.name}.{_ESTIMATES[g]}" for f in filters for g in GROUPS]
-                                + [f"{f.name}.P_x" for f in filters if f.has_covariance]))
-    r = study.simulate(scenario, overrides, wanted)
+    r = study.simulate(scenario, overrides, needed(filters, plant))
     t = r.time
     idx = np.arange(1, len(t), ratio)              # t_j + h: the filters' fresh estimates
     truth = np.hstack([r[f"{plant}.{_TRUTH[g]}"] for g in GROUPS])
@@ -159,6 +157,14 @@ def run_one(scenario: str, overrides: Sequence[str], filters: Sequence[FilterInf
         if f.has_covariance:
             out[f.name + ".nees"] = nees(out[f.name], r[f"{f.name}.P_x"][idx])
     return out
+
+
+def needed(filters: Sequence[FilterInfo], plant: str) -> list[str]:
+    """The variables a run must record: the plant's states and motor signals, each filter's
+    estimates (and its covariance ``P_x`` where the scenario records it)."""
+    extra = [f"{plant}.{x}" for x in ("q_a", "dq_a", "ddq_a", "q_m", "dq_m")]
+    return list(dict.fromkeys(extra + [f"{f.name}.{_ESTIMATES[g]}" for f in filters for g in GROUPS]
+                              + [f"{f.name}.P_x" for f in filters if f.has_covariance]))
 
 
 # ---------------------------------------------------------------------------------------------

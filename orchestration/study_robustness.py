@@ -515,7 +515,7 @@ def main(args: argparse.Namespace) -> int:
 def register(subparsers: Any) -> None:
     """Add ``flexfusion study robustness``."""
     p = subparsers.add_parser("robustness", help="Table I of Henriksson et al. 2009: observers on "
-                              "P1, P2 and with model errors (50 % stiffness, joint 2, identification)", description=__doc__.split("\n\n")[0])
+                              "P1, P2 and with model errors (50 %% stiffness, joint 2, identification)", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--tuned", action="append", metavar="FILE",
                    help="TOML include file(s) with tuned estimator parameters (from `study tune`)")

@@ -49,7 +49,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .scenario import connection_key
-from .study import StudyError, add_executor_arguments, open_executor, simulate
+from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
 
 #: Default search ranges per estimator FMU type (model identifier), used when no --param is
 #: given. The observer: four pole pairs (Hz, damping), section III-C-2. The EKFs: the five
@@ -310,7 +310,7 @@ class _RecordingMap:
         if self.executor is None:
             costs = [fn(x) for x in xs]
         else:
-            costs = list(self.executor.map(fn, xs))
+            costs = map_jobs(fn, xs, self.executor, progress=False)   # kept in a study folder
         for x, c in zip(xs, costs):
             self.history.append({"params": self.objective.values(x), "cost": float(c)})
         return costs
@@ -428,7 +428,7 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
     if executor is None:
         costs = [_cost_job(*c) for c in checks]
     else:
-        costs = list(executor.map(_cost_job, *zip(*checks)))
+        costs = map_jobs(_cost_job, checks, executor, progress=False, star=True)
     costs += [float("nan")] * (3 - len(costs))
     wall = time.perf_counter() - t0
     return TuneResult(component=component, params=best, cost=float(res.fun), n_evals=len(recorder.history),

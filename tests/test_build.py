@@ -36,3 +36,12 @@ def test_build_after_an_fmu_ran_in_the_process_has_binaries(tmp_path, tmp_path_f
     bundled, n_binaries = out.stdout.split()
     assert bundled == "True"          # the situation under test did arise
     assert int(n_binaries) > 0
+
+
+def test_an_unknown_fmu_name_is_refused_naming_the_known_ones(tmp_path, capsys) -> None:
+    from orchestration import build
+    assert build.main(["--dest", str(tmp_path), "Encoder", "NoSuchFmu"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: no FMU named NoSuchFmu (known: AccelerationObserver, ")
+    assert "Encoder" in err and "FlexibleRobot2DOF" in err and err.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []                 # nothing built, not even the Encoder

@@ -73,6 +73,14 @@ BAD = [
     (("seed = 4", "seed = 4\n[components.src]\nstep = 0.0015"), "malformed TOML"),
     (('fmu = "Source"', 'fmu = "Source"\nstep = 0.0015'), "not an integer multiple of the base step"),
     (("stop_time = 0.2", "stop_time = = 0.2"), "line 5"),
+    (("[components.g]", '[components."g,x"]'), "component name 'g,x' must be an identifier"),
+    (("[components.g]", '[components."g\\nx"]'), "component name 'g\\nx' must be an identifier"),
+    (('[components.g]\nfmu = "Gain"\nparameters = { gain = 1.0 }', "[components]\ng = 5"),
+     "[components.g] must be a table, got an integer"),
+    (('[components.g]\nfmu = "Gain"\nparameters = { gain = 1.0 }', '[components.g]\nfmu = "Gain"\nparameters = 2'),
+     "[parameters] must be a table"),
+    (("seed = 4", "seed = 4\ninclude = 5"), "include must be a file name or a list of file names, got 5"),
+    (("seed = 4", "seed = 4\ninclude = [[1]]"), "include must be a file name or a list of file names"),
 ]
 
 
@@ -84,6 +92,56 @@ def test_user_errors_exit_2_with_one_line(tmp_path, capsys, change, message):
     assert err.startswith("error: ") and err.count("\n") == 1, err
     assert message in err and "Traceback" not in err
     assert str(path) in err
+
+
+ZIP = b"PK\x03\x04"
+
+
+def _zipped(*names: str) -> bytes:
+    import io
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as z:
+        for name in names:
+            z.writestr(name, "")
+    return buffer.getvalue()
+
+
+@pytest.mark.parametrize("content, message", [
+    (GOOD.encode("utf-16"), "the file is UTF-16; a TOML scenario must be UTF-8"),
+    (GOOD.replace('"toy"', '"t\u00ff"').encode("latin-1"),
+     "not UTF-8 text (Latin-1?): a TOML scenario must be UTF-8; the first byte that is not is at line 4, column 10"),
+    (b"\x7fELF\x02\x01\x00\x00\xff\xfe", "a binary file: a TOML scenario must be UTF-8"),
+    (ZIP + b"\x14\x00 a torn zip", "this is a zip archive, not a TOML scenario"),
+    (_zipped("SystemStructure.ssd", "resources/Gain.fmu"), "this is an SSP package (flexfusion writes SSP with "
+     "export-ssp but runs TOML scenarios), not a TOML scenario"),
+    (_zipped("modelDescription.xml", "binaries/linux64/Gain.so"), "this is an FMU (name it in a scenario"),
+])
+@pytest.mark.parametrize("command", ["run", "export-ssp"])
+def test_a_scenario_that_is_not_utf8_text_is_one_error_line(tmp_path, capsys, content, message, command):
+    path = tmp_path / "scenario.ssp"
+    path.write_bytes(content)
+    argv = [command, str(path)] + (["-o", str(tmp_path / "x.ssp")] if command == "export-ssp" else ["--no-progress"])
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {path}: {message}") and err.count("\n") == 1, err
+
+
+def test_os_errors_on_the_output_folder_are_one_line(tmp_path, capsys, monkeypatch):
+    import errno
+
+    from orchestration import master
+    path = write(tmp_path, GOOD)
+    (tmp_path / "file").write_text("")
+    for out, reason in ((tmp_path / "file", "File exists"), (tmp_path / "file" / "sub", "Not a directory")):
+        assert main(["run", str(path), "--out", str(out), "--no-progress"]) == 2
+        assert capsys.readouterr().err == f"error: cannot use the output folder {out}: {reason}\n"
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "o" / "results.csv"))
+    monkeypatch.setattr(master, "run", full)
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    assert capsys.readouterr().err == (f"error: cannot use the output folder {tmp_path / 'o' / 'results.csv'}: "
+                                       "No space left on device\n")
 
 
 @pytest.mark.parametrize("mode, message", [
@@ -148,3 +206,26 @@ def test_export_ssp(tmp_path, capsys, toy_dir):
     assert 'startElement="src" startConnector="ys[2]" endElement="g" endConnector="uv[2]"' in ssd
     assert 'name="gain"' in ssd and 'value="3.0"' in ssd
     assert 'baseStepSize="0.001"' in ssd
+
+
+def _commands() -> list[list[str]]:
+    import argparse
+
+    from orchestration.cli import study_modules
+    kinds = argparse.ArgumentParser().add_subparsers()
+    for module in study_modules():
+        module.register(kinds)
+    return [[], ["build"], ["run"], ["plot"], ["export-ssp"], ["study"]] + [["study", k] for k in kinds.choices]
+
+
+@pytest.mark.parametrize("command", _commands(), ids=" ".join)
+def test_every_help_exits_0_and_reads_as_text(capsys, command):
+    """An unescaped % in a help string made argparse print a Python dict."""
+    import re
+    with pytest.raises(SystemExit) as exit_:
+        main(command + ["--help"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: flexfusion")
+    assert "{'" not in out and "Traceback" not in out
+    assert not re.search(r"issue\s*#?\d", out, re.I)

@@ -1,7 +1,15 @@
 """orchestration.study: in-memory runs, executors (local processes, Dask) and job mapping."""
 from __future__ import annotations
 
+import json
 import operator
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -101,3 +109,188 @@ def test_an_unreachable_scheduler_is_one_clear_error():
     with pytest.raises(study.StudyError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:1"):
         with study.open_executor(scheduler="tcp://127.0.0.1:1", connect_timeout=1):
             pass
+
+
+# ---------------------------------------------------------------------------------------------
+# the study folder: finished jobs kept, --resume, lost workers, interrupts
+# ---------------------------------------------------------------------------------------------
+def _square_logged(k: int, log: str) -> int:
+    """A test job: notes that it ran (``log/<k>.<pid>``), ends its worker process when the file
+    ``log/exit<k>`` exists (removing it first with ``once`` in its name: ``exit<k>.once``)."""
+    folder = Path(log)
+    (folder / f"ran.{k}.{os.getpid()}.{time.monotonic_ns()}").touch()
+    once = folder / f"exit{k}.once"
+    if once.exists():
+        once.unlink()
+        os.kill(os.getpid(), signal.SIGKILL)
+    if (folder / f"exit{k}").exists():
+        os._exit(3)
+    time.sleep(float((folder / "sleep").read_text()) if (folder / "sleep").exists() else 0.0)
+    return k * k
+
+
+def _ran(log: Path) -> list[int]:
+    """The jobs that ran (sorted), and forget them."""
+    runs = sorted(p for p in log.glob("ran.*"))
+    for p in runs:
+        p.unlink()
+    return sorted(int(p.name.split(".")[1]) for p in runs)
+
+
+def test_a_lost_worker_fails_only_its_job_and_resume_computes_only_it(tmp_path):
+    log, out = tmp_path / "log", tmp_path / "study"
+    log.mkdir()
+    (log / "exit3").touch()               # job 3 ends its worker, every time
+    jobs = [(k, str(log)) for k in range(6)]
+    with pytest.raises(study.StudyError, match=r"1 of 6 jobs failed: job 3 \(\(3, .*WorkerLost: its "
+                       r"worker process died twice.* the 5 finished are kept in") as info:
+        with study.StudyFolder(out), study.open_executor(workers=2) as ex:
+            study.map_jobs(_square_logged, jobs, ex, star=True, progress=False)
+    assert info.value.results == [0, 1, 4, None, 16, 25]
+    status = json.loads((out / "status.json").read_text())
+    assert (status["status"], status["jobs_stored"]) == ("failed", 5)
+    assert "job 3" in status["cause"]
+    assert _ran(log).count(3) == 2       # tried, then retried once (alone)
+
+    (log / "exit3").unlink()
+    with study.StudyFolder(out, resume=True), study.open_executor(workers=2) as ex:
+        assert study.map_jobs(_square_logged, jobs, ex, star=True, progress=False) == [k * k for k in range(6)]
+    assert _ran(log) == [3]               # the finished runs were not computed again
+    assert json.loads((out / "status.json").read_text())["status"] == "ok"
+
+
+def test_a_worker_killed_once_is_retried_and_nothing_is_lost(tmp_path):
+    log = tmp_path / "log"
+    log.mkdir()
+    (log / "exit2.once").touch()          # job 2's worker is killed (SIGKILL) the first time
+    with study.open_executor(workers=2) as ex:
+        assert study.map_jobs(_square_logged, [(k, str(log)) for k in range(5)], ex, star=True,
+                              progress=False) == [k * k for k in range(5)]
+    ran = _ran(log)
+    assert ran.count(2) == 2 and set(ran) == set(range(5))
+
+
+def test_a_study_folder_is_checked_and_locked_before_any_job(tmp_path):
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(study.StudyError, match="not a folder"):
+        study.StudyFolder(tmp_path / "file").__enter__()
+    with pytest.raises(study.StudyError, match=r"--out .*/file/sub: Not a directory"):
+        study.StudyFolder(tmp_path / "file" / "sub").__enter__()
+    with pytest.raises(study.StudyError, match="--resume: .* is not a study folder"):
+        study.StudyFolder(tmp_path / "new", resume=True).__enter__()
+    out = tmp_path / "out"
+    with study.StudyFolder(out) as folder:
+        with pytest.raises(study.StudyError, match="another study writes there"):
+            study.StudyFolder(out, resume=True).__enter__()
+    with study.StudyFolder(out) as folder:         # no run stored: a new study may start there
+        folder.store("k", 1.0)
+    with pytest.raises(study.StudyError, match=r"holds 1 finished runs of a study \(status 'ok'\): add --resume"):
+        study.StudyFolder(out).__enter__()
+
+
+def test_a_full_disk_at_the_start_of_a_study_is_one_error_and_frees_the_folder(tmp_path, monkeypatch):
+    import errno
+
+    def full(path, obj):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+    monkeypatch.setattr(study, "atomic_write_json", full)
+    with pytest.raises(study.StudyError, match=r"--out .*/out: cannot write: No space left on device"):
+        study.StudyFolder(tmp_path / "out").__enter__()
+    monkeypatch.undo()
+    with study.StudyFolder(tmp_path / "out"):      # the lock was released
+        pass
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_ends_a_study_with_one_message_and_resume_finishes_it(tmp_path, signum):
+    """A study in a child process gets SIGTERM or SIGINT once a run is stored: one line, status
+    'interrupted', the stored runs kept; --resume computes only the others, same numbers."""
+    log, out = tmp_path / "log", tmp_path / "study"
+    log.mkdir()
+    (log / "sleep").write_text("0.5")
+    script = textwrap.dedent(f"""
+        import argparse, sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from orchestration import cli, study
+        from test_study import _square_logged
+
+        def toy_study(args):
+            with study.open_executor(workers=1) as ex:
+                study.map_jobs(_square_logged, [(k, {str(log)!r}) for k in range(20)], ex, star=True,
+                               progress=False)
+            return 0
+        sys.exit(cli.cmd_study(argparse.Namespace(out={str(out)!r}, resume=False, func=toy_study)))
+    """)
+    child = subprocess.Popen([sys.executable, "-c", script], stderr=subprocess.PIPE, text=True,
+                             env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    deadline = time.monotonic() + 60                 # a hang guard, not a timing
+    while not list((out / "jobs").glob("*.pickle")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    child.send_signal(signum)
+    _, err = child.communicate(timeout=60)
+    status = json.loads((out / "status.json").read_text())
+    assert (status["status"], status["cause"]) == ("interrupted", signum.name)
+    assert child.returncode == 128 + signum
+    assert err.strip().splitlines() == [f"error: interrupted by {signum.name}: {status['jobs_stored']} finished runs "
+                                        f"are kept in {out}; add --resume to continue"]
+    kept = status["jobs_stored"]
+    assert 1 <= kept < 20
+    (log / "sleep").unlink()
+    _ran(log)
+    with study.StudyFolder(out, resume=True), study.open_executor(workers=2) as ex:
+        assert study.map_jobs(_square_logged, [(k, str(log)) for k in range(20)], ex, star=True,
+                              progress=False) == [k * k for k in range(20)]
+    assert len(_ran(log)) == 20 - kept
+
+
+@pytest.mark.parametrize("reply, message", [
+    (None, r"no Dask scheduler answered at tcp://127\.0\.0\.1:\d+ within 2 s"),
+    (b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n",
+     r"the service at tcp://127\.0\.0\.1:\d+ does not answer as a Dask scheduler"),
+])
+def test_a_service_that_is_not_a_scheduler_is_one_clear_error_not_a_hang(reply, message):
+    pytest.importorskip("distributed")
+    import socket
+    import threading
+    server = socket.create_server(("127.0.0.1", 0))
+    accepted = []
+
+    def serve():
+        conn, _ = server.accept()
+        accepted.append(conn)
+        if reply:
+            conn.sendall(reply)
+    threading.Thread(target=serve, daemon=True).start()
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    with pytest.raises(study.StudyError, match=message):
+        with study.open_executor(scheduler=address, connect_timeout=1):
+            pass
+    server.close()
+
+
+@pytest.mark.parametrize("address, message", [
+    ("nonsense", "missing port number"), ("foo://bar", "unknown address scheme 'foo'"),
+    ("tcp://host:notaport", "invalid literal"),
+])
+def test_a_malformed_scheduler_address_is_one_line(tmp_path, capsys, address, message):
+    pytest.importorskip("distributed")
+    from orchestration import cli
+    code = cli.main(["study", "robustness", "--out", str(tmp_path / "out"), "--scheduler", address,
+                     "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith(f"error: cannot reach the Dask scheduler at {address}: ") and message in err
+
+
+def test_a_dask_cluster_recovers_a_killed_worker_and_the_folder_keeps_every_run(tmp_path):
+    pytest.importorskip("distributed")
+    log, out = tmp_path / "log", tmp_path / "study"
+    log.mkdir()
+    (log / "exit1.once").touch()          # job 1's worker is killed (SIGKILL) the first time
+    jobs = [(k, str(log)) for k in range(4)]
+    with study.StudyFolder(out), study.open_executor(workers=2, scheduler="local") as ex:
+        assert study.map_jobs(_square_logged, jobs, ex, star=True, progress=False) == [0, 1, 4, 9]
+    assert _ran(log).count(1) == 2        # the killed run was rescheduled by Dask
+    with study.StudyFolder(out, resume=True), study.open_executor(workers=1) as ex:
+        assert study.map_jobs(_square_logged, jobs, ex, star=True, progress=False) == [0, 1, 4, 9]
+    assert _ran(log) == []

@@ -5,6 +5,7 @@ The FMUs come from dist/fmus (``flexfusion build``), as for every scenario run.
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -181,6 +182,51 @@ def test_cli_reports_a_bad_scenario_in_one_line(tmp_path, capsys):
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "missing.toml" in err[0]
+
+
+def test_resume_recomputes_only_the_missing_runs_with_the_same_numbers(tmp_path, capsys):
+    argv = ["study", "montecarlo", str(SCENARIO), "--runs", "3", "--out", str(tmp_path), "--workers", "2",
+            "--no-progress", "--after", "0.2", "--no-plots", "--no-crlb", "--sweep-runs", "0",
+            "--validation-runs", "0", "--set", SHORT[0]]
+    assert cli.main(argv) == 0
+    first = (tmp_path / "study.json").read_text()
+    jobs = sorted((tmp_path / "jobs").glob("*.pickle"))
+    assert len(jobs) == 3
+    jobs[1].unlink()                                  # as if the study had stopped before it
+    assert cli.main(argv) == 2                        # the folder holds a study: not mixed in silently
+    assert "add --resume" in capsys.readouterr().err
+    assert cli.main(argv + ["--resume"]) == 0
+    status = json.loads((tmp_path / "status.json").read_text())
+    assert (status["status"], status["jobs_computed_now"], status["jobs_reused_now"]) == ("ok", 1, 2)
+    assert status["command"] == " ".join(["flexfusion", *argv, "--resume"])
+    again = json.loads((tmp_path / "study.json").read_text())
+    first = json.loads(first)
+    assert again["summary"] == first["summary"] and again["per_time"] == first["per_time"]
+
+
+def test_an_unusable_out_folder_fails_before_any_run(tmp_path, capsys):
+    (tmp_path / "file").write_text("")
+    t0 = time.perf_counter()
+    code = cli.main(["study", "montecarlo", str(SCENARIO), "--runs", "500", "--out", str(tmp_path / "file" / "mc"),
+                     "--no-progress"])
+    assert code == 2
+    assert capsys.readouterr().err == f"error: --out {tmp_path / 'file' / 'mc'}: Not a directory\n"
+    assert time.perf_counter() - t0 < 60              # hang guard: 500 runs would take minutes
+
+
+def test_a_scenario_lacking_needed_variables_fails_before_any_run(tmp_path, capsys):
+    text = SCENARIO.read_text().replace('"ekf_acc.ddq_a_hat", ', "").replace('"plant.dq_m",', "")
+    path = tmp_path / "lacking.toml"
+    path.write_text(text)
+    (tmp_path / "identified_robot_ideal.toml").write_text(
+        SCENARIO.with_name("identified_robot_ideal.toml").read_text())
+    code = cli.main(["study", "montecarlo", str(path), "--runs", "50", "--out", str(tmp_path / "out"),
+                     "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert err[0] == ("error: scenario 'axelsson2012' does not record what the Monte Carlo study needs: "
+                      "ekf_acc.ddq_a_hat, plant.dq_m (add them to [record] variables)")
+    assert list((tmp_path / "out" / "jobs").iterdir()) == []
 
 
 def test_same_numbers_on_a_dask_local_cluster(small, tmp_path):

@@ -89,8 +89,32 @@ def quantise(x: np.ndarray, resolution: np.ndarray | float) -> np.ndarray:
     return out
 
 
+class _Normals:
+    """The standard normal numbers of ``rng``, ``n`` at a time, drawn in blocks.
+
+    numpy's Generator keeps no state between draws but the bit generator's, so the numbers of
+    one ``standard_normal(n * k)`` are those of ``k`` calls of ``standard_normal(n)``, in order;
+    a block saves the call's overhead (1.5 us) per sample.
+    """
+
+    BLOCK = 256       # samples per draw
+
+    def __init__(self, rng: np.random.Generator, n: int) -> None:
+        self.rng, self.n = rng, n
+        self._block: list[float] = []
+        self._next = 0
+
+    def take(self) -> list[float]:
+        """The next ``n`` numbers."""
+        i = self._next
+        if i >= len(self._block):
+            self._block, i = self.rng.standard_normal(self.n * self.BLOCK).tolist(), 0
+        self._next = i + self.n
+        return self._block[i:i + self.n]
+
+
 class SensorChannels:
-    """``n`` sensor channels with the usual imperfections, vectorised.
+    """``n`` sensor channels with the usual imperfections.
 
     Per call of :meth:`step` (one communication step ``dt``, input ``x`` held over the step):
 
@@ -105,10 +129,16 @@ class SensorChannels:
     7. saturation at ``+-range`` (clipped; :attr:`saturated` flags the channels at or beyond it).
 
     :attr:`t_meas` is the time stamp of the held reading: the ``time`` given with the input
-    that was sampled (:func:`input_time` in the FMUs).
+    that was sampled (:func:`input_time` in the FMUs). Readings (:attr:`output`, what
+    :meth:`step` returns) and :attr:`saturated` are lists, one entry per channel.
 
     Every parameter is a scalar or a length-``n`` array. The white noise and the random walk use
     independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``.
+
+    The arithmetic runs on lists of plain floats (one sensor has 2-3 channels: numpy's per-call
+    overhead made a step 15x slower, issue 16); only the random numbers come from numpy, drawn
+    as before, so the readings are those of the numpy version to round-off
+    (tests/test_sensor_kernel.py).
 
     Parameters
     ----------
@@ -121,8 +151,8 @@ class SensorChannels:
                  scale: float | Sequence[float] = 0.0, resolution: float | Sequence[float] = 0.0,
                  range: float | Sequence[float] = math.inf, sample_rate: float = 0.0,  # noqa: A002
                  cutoff: float = 0.0, filter_order: int = 2, names: dict[str, str] | None = None) -> None:
-        def vec(v: float | Sequence[float]) -> np.ndarray:
-            return np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy()
+        def vec(v: float | Sequence[float]) -> list[float]:
+            return np.broadcast_to(np.asarray(v, dtype=float), (n,)).tolist()
 
         self.n = n
         self.noise, self.bias, self.bias_rw = vec(noise), vec(bias), vec(bias_rw)
@@ -131,79 +161,68 @@ class SensorChannels:
         self.names = {"sample_rate": "sample_rate", "cutoff": "cutoff", **(names or {})}
         if self.filter_order not in (1, 2):
             raise ValueError(f"filter order must be 1 or 2, got {filter_order}")
-        self._rng_noise = make_rng(seed, f"{stream}/noise")
-        self._rng_rw = make_rng(seed, f"{stream}/bias_rw")
-        self.walk = np.zeros(n)                 # bias random-walk state
-        self.output = np.zeros(n)               # held reading
+        self._gain = [1.0 + s for s in self.scale]
+        # the largest representable magnitude (the range rounded down to the resolution)
+        self._limit = [math.floor(lim / res * (1 + 1e-12)) * res if res > 0 and math.isfinite(lim) else lim
+                       for lim, res in zip(self.range, self.resolution)]
+        self._rng_noise = _Normals(make_rng(seed, f"{stream}/noise"), n)
+        self._rng_rw = _Normals(make_rng(seed, f"{stream}/bias_rw"), n)
+        self.walk = [0.0] * n                    # bias random-walk state
+        self.output = [0.0] * n                  # held reading
         self.t_meas = math.nan                   # its time stamp
-        self.saturated = np.zeros(n, dtype=bool)
-        self._z = np.zeros((max(self.filter_order, 1), n))   # filter state (direct form II transposed)
+        self.saturated = [False] * n
+        self._z: list[list[float]] | None = None   # filter state (direct form II transposed)
         self._b = self._a = None
         self._dt_filter = None
-        self._filter_ready = False
         self._dt_sample = None
         self._period_steps = 1
         self._count = 0                          # steps since the last sample
 
     # -- pieces ------------------------------------------------------------------------------
-    def _limit(self) -> np.ndarray:
-        """The largest representable magnitude (range rounded down to the resolution)."""
-        lim = self.range.copy()
-        q = (self.resolution > 0) & np.isfinite(lim)
-        lim[q] = np.floor(lim[q] / self.resolution[q] * (1 + 1e-12)) * self.resolution[q]
-        return lim
-
-    def _finish(self, y: np.ndarray) -> np.ndarray:
+    def _finish(self, y: list[float]) -> list[float]:
         """Quantisation and saturation; sets :attr:`saturated`."""
-        y = quantise(y, self.resolution)
-        lim = self._limit()
-        self.saturated = np.abs(y) >= lim
-        return np.clip(y, -lim, lim)
+        out, sat = [], []
+        for v, res, lim in zip(y, self.resolution, self._limit):
+            if res > 0.0 and v - v == 0.0:          # finite: round half to even, as numpy
+                v = round(v / res) * res
+            sat.append(abs(v) >= lim)
+            out.append(min(max(v, -lim), lim))
+        self.saturated = sat
+        return out
 
     def _design(self, dt: float) -> None:
         if self.cutoff >= 0.5 / dt:
             raise ValueError(f"parameter '{self.names['cutoff']}' = {self.cutoff:g} Hz must be below "
                              f"the Nyquist frequency {0.5 / dt:g} Hz of the communication step {dt:g} s")
-        self._b, self._a = butterworth_coefficients(self.cutoff, dt, self.filter_order)
+        b, a = butterworth_coefficients(self.cutoff, dt, self.filter_order)
+        self._b, self._a = b.tolist(), a.tolist()
         self._dt_filter = dt
 
-    def _reset_filter(self, x: np.ndarray) -> None:
-        """Steady state for a constant input ``x`` (no start-up transient)."""
-        if self._b is None:
-            self._z[:] = 0.0
-            self._filter_ready = True
-            return
-        b, a = self._b, self._a
-        if self.filter_order == 1:
-            self._z[0] = (1.0 - b[0]) * x
-        else:
-            self._z[1] = (b[2] - a[2]) * x
-            self._z[0] = (1.0 - b[0]) * x
-        self._filter_ready = True
-
-    def lowpass(self, x: np.ndarray, dt: float) -> np.ndarray:
+    def lowpass(self, x: Sequence[float], dt: float) -> list[float]:
         """One step of the anti-aliasing filter (identity when ``cutoff`` is 0)."""
-        x = np.asarray(x, dtype=float)
+        x = x.tolist() if isinstance(x, np.ndarray) else [float(v) for v in x]
         if self.cutoff <= 0.0:
-            return x.copy()
+            return x
         if self._dt_filter is None or abs(dt - self._dt_filter) > 1e-12 * dt:
             self._design(dt)
-        if not self._filter_ready:
-            self._reset_filter(x)
-        b, a, z = self._b, self._a, self._z
-        y = b[0] * x + z[0]
+        b, a = self._b, self._a
+        if self._z is None:                      # steady state for the first input: no transient
+            self._z = [[(1.0 - b[0]) * v for v in x]]
+            if self.filter_order == 2:
+                self._z.append([(b[2] - a[2]) * v for v in x])
+        z0 = self._z[0]
+        y = [b[0] * v + z for v, z in zip(x, z0)]
         if self.filter_order == 1:
-            z[0] = b[1] * x - a[1] * y
+            self._z[0] = [b[1] * v - a[1] * w for v, w in zip(x, y)]
         else:
-            z[0] = b[1] * x - a[1] * y + z[1]
-            z[1] = b[2] * x - a[2] * y
+            z1 = self._z[1]
+            self._z[0] = [b[1] * v - a[1] * w + z for v, w, z in zip(x, y, z1)]
+            self._z[1] = [b[2] * v - a[2] * w for v, w in zip(x, y)]
         return y
 
     def _check_period(self, dt: float) -> None:
         if not dt > 0.0:
             raise ValueError(f"communication step must be positive, got {dt!r}")
-        if self._dt_sample is not None and abs(dt - self._dt_sample) <= 1e-12 * dt:
-            return
         n_steps = 1
         if self.sample_rate > 0.0:
             ratio = 1.0 / (self.sample_rate * dt)
@@ -219,15 +238,16 @@ class SensorChannels:
         self._dt_sample = dt
 
     # -- use ---------------------------------------------------------------------------------
-    def initial(self, x: np.ndarray, time: float = 0.0) -> np.ndarray:
+    def initial(self, x: Sequence[float], time: float = 0.0) -> list[float]:
         """The reading before the first step, stamped ``time``: bias, scale, quantisation and
         saturation of ``x`` (no noise); the filter will start in steady state at the first
         step's input."""
         self.t_meas = float(time)
-        self.output = self._finish((1.0 + self.scale) * np.asarray(x, dtype=float) + self.bias + self.walk)
+        x = x.tolist() if isinstance(x, np.ndarray) else [float(v) for v in x]
+        self.output = self._finish([g * v + b + w for g, v, b, w in zip(self._gain, x, self.bias, self.walk)])
         return self.output
 
-    def step(self, x: np.ndarray, dt: float, time: float = math.nan) -> np.ndarray:
+    def step(self, x: Sequence[float], dt: float, time: float = math.nan) -> list[float]:
         """Advance one communication step with input ``x``, the value at ``time``; returns the
         (held) reading. A sample taken now is stamped ``time`` (:attr:`t_meas`).
 
@@ -237,13 +257,17 @@ class SensorChannels:
             Naming ``sample_rate`` if the sample period is not an integer multiple of ``dt``, or
             ``cutoff`` if the cut-off is not below the Nyquist frequency of ``dt``.
         """
-        self._check_period(dt)
+        if self._dt_sample is None or not abs(dt - self._dt_sample) <= 1e-12 * dt:
+            self._check_period(dt)
         y = self.lowpass(x, dt)
         if self._count == 0:
-            period = self._period_steps * dt
-            self.walk += random_walk_increment(self._rng_rw, self.bias_rw, period, self.n)
-            y = (1.0 + self.scale) * y + self.bias + self.walk + white_noise(self._rng_noise, self.noise, self.n)
-            self.output = self._finish(y)
+            root = math.sqrt(self._period_steps * dt)
+            # random_walk_increment and white_noise of fmus.common.noise, on floats
+            steps = self._rng_rw.take()
+            self.walk = [w + s * root * e for w, s, e in zip(self.walk, self.bias_rw, steps)]
+            noise = self._rng_noise.take()
+            self.output = self._finish([g * v + b + w + s * e for g, v, b, w, s, e in
+                                        zip(self._gain, y, self.bias, self.walk, self.noise, noise)])
             self.t_meas = float(time)
         self._count = (self._count + 1) % self._period_steps
         return self.output

@@ -298,12 +298,13 @@ class FlexibleRobotModel:
         f = self._k.derivatives
         t1, t2, fx, fz = float(tau_m[0]), float(tau_m[1]), float(f_ext[0]), float(f_ext[1])
         h = dt / self.substeps
+        hh, h6 = 0.5 * h, h / 6.0       # the same products as 0.5 * h * b, h / 6.0 * (...)
         s = self._s
-        for _ in range(self.substeps):
+        for _ in range(self.substeps):     # tuples of list comprehensions: faster than generators
             k1 = f(s, t1, t2, fx, fz)
-            k2 = f(tuple(a + 0.5 * h * b for a, b in zip(s, k1)), t1, t2, fx, fz)
-            k3 = f(tuple(a + 0.5 * h * b for a, b in zip(s, k2)), t1, t2, fx, fz)
-            k4 = f(tuple(a + h * b for a, b in zip(s, k3)), t1, t2, fx, fz)
-            s = tuple(a + h / 6.0 * (b1 + 2 * b2 + 2 * b3 + b4) for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4))
+            k2 = f(tuple([a + hh * b for a, b in zip(s, k1)]), t1, t2, fx, fz)
+            k3 = f(tuple([a + hh * b for a, b in zip(s, k2)]), t1, t2, fx, fz)
+            k4 = f(tuple([a + h * b for a, b in zip(s, k3)]), t1, t2, fx, fz)
+            s = tuple([a + h6 * (b1 + 2 * b2 + 2 * b3 + b4) for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4)])
         self._s = s
         self.t += dt

@@ -183,8 +183,9 @@ class SensorChannels:
         """Quantisation and saturation; sets :attr:`saturated`."""
         out, sat = [], []
         for v, res, lim in zip(y, self.resolution, self._limit):
-            if res > 0.0 and v - v == 0.0:          # finite: round half to even, as numpy
-                v = round(v / res) * res
+            if res > 0.0:
+                n = v / res
+                v = (round(n) if n - n == 0.0 else n) * res   # half to even, as numpy; inf, NaN stay
             sat.append(abs(v) >= lim)
             out.append(min(max(v, -lim), lim))
         self.saturated = sat

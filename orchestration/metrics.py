@@ -14,7 +14,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.signal import butter, filtfilt
 
 
 def _error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -80,6 +79,8 @@ def bandpass_errors(estimate: np.ndarray, truth: np.ndarray, fs: float, low: flo
     if not 0 < low < high < fs / 2:
         raise ValueError(f"band-pass needs 0 < low < high < fs/2, got low={low}, high={high}, fs={fs}")
     e = _error(estimate, truth)
+    from scipy.signal import butter, filtfilt    # here: importing it costs a run 0.6-2 s
+
     b, a = butter(order, [low, high], btype="bandpass", fs=fs)
     minimum = 3 * max(len(a), len(b))
     if len(e) <= minimum:

@@ -62,3 +62,15 @@ def test_at_sample_times_keeps_fresh_samples_at_their_stamps():
     assert_allclose(s, [0.0, 0.3, 0.6])
     assert_allclose(e, tr, atol=1e-12)
     assert_allclose(e, np.column_stack([2.0 * s, -s]), atol=1e-12)
+
+
+def test_a_run_imports_scipy_signal_only_for_a_band_pass() -> None:
+    """Importing it cost every run 0.6-2 s of start-up (issue 16): the metrics module leaves it
+    to the band-pass metric."""
+    import subprocess
+    import sys
+    code = ("import sys, numpy as np; import orchestration.master, orchestration.metrics as m; "
+            "m.rmse(np.zeros((5, 2)), np.ones((5, 2))); assert 'scipy.signal' not in sys.modules; "
+            "m.bandpass_errors(np.random.default_rng(0).normal(size=(2000, 2)), np.zeros((2000, 2)), 1000.0); "
+            "assert 'scipy.signal' in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -136,9 +136,9 @@ class SensorChannels:
     independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``.
 
     The arithmetic runs on lists of plain floats (one sensor has 2-3 channels: numpy's per-call
-    overhead made a step 15x slower, issue 16); only the random numbers come from numpy, drawn
-    as before, so the readings are those of the numpy version to round-off
-    (tests/test_sensor_kernel.py).
+    overhead made a step 4-6x slower, benchmarks/flagship.py); only the random numbers come
+    from numpy, the same numbers as before, so the readings are those of the numpy version to
+    round-off (tests/test_sensor_kernel.py).
 
     Parameters
     ----------

@@ -187,11 +187,15 @@ def kernels(rev: str) -> list[tuple[str, float, float]]:
                                          resolution=1e-3, range=160.0), np.array([1.0, 0.5, 9.81]))):
         a, b = old.SensorChannels(n, **kw), sensor_model.SensorChannels(n, **kw)
         rows.append((label, _us(lambda: a.step(x, 1e-3, 0.0)), _us(lambda: b.step(x, 1e-3, 0.0))))
-    old = _old_module(rev, "fmus/robot_plant/plant_dynamics.py")
-    pp = PlantParameters()
-    a, b = old.plant_model(pp), plant_dynamics.plant_model(pp)
-    rows.append(("plant RK4 step (realistic, 1 ms)", _us(lambda: a.step((1.0, 2.0), (0.0, 0.0), 1e-3)),
-                 _us(lambda: b.step((1.0, 2.0), (0.0, 0.0), 1e-3))))
+    old = _old_module(rev, "fmus/common/dynamics.py")     # the RK4 step is the 8-state model's
+    plant = plant_dynamics.plant_model(PlantParameters())
+    s0 = plant.state
+
+    def step(f):
+        plant._s = s0
+        f(plant, (1.0, 2.0), (0.0, 0.0), 1e-3)
+    rows.append((f"plant RK4 step (realistic, {plant.substeps} substeps)",
+                 _us(lambda: step(old.FlexibleRobotModel.step)), _us(lambda: step(type(plant).step))))
     return rows
 
 

@@ -235,7 +235,6 @@ class _RobotView:
         self.r = as_array(robot.gear_ratio)
         self.jm = as_array(robot.J_m)
         self.d = as_array(robot.d)
-        self.k_hi = as_array(robot.k_hi)
 
     def arm_torque(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """Rigid arm inverse dynamics ``M(q) ddq + C(q, dq) dq + g(q)`` (2012 paper, eq. 11)."""

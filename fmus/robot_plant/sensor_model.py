@@ -17,7 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fmus.common.noise import make_rng, random_walk_increment, white_noise
+from fmus.common.noise import make_rng
 from fmus.common.sample_time import UNSTAMPED, measurement_time
 
 G = 9.81
@@ -78,15 +78,6 @@ def butterworth_magnitude(f: np.ndarray | float, cutoff: float, dt: float, order
     """Analytic magnitude of :func:`butterworth_coefficients` at frequency ``f`` (Hz)."""
     ratio = np.tan(np.pi * np.asarray(f, dtype=float) * dt) / math.tan(math.pi * cutoff * dt)
     return 1.0 / np.sqrt(1.0 + ratio ** (2 * order))
-
-
-def quantise(x: np.ndarray, resolution: np.ndarray | float) -> np.ndarray:
-    """Round to the nearest multiple of ``resolution`` (a zero resolution leaves ``x`` alone)."""
-    res = np.broadcast_to(np.asarray(resolution, dtype=float), np.shape(x))
-    out = np.array(x, dtype=float, copy=True)
-    on = res > 0.0
-    out[on] = np.round(out[on] / res[on]) * res[on]
-    return out
 
 
 class _Normals:
@@ -165,8 +156,8 @@ class SensorChannels:
         # the largest representable magnitude (the range rounded down to the resolution)
         self._limit = [math.floor(lim / res * (1 + 1e-12)) * res if res > 0 and math.isfinite(lim) else lim
                        for lim, res in zip(self.range, self.resolution)]
-        self._rng_noise = _Normals(make_rng(seed, f"{stream}/noise"), n)
-        self._rng_rw = _Normals(make_rng(seed, f"{stream}/bias_rw"), n)
+        self._noise_draws = _Normals(make_rng(seed, f"{stream}/noise"), n)
+        self._walk_draws = _Normals(make_rng(seed, f"{stream}/bias_rw"), n)
         self.walk = [0.0] * n                    # bias random-walk state
         self.output = [0.0] * n                  # held reading
         self.t_meas = math.nan                   # its time stamp
@@ -264,9 +255,9 @@ class SensorChannels:
         if self._count == 0:
             root = math.sqrt(self._period_steps * dt)
             # random_walk_increment and white_noise of fmus.common.noise, on floats
-            steps = self._rng_rw.take()
+            steps = self._walk_draws.take()
             self.walk = [w + s * root * e for w, s, e in zip(self.walk, self.bias_rw, steps)]
-            noise = self._rng_noise.take()
+            noise = self._noise_draws.take()
             self.output = self._finish([g * v + b + w + s * e for g, v, b, w, s, e in
                                         zip(self._gain, y, self.bias, self.walk, self.noise, noise)])
             self.t_meas = float(time)
@@ -432,6 +423,6 @@ def hammer_force(t: float, times: Sequence[float], force_xz: Sequence[float], du
 
 
 __all__ = ["UNSTAMPED", "T_TRUTH_DESCRIPTION", "input_time", "SensorChannels", "butterworth_coefficients",
-           "butterworth_magnitude", "quantise", "rot_y", "rot_rpy", "sensor_rotation", "imu_reading",
+           "butterworth_magnitude", "rot_y", "rot_rpy", "sensor_rotation", "imu_reading",
            "force_sensor_reading", "calibrate_tool", "Wall", "penetration", "contact_force", "hammer_force",
            "G"]

@@ -230,7 +230,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="ff_baseline_") as tmp:
         base = _in_tree(_baseline_tree(args.baseline, Path(tmp)), args.seconds)
     new = _in_tree(REPO, args.seconds)
-    print(f"flagship (6 estimator-side FMUs + tracker at 1 kHz), baseline {args.baseline} vs this tree")
+    print(f"flagship (7 FMUs at 1 kHz), baseline {args.baseline} vs this tree")
     print(f"  CPU per simulated second   {base['stepping'][0]:7.3f} s   {new['stepping'][0]:7.3f} s   "
           f"speed-up {base['stepping'][0] / new['stepping'][0]:.2f}x")
     print(f"  real-time factor           {base['stepping'][1]:7.2f}x    {new['stepping'][1]:7.2f}x    "

@@ -26,7 +26,7 @@ def test_make_rng_is_deterministic_and_streams_differ():
 # ---- SensorChannels ------------------------------------------------------------------------
 def run(ch: sm.SensorChannels, x: np.ndarray, dt: float) -> np.ndarray:
     """Step ``ch`` through the rows of ``x``; the readings as rows."""
-    return np.array([ch.step(xi, dt) for xi in x])
+    return np.array([ch.step(xi, dt).copy() for xi in x])
 
 
 def test_white_noise_std_within_5_percent():
@@ -50,7 +50,7 @@ def test_bias_random_walk_variance_grows_linearly():
     for k in range(1, 1001):
         y = ch.step(np.zeros(n), dt)
         if k in checks:
-            checks[k] = np.array(y)
+            checks[k] = y.copy()
     for k, y in checks.items():
         # the walk takes its k-th increment at the k-th sample, i.e. after k * dt seconds
         assert_allclose(y.var(), sigma ** 2 * k * dt, rtol=0.05)

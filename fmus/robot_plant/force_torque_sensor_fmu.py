@@ -102,8 +102,8 @@ class ForceTorqueSensor(FlexFusionSlave):
     def setup(self, p: ForceTorqueSensorParameters) -> None:
         self.channels = sensor_channels(p)
         self.f_s[:] = self.channels.initial(self._ideal())
-        self.saturated = float(any(self.channels.saturated))
+        self.saturated = float(self.channels.saturated.any())
 
     def step(self, t: float, dt: float) -> None:
         self.f_s[:] = self.channels.step(self._ideal(), dt)
-        self.saturated = float(any(self.channels.saturated))
+        self.saturated = float(self.channels.saturated.any())

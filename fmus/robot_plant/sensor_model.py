@@ -17,7 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fmus.common.noise import make_rng
+from fmus.common.noise import make_rng, random_walk_increment, white_noise
 from fmus.common.sample_time import UNSTAMPED, measurement_time
 
 G = 9.81
@@ -81,31 +81,45 @@ def butterworth_magnitude(f: np.ndarray | float, cutoff: float, dt: float, order
 
 
 class _Normals:
-    """The standard normal numbers of ``rng``, ``n`` at a time, drawn in blocks.
+    """A generator's standard normal numbers, ``n`` per call, drawn ahead in blocks.
 
-    numpy's Generator keeps no state between draws but the bit generator's, so the numbers of
-    one ``standard_normal(n * k)`` are those of ``k`` calls of ``standard_normal(n)``, in order;
-    a block saves the call's overhead (1.5 us) per sample.
+    numpy's Generator keeps no state between draws but the bit generator's, so the rows of one
+    ``standard_normal((k, n))`` are the numbers of ``k`` calls of ``standard_normal(n)``, in
+    order: a block saves the call's overhead (about 1.5 us) per sample.
     """
 
-    BLOCK = 256       # samples per draw
+    BLOCK = 256       # calls per draw
 
     def __init__(self, rng: np.random.Generator, n: int) -> None:
         self.rng, self.n = rng, n
-        self._block: list[float] = []
+        self._block = np.empty((0, n))
         self._next = 0
 
-    def take(self) -> list[float]:
-        """The next ``n`` numbers."""
-        i = self._next
-        if i >= len(self._block):
-            self._block, i = self.rng.standard_normal(self.n * self.BLOCK).tolist(), 0
-        self._next = i + self.n
-        return self._block[i:i + self.n]
+    def standard_normal(self, n: int) -> np.ndarray:
+        """The next ``n`` numbers (``n`` as given at construction)."""
+        if n != self.n:
+            raise ValueError(f"this stream serves {self.n} numbers per call, not {n}")
+        if self._next == len(self._block):
+            self._block, self._next = self.rng.standard_normal((self.BLOCK, n)), 0
+        self._next += 1
+        return self._block[self._next - 1]
+
+
+def quantise(x: np.ndarray, resolution: np.ndarray | float) -> np.ndarray:
+    """Round to the nearest multiple of ``resolution`` (a zero resolution leaves ``x`` alone)."""
+    res = np.broadcast_to(np.asarray(resolution, dtype=float), np.shape(x))
+    out = np.array(x, dtype=float, copy=True)
+    on = res > 0.0
+    out[on] = np.round(out[on] / res[on]) * res[on]
+    return out
 
 
 class SensorChannels:
-    """``n`` sensor channels with the usual imperfections.
+    """``n`` sensor channels with the usual imperfections, vectorised.
+
+    Elementwise numpy on purpose: the batched study engine runs this same class on ``(runs, n)``
+    arrays (one definition for both paths), though plain floats were 2-3x faster still for the
+    2-3 channels of one sensor (issue 16, benchmarks/flagship.py).
 
     Per call of :meth:`step` (one communication step ``dt``, input ``x`` held over the step):
 
@@ -120,16 +134,10 @@ class SensorChannels:
     7. saturation at ``+-range`` (clipped; :attr:`saturated` flags the channels at or beyond it).
 
     :attr:`t_meas` is the time stamp of the held reading: the ``time`` given with the input
-    that was sampled (:func:`input_time` in the FMUs). Readings (:attr:`output`, what
-    :meth:`step` returns) and :attr:`saturated` are lists, one entry per channel.
+    that was sampled (:func:`input_time` in the FMUs).
 
     Every parameter is a scalar or a length-``n`` array. The white noise and the random walk use
     independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``.
-
-    The arithmetic runs on lists of plain floats (one sensor has 2-3 channels: numpy's per-call
-    overhead made a step 4-6x slower, benchmarks/flagship.py); only the random numbers come
-    from numpy, the same numbers as before, so the readings are those of the numpy version to
-    round-off (tests/test_sensor_kernel.py).
 
     Parameters
     ----------
@@ -142,8 +150,8 @@ class SensorChannels:
                  scale: float | Sequence[float] = 0.0, resolution: float | Sequence[float] = 0.0,
                  range: float | Sequence[float] = math.inf, sample_rate: float = 0.0,  # noqa: A002
                  cutoff: float = 0.0, filter_order: int = 2, names: dict[str, str] | None = None) -> None:
-        def vec(v: float | Sequence[float]) -> list[float]:
-            return np.broadcast_to(np.asarray(v, dtype=float), (n,)).tolist()
+        def vec(v: float | Sequence[float]) -> np.ndarray:
+            return np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy()
 
         self.n = n
         self.noise, self.bias, self.bias_rw = vec(noise), vec(bias), vec(bias_rw)
@@ -152,69 +160,88 @@ class SensorChannels:
         self.names = {"sample_rate": "sample_rate", "cutoff": "cutoff", **(names or {})}
         if self.filter_order not in (1, 2):
             raise ValueError(f"filter order must be 1 or 2, got {filter_order}")
-        self._gain = [1.0 + s for s in self.scale]
-        # the largest representable magnitude (the range rounded down to the resolution)
-        self._limit = [math.floor(lim / res * (1 + 1e-12)) * res if res > 0 and math.isfinite(lim) else lim
-                       for lim, res in zip(self.range, self.resolution)]
-        self._noise_draws = _Normals(make_rng(seed, f"{stream}/noise"), n)
-        self._walk_draws = _Normals(make_rng(seed, f"{stream}/bias_rw"), n)
-        self.walk = [0.0] * n                    # bias random-walk state
-        self.output = [0.0] * n                  # held reading
+        self._rng_noise = _Normals(make_rng(seed, f"{stream}/noise"), n)
+        self._rng_rw = _Normals(make_rng(seed, f"{stream}/bias_rw"), n)
+        self._gain = 1.0 + self.scale
+        self._lim = self._limit()
+        self._quantised = bool(np.any(self.resolution > 0.0))
+        self._rounded = bool(np.all(self.resolution > 0.0))
+        self.walk = np.zeros(n)                 # bias random-walk state
+        self.output = np.zeros(n)               # held reading
         self.t_meas = math.nan                   # its time stamp
-        self.saturated = [False] * n
-        self._z: list[list[float]] | None = None   # filter state (direct form II transposed)
+        self.saturated = np.zeros(n, dtype=bool)
+        self._z = np.zeros((max(self.filter_order, 1), n))   # filter state (direct form II transposed)
         self._b = self._a = None
         self._dt_filter = None
+        self._filter_ready = False
         self._dt_sample = None
         self._period_steps = 1
         self._count = 0                          # steps since the last sample
 
     # -- pieces ------------------------------------------------------------------------------
-    def _finish(self, y: list[float]) -> list[float]:
-        """Quantisation and saturation; sets :attr:`saturated`."""
-        out, sat = [], []
-        for v, res, lim in zip(y, self.resolution, self._limit):
-            if res > 0.0:
-                n = v / res
-                v = (round(n) if n - n == 0.0 else n) * res   # half to even, as numpy; inf, NaN stay
-            sat.append(abs(v) >= lim)
-            out.append(min(max(v, -lim), lim))
-        self.saturated = sat
-        return out
+    def _limit(self) -> np.ndarray:
+        """The largest representable magnitude (range rounded down to the resolution)."""
+        lim = self.range.copy()
+        q = (self.resolution > 0) & np.isfinite(lim)
+        lim[q] = np.floor(lim[q] / self.resolution[q] * (1 + 1e-12)) * self.resolution[q]
+        return lim
+
+    def _finish(self, y: np.ndarray) -> np.ndarray:
+        """Quantisation and saturation; sets :attr:`saturated` (:func:`quantise` without its
+        masks when every channel or none is quantised, and the limit computed once: the same
+        numbers, fewer numpy calls)."""
+        if self._rounded:
+            y = np.rint(y / self.resolution) * self.resolution     # np.round's half to even
+        elif self._quantised:
+            y = quantise(y, self.resolution)
+        lim = self._lim
+        self.saturated = np.abs(y) >= lim
+        return np.minimum(np.maximum(y, -lim), lim)
 
     def _design(self, dt: float) -> None:
         if self.cutoff >= 0.5 / dt:
             raise ValueError(f"parameter '{self.names['cutoff']}' = {self.cutoff:g} Hz must be below "
                              f"the Nyquist frequency {0.5 / dt:g} Hz of the communication step {dt:g} s")
-        b, a = butterworth_coefficients(self.cutoff, dt, self.filter_order)
-        self._b, self._a = b.tolist(), a.tolist()
+        self._b, self._a = butterworth_coefficients(self.cutoff, dt, self.filter_order)
         self._dt_filter = dt
 
-    def lowpass(self, x: Sequence[float], dt: float) -> list[float]:
+    def _reset_filter(self, x: np.ndarray) -> None:
+        """Steady state for a constant input ``x`` (no start-up transient)."""
+        if self._b is None:
+            self._z[:] = 0.0
+            self._filter_ready = True
+            return
+        b, a = self._b, self._a
+        if self.filter_order == 1:
+            self._z[0] = (1.0 - b[0]) * x
+        else:
+            self._z[1] = (b[2] - a[2]) * x
+            self._z[0] = (1.0 - b[0]) * x
+        self._filter_ready = True
+
+    def lowpass(self, x: np.ndarray, dt: float) -> np.ndarray:
         """One step of the anti-aliasing filter (identity when ``cutoff`` is 0)."""
-        x = x.tolist() if isinstance(x, np.ndarray) else [float(v) for v in x]
+        x = np.asarray(x, dtype=float)
         if self.cutoff <= 0.0:
-            return x
+            return x.copy()
         if self._dt_filter is None or abs(dt - self._dt_filter) > 1e-12 * dt:
             self._design(dt)
-        b, a = self._b, self._a
-        if self._z is None:                      # steady state for the first input: no transient
-            self._z = [[(1.0 - b[0]) * v for v in x]]
-            if self.filter_order == 2:
-                self._z.append([(b[2] - a[2]) * v for v in x])
-        z0 = self._z[0]
-        y = [b[0] * v + z for v, z in zip(x, z0)]
+        if not self._filter_ready:
+            self._reset_filter(x)
+        b, a, z = self._b, self._a, self._z
+        y = b[0] * x + z[0]
         if self.filter_order == 1:
-            self._z[0] = [b[1] * v - a[1] * w for v, w in zip(x, y)]
+            z[0] = b[1] * x - a[1] * y
         else:
-            z1 = self._z[1]
-            self._z[0] = [b[1] * v - a[1] * w + z for v, w, z in zip(x, y, z1)]
-            self._z[1] = [b[2] * v - a[2] * w for v, w in zip(x, y)]
+            z[0] = b[1] * x - a[1] * y + z[1]
+            z[1] = b[2] * x - a[2] * y
         return y
 
     def _check_period(self, dt: float) -> None:
         if not dt > 0.0:
             raise ValueError(f"communication step must be positive, got {dt!r}")
+        if self._dt_sample is not None and abs(dt - self._dt_sample) <= 1e-12 * dt:
+            return
         n_steps = 1
         if self.sample_rate > 0.0:
             ratio = 1.0 / (self.sample_rate * dt)
@@ -230,16 +257,15 @@ class SensorChannels:
         self._dt_sample = dt
 
     # -- use ---------------------------------------------------------------------------------
-    def initial(self, x: Sequence[float], time: float = 0.0) -> list[float]:
+    def initial(self, x: np.ndarray, time: float = 0.0) -> np.ndarray:
         """The reading before the first step, stamped ``time``: bias, scale, quantisation and
         saturation of ``x`` (no noise); the filter will start in steady state at the first
         step's input."""
         self.t_meas = float(time)
-        x = x.tolist() if isinstance(x, np.ndarray) else [float(v) for v in x]
-        self.output = self._finish([g * v + b + w for g, v, b, w in zip(self._gain, x, self.bias, self.walk)])
+        self.output = self._finish(self._gain * np.asarray(x, dtype=float) + self.bias + self.walk)
         return self.output
 
-    def step(self, x: Sequence[float], dt: float, time: float = math.nan) -> list[float]:
+    def step(self, x: np.ndarray, dt: float, time: float = math.nan) -> np.ndarray:
         """Advance one communication step with input ``x``, the value at ``time``; returns the
         (held) reading. A sample taken now is stamped ``time`` (:attr:`t_meas`).
 
@@ -249,17 +275,13 @@ class SensorChannels:
             Naming ``sample_rate`` if the sample period is not an integer multiple of ``dt``, or
             ``cutoff`` if the cut-off is not below the Nyquist frequency of ``dt``.
         """
-        if self._dt_sample is None or not abs(dt - self._dt_sample) <= 1e-12 * dt:
-            self._check_period(dt)
+        self._check_period(dt)
         y = self.lowpass(x, dt)
         if self._count == 0:
-            root = math.sqrt(self._period_steps * dt)
-            # random_walk_increment and white_noise of fmus.common.noise, on floats
-            steps = self._walk_draws.take()
-            self.walk = [w + s * root * e for w, s, e in zip(self.walk, self.bias_rw, steps)]
-            noise = self._noise_draws.take()
-            self.output = self._finish([g * v + b + w + s * e for g, v, b, w, s, e in
-                                        zip(self._gain, y, self.bias, self.walk, self.noise, noise)])
+            period = self._period_steps * dt
+            self.walk += random_walk_increment(self._rng_rw, self.bias_rw, period, self.n)
+            y = self._gain * y + self.bias + self.walk + white_noise(self._rng_noise, self.noise, self.n)
+            self.output = self._finish(y)
             self.t_meas = float(time)
         self._count = (self._count + 1) % self._period_steps
         return self.output
@@ -423,6 +445,6 @@ def hammer_force(t: float, times: Sequence[float], force_xz: Sequence[float], du
 
 
 __all__ = ["UNSTAMPED", "T_TRUTH_DESCRIPTION", "input_time", "SensorChannels", "butterworth_coefficients",
-           "butterworth_magnitude", "rot_y", "rot_rpy", "sensor_rotation", "imu_reading",
+           "butterworth_magnitude", "quantise", "rot_y", "rot_rpy", "sensor_rotation", "imu_reading",
            "force_sensor_reading", "calibrate_tool", "Wall", "penetration", "contact_force", "hammer_force",
            "G"]

@@ -54,7 +54,7 @@ def numpy_arm_angles(q_m, robot, gravity_compensation=False):
 
 @pytest.mark.parametrize("compensate", [False, True])
 def test_scalar_kernel_matches_the_numpy_version(compensate) -> None:
-    """Random arm poses over the workspace (and a 30 % softer model): the same angles to
+    """Random arm poses over the workspace (and a much softer model): the same angles to
     round-off, including the soft zone of the spring (small gravity torque near q1 = 0)."""
     rng = np.random.default_rng(7)
     for p in (RobotParameters(), RobotParameters(k_lo=(3e4, 2e4), k_hi=(2.8e5, 1.4e5))):

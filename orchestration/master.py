@@ -563,7 +563,6 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
         The run failed; ``results.csv`` holds the rows up to the failure and ``run.json`` the
         message (``error.out_dir`` is the folder).
     """
-    from . import metrics as _metrics
     from .results import CSV_NAME, METRICS_NAME, RUN_NAME, CsvWriter, Result, versions, write_json
     from .scenario import load_scenario
 
@@ -617,6 +616,7 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
         if bar is not None:
             bar.close()
     wall = time.perf_counter() - t0
+    from . import metrics as _metrics        # after the run: a failed run never needs it
     result = Result.load(out)
     values: dict[str, float] = {}
     described: dict[str, dict[str, Any]] = {}

@@ -21,8 +21,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.signal import butter, filtfilt
-from scipy.stats import chi2
 
 
 def _error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -88,6 +86,8 @@ def bandpass_errors(estimate: np.ndarray, truth: np.ndarray, fs: float, low: flo
     if not 0 < low < high < fs / 2:
         raise ValueError(f"band-pass needs 0 < low < high < fs/2, got low={low}, high={high}, fs={fs}")
     e = _error(estimate, truth)
+    from scipy.signal import butter, filtfilt    # here: importing it costs a run 0.6-2 s
+
     b, a = butter(order, [low, high], btype="bandpass", fs=fs)
     minimum = 3 * max(len(a), len(b))
     if len(e) <= minimum:
@@ -178,6 +178,7 @@ def chi2_band(dof: int, n_runs: int = 1, level: float = 0.95) -> tuple[float, fl
     values: ``chi2.ppf((1 -+ level) / 2, n_runs dof) / n_runs`` (Bar-Shalom et al. 2001,
     eq. 5.4.2-5)."""
     a = (1.0 - level) / 2.0
+    from scipy.stats import chi2                 # here, as scipy.signal: start-up cost
     lo, hi = chi2.ppf([a, 1.0 - a], dof * n_runs) / n_runs
     return float(lo), float(hi)
 

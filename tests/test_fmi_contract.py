@@ -18,7 +18,7 @@ from numpy.testing import assert_array_equal
 
 from fmu_host import Slave, every_fmu
 
-ERROR, FATAL = 3, 4
+DISCARD, ERROR, FATAL = 2, 3, 4
 
 
 @pytest.fixture(scope="module")
@@ -56,6 +56,25 @@ def test_non_finite_output_is_an_error_naming_it(fmus) -> None:
     vrs = [s.vr[f"q_a[{i}]"] for i in (1, 2)]
     assert _status(s.fmu.getReal, vrs) in (ERROR, FATAL)
     assert s.log.has("output 'q_a[1]' is not finite", "t = 0.001 s"), s.log
+
+
+def test_non_finite_input_is_an_error_naming_it_until_it_is_finite_again(fmus) -> None:
+    """The one check per step (issue 16) still names the input, every step it stays bad, and a
+    huge but finite input (whose sum overflows) is no error."""
+    s = Slave(fmus["Encoder"], {"resolution": 0.0}, init=True, logging_on=False)
+    s.set(q_m=[1e308, 1e308])
+    s.step(1e-3)
+    s.set(q_m=[0.1, float("nan")])
+    assert _status(s.fmu.doStep, 1e-3, 1e-3) in (DISCARD, ERROR, FATAL)   # the step is refused
+    assert s.log.has("input 'q_m' is not finite", "t = 0.001 s"), s.log
+    s.close()
+    s = Slave(fmus["Encoder"], init=True, logging_on=False)
+    s.set(q_m=[0.1, float("inf")])
+    assert _status(s.fmu.doStep, 0.0, 1e-3) in (DISCARD, ERROR, FATAL)
+    assert _status(s.fmu.doStep, 0.0, 1e-3) in (DISCARD, ERROR, FATAL)    # not set again: still bad
+    s.set(q_m=[0.1, 0.2])
+    s.step(1e-3)
+    s.close()
 
 
 def test_fixed_parameter_refuses_a_change_after_initialisation(fmus) -> None:

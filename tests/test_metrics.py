@@ -152,3 +152,15 @@ def test_compute_nees_and_nis_specs():
     assert_allclose(out["n"], (0 + 1 + 4 + 1 + 0 + 9) / 6)
     entry = m.entries(spec, out)["n"]
     assert entry["dof"] == 1 and entry["band_95"] == list(m.chi2_band(1))
+
+
+def test_a_run_imports_scipy_signal_only_for_a_band_pass() -> None:
+    """Importing it cost every run 0.6-2 s of start-up (issue 16): the metrics module leaves it
+    to the band-pass metric."""
+    import subprocess
+    import sys
+    code = ("import sys, numpy as np; import orchestration.master, orchestration.metrics as m; "
+            "m.rmse(np.zeros((5, 2)), np.ones((5, 2))); assert 'scipy.signal' not in sys.modules; "
+            "m.bandpass_errors(np.random.default_rng(0).normal(size=(2000, 2)), np.zeros((2000, 2)), 1000.0); "
+            "assert 'scipy.signal' in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True)

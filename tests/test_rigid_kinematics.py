@@ -37,6 +37,48 @@ def test_compensation_uses_the_models_stiffness_not_the_plants() -> None:
     assert 0.1 * sag < left < 0.25 * sag
 
 
+def numpy_arm_angles(q_m, robot, gravity_compensation=False):
+    """The numpy version the scalar kernel replaced (issue 16), as the reference."""
+    q_motor = np.asarray(q_m, float) / np.asarray(robot.gear_ratio, float)
+    if not gravity_compensation:
+        return q_motor
+    q, D = q_motor, None
+    for _ in range(8):
+        D = dynamics.spring_deflection(dynamics.gravity_torque(q, robot), robot, D)
+        q_next = q_motor - D
+        if np.abs(q_next - q).max() <= 1e-11:
+            return q_next
+        q = q_next
+    return q
+
+
+@pytest.mark.parametrize("compensate", [False, True])
+def test_scalar_kernel_matches_the_numpy_version(compensate) -> None:
+    """Random arm poses over the workspace (and a much softer model): the same angles to
+    round-off, including the soft zone of the spring (small gravity torque near q1 = 0)."""
+    rng = np.random.default_rng(7)
+    for p in (RobotParameters(), RobotParameters(k_lo=(3e4, 2e4), k_hi=(2.8e5, 1.4e5))):
+        for _ in range(200):
+            q_m = dynamics.static_equilibrium(rng.uniform([-0.6, -0.8], [0.8, 0.8]), p)[2:4]
+            q_m = q_m + rng.normal(0.0, 0.05, 2)           # off equilibrium: any motor angles
+            assert_allclose(rk.arm_angles(q_m, p, compensate), numpy_arm_angles(q_m, p, compensate),
+                            rtol=0, atol=1e-15)
+
+
+def test_scalar_spring_pieces_match_the_numpy_functions() -> None:
+    rng = np.random.default_rng(3)
+    p = RobotParameters()
+    k = dynamics._constants(p)
+    for _ in range(200):
+        q = rng.uniform(-1.5, 1.5, 2)
+        assert_allclose(k.gravity(*q), dynamics.gravity_torque(q, p), rtol=1e-15, atol=1e-12)
+        tau = rng.normal(0.0, 10.0 ** rng.uniform(-3, 3.5), 2)      # the soft zone and beyond
+        D = [k.deflection(i, tau[i]) for i in range(2)]
+        assert_allclose(D, dynamics.spring_deflection(tau, p), rtol=1e-13, atol=1e-18)
+        assert_allclose(dynamics.spring_torque(np.zeros(2), np.multiply(D, k.r), p), tau,
+                        rtol=1e-12, atol=1e-12)
+
+
 @pytest.fixture(scope="module")
 def fmu(tmp_path_factory):
     dest = tmp_path_factory.mktemp("rigid")

@@ -57,6 +57,27 @@ class _Constants:
     def spring(self, i: int, D: float) -> float:
         return self.k_hi[i] * D - self.k_soft[i] * self.delta[i] * math.tanh(D / self.delta[i])
 
+    def deflection(self, i: int, tau: float, D0: float | None = None) -> float:
+        """:func:`spring_deflection` of joint ``i`` on a float (the same Newton steps, each
+        joint stopping on its own; on 2-vectors a scalar loop is about 14x faster than numpy)."""
+        k_hi, k_soft, delta = self.k_hi[i], self.k_soft[i], self.delta[i]
+        if D0 is None:
+            D = (tau + math.copysign(k_soft * delta * math.tanh(abs(tau) / (k_hi * delta)), tau)) / k_hi
+        else:
+            D = D0
+        tol = 1e-12 * max(1.0, abs(tau))
+        for _ in range(50):
+            f = k_hi * D - k_soft * delta * math.tanh(D / delta) - tau
+            D -= f / (k_hi - k_soft * (1.0 - math.tanh(D / delta) ** 2))    # sech^2, no overflow
+            if abs(f) <= tol:
+                break
+        return D
+
+    def gravity(self, q1: float, q2: float) -> tuple[float, float]:
+        """:func:`gravity_torque` on floats."""
+        cp = math.cos(q1 + q2)
+        return -self.g1 * math.sin(q1) - self.g2 * cp, -self.g2 * cp
+
     def derivatives(self, s, tau1: float, tau2: float, fx: float, fz: float) -> tuple:
         """``x_dot`` as a tuple of 8 floats (eqs. 10-11)."""
         q1, q2, qm1, qm2, dq1, dq2, dqm1, dqm2 = s
@@ -277,12 +298,13 @@ class FlexibleRobotModel:
         f = self._k.derivatives
         t1, t2, fx, fz = float(tau_m[0]), float(tau_m[1]), float(f_ext[0]), float(f_ext[1])
         h = dt / self.substeps
+        hh, h6 = 0.5 * h, h / 6.0       # the same products as 0.5 * h * b, h / 6.0 * (...)
         s = self._s
-        for _ in range(self.substeps):
+        for _ in range(self.substeps):     # tuples of list comprehensions: faster than generators
             k1 = f(s, t1, t2, fx, fz)
-            k2 = f(tuple(a + 0.5 * h * b for a, b in zip(s, k1)), t1, t2, fx, fz)
-            k3 = f(tuple(a + 0.5 * h * b for a, b in zip(s, k2)), t1, t2, fx, fz)
-            k4 = f(tuple(a + h * b for a, b in zip(s, k3)), t1, t2, fx, fz)
-            s = tuple(a + h / 6.0 * (b1 + 2 * b2 + 2 * b3 + b4) for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4))
+            k2 = f(tuple([a + hh * b for a, b in zip(s, k1)]), t1, t2, fx, fz)
+            k3 = f(tuple([a + hh * b for a, b in zip(s, k2)]), t1, t2, fx, fz)
+            k4 = f(tuple([a + h * b for a, b in zip(s, k3)]), t1, t2, fx, fz)
+            s = tuple([a + h6 * (b1 + 2 * b2 + 2 * b3 + b4) for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4)])
         self._s = s
         self.t += dt

@@ -92,7 +92,7 @@ def known_units() -> tuple[str, ...]:
 # attributes that are declarations, not state (see FlexFusionSlave._get_fmu_state)
 _NOT_STATE = frozenset({"vars", "log_queue", "instance_name", "resources", "visible", "guid",
                         "_units", "_inputs", "_depends", "_arrays", "_output_vrs", "_host_log",
-                        "_real_getters", "_real_setters"})
+                        "_real_getters", "_real_setters", "_input_slots"})
 _BOUND = "flexfusion.bound"   # deepcopy memo key: the live objects _Bound names stand for
 
 
@@ -203,6 +203,9 @@ class FlexFusionSlave(Fmi2Slave):
         self._host_log = _host_logger(kwargs.get("logger"), self.instance_name)
         self._real_getters: dict | None = None   # value reference -> getter, built on first use
         self._real_setters: dict | None = None
+        # value reference of each input scalar -> (its array, index) or (None, attribute name)
+        self._input_slots: dict[int, tuple[np.ndarray | None, int | str]] = {}
+        self._inputs_unchecked = True   # an input may be non-finite: check each at the next step
         self._ready = False
         self._time = 0.0
         self._host_step = self._step = math.nan     # the step as the host gave it; as used
@@ -231,6 +234,8 @@ class FlexFusionSlave(Fmi2Slave):
                 setattr(self, attr, float(v))
             if causality == Fmi2Causality.output:
                 self._output_vrs.add(len(self.vars))
+            elif causality == Fmi2Causality.input:
+                self._input_slots[len(self.vars)] = (None, attr)
             self._register(Real(attr, causality=causality, description=description,
                                 variability=variability, initial=initial,
                                 getter=lambda attr=attr: getattr(self, attr), setter=setter), unit)
@@ -243,6 +248,8 @@ class FlexFusionSlave(Fmi2Slave):
             getter = partial(values.item, i)
             if causality == Fmi2Causality.output:
                 self._output_vrs.add(len(self.vars))
+            elif causality == Fmi2Causality.input:
+                self._input_slots[len(self.vars)] = (values, i)
 
             def setter(v: float, i: int = i) -> None:
                 if on_set:
@@ -384,10 +391,9 @@ class FlexFusionSlave(Fmi2Slave):
     def _check_inputs(self, t: float) -> None:
         for name in self._inputs:
             v = getattr(self, name)
-            # fast path: a sum of finite numbers is finite (but for overflow, checked below)
-            if not math.isfinite(float(v) if isinstance(v, float) else float(v.sum())) \
-                    and not np.all(np.isfinite(v)):
+            if not np.all(np.isfinite(v)):
                 raise FloatingPointError(f"input '{name}' is not finite ({v}) at t = {t:.6g} s")
+        self._inputs_unchecked = False
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         if not (step_size > 0.0 and math.isfinite(step_size) and math.isfinite(current_time)) \
@@ -400,7 +406,7 @@ class FlexFusionSlave(Fmi2Slave):
         if step_size != self._host_step:
             self._host_step, self._step = step_size, nominal_step(step_size)
         try:
-            if self.nan_inputs == "error":
+            if self._inputs_unchecked and self.nan_inputs == "error":
                 self._check_inputs(current_time)
             self.step(current_time, self._step)
             self._inputs_dirty = False
@@ -478,6 +484,29 @@ class FlexFusionSlave(Fmi2Slave):
         return pickle.loads(data)  # noqa: S301 - our own state, from the host that saved it
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
+        """Inputs straight into their arrays (the hot path: no setter per scalar), marked dirty
+        once; one sum flags a non-finite value for the check at the next step. Anything else
+        (parameters) goes through its variable's setter."""
+        if not vrs:
+            return
+        slots = self._input_slots
+        try:
+            for vr, v in zip(vrs, values):
+                array, index = slots[vr]
+                if array is None:
+                    setattr(self, index, float(v))
+                else:
+                    array[index] = v
+        except KeyError:
+            self._set_each(vrs, values)
+            return
+        self._inputs_dirty = self._stale = True
+        total = sum(values)
+        if total - total != 0.0:        # NaN, inf, or an overflowed sum
+            self._inputs_unchecked = True
+
+    def _set_each(self, vrs: list[int], values: list[float]) -> None:
+        self._inputs_unchecked = True
         setters = self._real_setters
         if setters is None:
             setters = self._real_setters = {vr: var.setter for vr, var in self.vars.items()

@@ -51,8 +51,9 @@ class RigidKinematics(FlexFusionSlave):
         else:
             self._samples = [*self._samples[-1:], (t_m, q)]
         if now > t_m + TIME_TOL and len(self._samples) == 2:
-            (t0, q0), (t1, q1) = self._samples
-            q = q1 + (q1 - q0) * ((now - t1) / (t1 - t0))
+            (t0, (a0, b0)), (t1, (a1, b1)) = self._samples
+            f = (now - t1) / (t1 - t0)
+            q = (a1 + (a1 - a0) * f, b1 + (b1 - b0) * f)
         self.q_a_hat[:] = q
         self.p_tool_hat[:] = kinematics.tool_position(q, self.robot)
-        self.phi_tool_hat = float(q[0] + q[1])
+        self.phi_tool_hat = q[0] + q[1]

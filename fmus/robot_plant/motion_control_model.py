@@ -235,7 +235,6 @@ class _RobotView:
         self.r = as_array(robot.gear_ratio)
         self.jm = as_array(robot.J_m)
         self.d = as_array(robot.d)
-        self.k_hi = as_array(robot.k_hi)
 
     def arm_torque(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
         """Rigid arm inverse dynamics ``M(q) ddq + C(q, dq) dq + g(q)`` (2012 paper, eq. 11)."""
@@ -318,19 +317,10 @@ class MotionControlModel:
             raise ReachError(f"path '{self.trajectory.name}': the point ({p[k, 0]:.4g}, {p[k, 1]:.4g}) m at "
                              f"t = {tk:.3f} s on {label} is out of reach ({self._reach_text()})")
 
-    def _deflection(self, tau: np.ndarray) -> np.ndarray:
-        """Solve ``spring(D) = tau`` elementwise by Newton's method (the spring is monotonic)."""
-        view = self.view
-        defl = tau / view.k_hi
-        for _ in range(50):
-            h = 1e-7
-            f = view.spring(defl) - tau
-            slope = (view.spring(defl + h) - view.spring(defl - h)) / (2 * h)
-            step = f / slope
-            defl = defl - step
-            if np.all(np.abs(step) < 1e-14):
-                break
-        return defl
+    def _deflection(self, tau: np.ndarray, D0: np.ndarray | None = None) -> np.ndarray:
+        """Solve ``spring(D) = tau`` elementwise (Newton's method with the analytic slope,
+        :func:`fmus.common.dynamics.spring_deflection`, from ``D0`` if given)."""
+        return dynamics.spring_deflection(tau, self.view.robot, D0)
 
     def _build_table(self, t: np.ndarray) -> np.ndarray:
         tr, view = self.trajectory, self.view
@@ -342,7 +332,7 @@ class MotionControlModel:
         defl = self._deflection(tau_arm)
         for _ in range(3):
             ddefl = np.gradient(defl, self.dt, axis=0, edge_order=2)
-            defl = self._deflection(tau_arm - view.d * ddefl)
+            defl = self._deflection(tau_arm - view.d * ddefl, defl)
         ddefl = np.gradient(defl, self.dt, axis=0, edge_order=2)
         dddefl = np.gradient(ddefl, self.dt, axis=0, edge_order=2)
         r = self.r
@@ -424,7 +414,8 @@ class MotionController:
         self.tau = np.zeros(2)
         self._windup = np.zeros(2)   # +1 / -1: saturated in that direction, 0: not saturated
         self.row = model.sample(0.0)
-        self.q_a_ref = self.row[_Q].copy()
+        self._row_t = 0.0            # the time of row: an FMU evaluates each time twice (its
+        self.q_a_ref = self.row[_Q].copy()   # outputs at t + dt, then the new inputs at t)
         self.q_m_ref = self.row[_QM].copy()
         self.p_ref = self.row[_P].copy()
 
@@ -439,8 +430,9 @@ class MotionController:
         returns :attr:`tau` [N m, motor side].
         """
         m = self.model
-        row = m.sample(t)
-        self.row = row
+        if t != self._row_t:
+            self.row, self._row_t = m.sample(t), t
+        row = self.row
         q_a = row[_Q]
         q_m_ref = row[_QM]
         if dp_ref[0] != 0.0 or dp_ref[1] != 0.0:

@@ -56,6 +56,7 @@ class MotionController(FlexFusionSlave):
 
     def setup(self, params: MotionControllerParameters) -> None:
         self.ctrl = build_controller(params)
+        self._shown_row = None
         self._evaluate(self._time)
 
     def _evaluate(self, t: float) -> None:
@@ -63,8 +64,10 @@ class MotionController(FlexFusionSlave):
         c.evaluate(t, self.q_m, self.dq_m, self.dp_ref)
         self._eval_t = t
         row = c.row
-        for name, cols in _ROW_OUTPUTS:
-            getattr(self, name)[:] = row[cols]
+        if row is not self._shown_row:       # the references of a new time (once per time)
+            self._shown_row = row
+            for name, cols in _ROW_OUTPUTS:
+                getattr(self, name)[:] = row[cols]
         self.tau_m[:] = c.tau
         self.q_a_ref[:] = c.q_a_ref
         self.q_m_ref[:] = c.q_m_ref

@@ -339,7 +339,7 @@ def _zip_kind(data: bytes) -> str:
     except zipfile.BadZipFile:
         names = set()
     if "SystemStructure.ssd" in names:
-        return "this is an SSP package (flexfusion writes SSP with export-ssp but runs TOML scenarios)"
+        return "this is an SSP package (flexfusion runs one whose name ends in .ssp)"
     if "modelDescription.xml" in names:
         return "this is an FMU (name it in a scenario: [components.NAME] fmu = \"path/to/it.fmu\")"
     return "this is a zip archive"

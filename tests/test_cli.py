@@ -112,13 +112,13 @@ def _zipped(*names: str) -> bytes:
      "not UTF-8 text (Latin-1?): a TOML scenario must be UTF-8; the first byte that is not is at line 4, column 10"),
     (b"\x7fELF\x02\x01\x00\x00\xff\xfe", "a binary file: a TOML scenario must be UTF-8"),
     (ZIP + b"\x14\x00 a torn zip", "this is a zip archive, not a TOML scenario"),
-    (_zipped("SystemStructure.ssd", "resources/Gain.fmu"), "this is an SSP package (flexfusion writes SSP with "
-     "export-ssp but runs TOML scenarios), not a TOML scenario"),
+    (_zipped("SystemStructure.ssd", "resources/Gain.fmu"), "this is an SSP package (flexfusion runs one whose "
+     "name ends in .ssp), not a TOML scenario"),
     (_zipped("modelDescription.xml", "binaries/linux64/Gain.so"), "this is an FMU (name it in a scenario"),
 ])
 @pytest.mark.parametrize("command", ["run", "export-ssp"])
 def test_a_scenario_that_is_not_utf8_text_is_one_error_line(tmp_path, capsys, content, message, command):
-    path = tmp_path / "scenario.ssp"
+    path = tmp_path / "scenario.toml"          # a .ssp name is read as an SSP package
     path.write_bytes(content)
     argv = [command, str(path)] + (["-o", str(tmp_path / "x.ssp")] if command == "export-ssp" else ["--no-progress"])
     assert main(argv) == 2

@@ -1,10 +1,14 @@
 """The ``flexfusion`` command line: build, run, plot, export-ssp, study.
 
-Every error a user can cause ends in one line ``error: ...`` on stderr and exit status 2.
+Every error a user can cause ends in one line ``error: ...`` on stderr and exit status 2. A run
+stopped by SIGINT (Ctrl-C) or SIGTERM ends with one line ``error: interrupted ...`` and exit
+status 128 + the signal number (130, 143: the shell's rule for a process ended by a signal),
+its results up to then on disk (``run.json`` status ``interrupted``).
 """
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import warnings
 from pathlib import Path
@@ -24,22 +28,25 @@ def _show_warning(message: Any, category: Any, filename: str, lineno: int, file:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from .master import RunError, run
+    from .master import Interrupted, RunError, run, stop_on_signals
+    from .results import OutputError
     from .scenario import ScenarioError, load_scenario
 
     try:
-        scenario = load_scenario(args.scenario, args.set or ())
-        out = args.out or Path("results") / scenario.name
-        result = run(scenario, out_dir=out, progress=not args.no_progress)
-    except (ScenarioError, RunError) as exc:
+        with stop_on_signals():
+            scenario = load_scenario(args.scenario, args.set or ())
+            out = args.out or Path("results") / scenario.name
+            result = run(scenario, out_dir=out, progress=not args.no_progress, force=args.force)
+    except (ScenarioError, RunError, OutputError, Interrupted) as exc:
         msg = str(exc)
         out_dir = getattr(exc, "out_dir", None)
         if out_dir is not None:
-            msg += f" (results up to the failure in {out_dir})"
-        return _error(msg)
+            msg += f" (results up to then in {out_dir})"
+        _error(msg)
+        return 128 + exc.signum if isinstance(exc, Interrupted) else EXIT_USER_ERROR
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
     for name, value in result.metrics.items():
-        print(f"  {name:<32} {value:.6g}")
+        print(f"  {name:<32} {value:.6g} {result.units.get(name, '')}".rstrip())
     return 0
 
 
@@ -172,7 +179,10 @@ def main(argv: list[str] | None = None) -> int:
     p_run.add_argument("scenario", type=Path, help="scenario file (TOML)")
     p_run.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE",
                        help="override a parameter (repeatable); also scenario.seed=N, scenario.stop_time=T")
-    p_run.add_argument("--out", type=Path, help="output folder (default results/<scenario name>)")
+    p_run.add_argument("--out", type=Path, help="output folder (default results/<scenario name>); "
+                       "one run at a time owns it")
+    p_run.add_argument("--force", action="store_true",
+                       help="replace the results of an earlier run in the output folder")
     p_run.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     p_plot = sub.add_parser("plot", help="PNG plots of a run folder")
@@ -228,8 +238,12 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def console_main() -> None:
-    """The ``flexfusion`` console script."""
-    sys.exit(main())
+    """The ``flexfusion`` console script (Ctrl-C outside a run: one line, no traceback)."""
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:
+        _error("interrupted")
+        sys.exit(128 + signal.SIGINT)
 
 
 if __name__ == "__main__":

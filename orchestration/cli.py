@@ -46,7 +46,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 128 + exc.signum if isinstance(exc, Interrupted) else EXIT_USER_ERROR
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
     for name, value in result.metrics.items():
-        print(f"  {name:<32} {value:.6g} {result.units.get(name, '')}".rstrip())
+        unit = result.units.get(name, "")
+        print(f"  {name:<32} {value:.6g} {unit if unit != '1' else ''}".rstrip())   # "1": no unit
     return 0
 
 

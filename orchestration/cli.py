@@ -127,7 +127,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
         return _error(f"{out}: no such run folder")
     try:
         written = plot_run(out)
-    except (FileNotFoundError, ValueError, KeyError) as exc:
+    except (OSError, ValueError, KeyError) as exc:     # OSError: also a full disk
         return _error(f"{out}: cannot plot: {exc}")
     for p in written:
         print(p)

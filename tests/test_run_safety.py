@@ -91,6 +91,28 @@ def test_disk_full_ends_in_one_error_line_and_keeps_the_whole_rows(tmp_path, cap
         assert Result.load(out).status == "failed"
 
 
+def test_a_real_full_disk(tmp_path, capsys):
+    """The same on a 64 KiB tmpfs (needs root and mount: skipped otherwise)."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)],
+                                           capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here")
+    try:
+        out = disk / "o"
+        assert main(["run", str(write(tmp_path, CHAIN.format(stop=100.0))), "--out", str(out), "--no-progress"]) == 2
+        one_error_line(capsys.readouterr().err, "No space left on device", "the rows written before are kept")
+        data = whole_rows(out)
+        info = json.loads((out / "run.json").read_text())
+        assert info["status"] == "failed" and info["rows"] == len(data) > 200
+        assert main(["plot", str(out)]) == 2                 # no room for the PNGs either: one line
+        err = capsys.readouterr().err.splitlines()
+        assert err[0].startswith("warning: ") and err[1].startswith(f"error: {out}: cannot plot: ")
+        assert len(err) == 2 and "No space left on device" in err[1]
+    finally:
+        subprocess.run(["umount", str(disk)], check=True)
+
+
 def test_writer_cuts_a_failed_block_back_to_whole_rows(tmp_path, monkeypatch):
     real_write = os.write
     w = CsvWriter(tmp_path / "results.csv", ["a"], flush_every=2)

@@ -625,6 +625,8 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     else:
         sc = load_scenario(scenario, overrides)
     plan(sc)  # reject an algebraic loop before anything is written
+    if _STOP[0]:      # a signal while the scenario was loading: stop before writing anything
+        raise Interrupted(_STOP[0], 0.0)
     out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix=f"flexfusion_{sc.name}_"))
     with own_folder(out, force):
         try:
@@ -649,7 +651,7 @@ def _run_into(sc: Scenario, overrides: tuple[str, ...], out: Path, progress: boo
     notes: list[str] = []
     writer: CsvWriter | None = None
 
-    def finish(status: str, error: str | None, **more: Any) -> None:
+    def finish(status: str, error: str | None) -> None:
         """Flush what was computed, then write the true status (whatever else fails)."""
         if writer is not None:
             try:
@@ -657,8 +659,7 @@ def _run_into(sc: Scenario, overrides: tuple[str, ...], out: Path, progress: boo
             except OSError:
                 pass          # the rows of the failed block are cut off; the rest stays
             info.update(rows=writer.rows, time_reached=writer.time_reached)
-        info.update(status=status, error=error, wall_time_s=time.perf_counter() - t0, warnings=notes,
-                    **more)
+        info.update(status=status, error=error, wall_time_s=time.perf_counter() - t0, warnings=notes)
         write_json(out / RUN_NAME, info)
 
     try:
@@ -685,7 +686,7 @@ def _run_into(sc: Scenario, overrides: tuple[str, ...], out: Path, progress: boo
         finish("failed", str(exc))
         raise
     except OSError as exc:
-        at = f" at t = {writer.time_reached:.6g} s" if writer and writer.time_reached is not None else ""
+        at = f" after t = {writer.time_reached:.6g} s" if writer and writer.time_reached is not None else ""
         message = f"cannot write the results{at}: {exc.strerror or exc}"
         try:
             finish("failed", message)
@@ -718,13 +719,18 @@ def _run_into(sc: Scenario, overrides: tuple[str, ...], out: Path, progress: boo
             unit = metric_unit(sc, spec.estimate)
             described.update({k: {**e, "unit": unit} for k, e in _metrics.entries(spec, computed).items()})
         write_json(out / METRICS_NAME, described)
-    except BaseException as exc:
-        info.update(status="failed", error=f"metrics: {exc}", wall_time_s=wall, warnings=notes)
+        info.update(status="ok", wall_time_s=wall, real_time_factor=sc.stop_time / wall if wall > 0 else None,
+                    warnings=notes)
         write_json(out / RUN_NAME, info)
+    except BaseException as exc:
+        info.update(status="failed", error=f"after the run: {exc}", wall_time_s=wall, warnings=notes)
+        try:
+            write_json(out / RUN_NAME, info)
+        except OSError:
+            pass              # run.json still says "running": Result.load reports it, never as ok
+        if isinstance(exc, OSError):
+            raise OutputError(f"cannot write the metrics after the run: {exc.strerror or exc}") from None
         raise
-    info.update(status="ok", wall_time_s=wall, real_time_factor=sc.stop_time / wall if wall > 0 else None,
-                warnings=notes)
-    write_json(out / RUN_NAME, info)
     result.status = "ok"
     result.error = None
     result.metrics = values

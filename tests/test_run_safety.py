@@ -79,7 +79,7 @@ def test_disk_full_ends_in_one_error_line_and_keeps_the_whole_rows(tmp_path, cap
     monkeypatch.setattr(os, "write", full_disk)
     out = tmp_path / "o"
     assert main(["run", str(write(tmp_path, CHAIN.format(stop=1.0))), "--out", str(out), "--no-progress"]) == 2
-    one_error_line(capsys.readouterr().err, "cannot write the results at t = 0.399 s: No space left on device",
+    one_error_line(capsys.readouterr().err, "cannot write the results after t = 0.399 s: No space left on device",
                    "the rows written before are kept, whole", f"(results up to then in {out})")
     data = whole_rows(out)
     assert len(data) == 400 and data[-1, 0] == 0.399        # 2 blocks of 200 rows (t = 0 .. 0.399)

@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from .scenario import Component, Scenario, ScenarioError
+from .scenario import Component, Scenario, ScenarioError, check_metric_windows
 
 if TYPE_CHECKING:
     from .results import Result
@@ -625,6 +625,7 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     else:
         sc = load_scenario(scenario, overrides)
     plan(sc)  # reject an algebraic loop before anything is written
+    check_metric_windows(sc)
     if _STOP[0]:      # a signal while the scenario was loading: stop before writing anything
         raise Interrupted(_STOP[0], 0.0)
     out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix=f"flexfusion_{sc.name}_"))

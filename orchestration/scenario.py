@@ -782,18 +782,16 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     if dup:
         raise ScenarioError(f"{label}: duplicate metric name(s) {', '.join(sorted(dup))}")
 
-    _check_run_length(label, stop_time, base_step, interval, components, metrics)
+    _check_run_length(label, stop_time, base_step, components)
     return Scenario(path=path, name=name, description=description, stop_time=stop_time,
                     base_step=base_step, seed=int(seed), components=components,
                     connections=connections, record=record, record_interval=interval,
                     metrics=metrics, overrides=overrides, source=doc, oracles=oracles, delays=delays)
 
 
-def _check_run_length(label: str, stop_time: float, base_step: float, interval: float,
-                      components: dict[str, Component], metrics: list[MetricSpec]) -> None:
-    """What the run's length must allow: at most :data:`MAX_STEPS` base steps, every component
-    one step at least (the master never steps past the stop time), a recorded sample after
-    every metric's ``after``."""
+def _check_run_length(label: str, stop_time: float, base_step: float, components: dict[str, Component]) -> None:
+    """At most :data:`MAX_STEPS` base steps, and every component one step at least (the master
+    never steps past the stop time)."""
     n_steps = round(stop_time / base_step)
     if n_steps > MAX_STEPS:
         raise ScenarioError(f"{label}: stop_time / base_step = {n_steps:.3g} base steps, more than "
@@ -803,12 +801,20 @@ def _check_run_length(label: str, stop_time: float, base_step: float, interval: 
         if c.ratio > n_steps:
             raise ScenarioError(f"{label}: component '{c.name}': step {c.step:g} s is longer than "
                                 f"the stop time {stop_time:g} s (it would never step)")
-    last = interval * (n_steps // round(interval / base_step))
-    for m in metrics:
+
+
+def check_metric_windows(sc: Scenario) -> None:
+    """Every metric has a recorded sample at or after its ``after`` (else it would be NaN).
+
+    Not part of :func:`load_scenario`: a study that shortens a scenario and computes its own
+    metrics may leave the scenario's unused; a run that computes them calls this first.
+    """
+    last = sc.record_interval * (sc.n_steps // sc.record_every)
+    for m in sc.metrics:
         if m.after > last + 1e-12:
-            raise ScenarioError(f"{label}: metric '{m.name}': after = {m.after:g} s leaves no "
-                                f"recorded sample (the last is at t = {last:g} s, stop_time "
-                                f"{stop_time:g} s)")
+            raise ScenarioError(f"{sc.path or sc.name}: metric '{m.name}': after = {m.after:g} s leaves "
+                                f"no recorded sample (the last is at t = {last:g} s, stop_time "
+                                f"{sc.stop_time:g} s)")
 
 
 def connection_key(text: str) -> str:
@@ -859,4 +865,4 @@ def _deepcopy(doc: Any) -> Any:
 
 __all__ = ["ScenarioError", "Scenario", "Component", "Connection", "MetricSpec", "VariableInfo",
            "load_scenario", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
-           "connection_key"]
+           "connection_key", "check_metric_windows", "MAX_STEPS"]

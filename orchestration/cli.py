@@ -229,12 +229,13 @@ def study_modules() -> list[Any]:
 
 def cmd_study(args: argparse.Namespace) -> int:
     from .master import RunError
+    from .results import OutputError
     from .scenario import ScenarioError
     from .study import StudyError
 
     try:
         return args.func(args)
-    except (StudyError, ScenarioError, RunError) as exc:
+    except (StudyError, ScenarioError, RunError, OutputError) as exc:
         return _error(str(exc))
 
 

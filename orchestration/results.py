@@ -52,11 +52,10 @@ RESULT_FILES = (CSV_NAME, METRICS_NAME, RUN_NAME, "variables.png", "tool_path.pn
 
 class OutputError(RuntimeError):
     """The output folder cannot be used or written (another run owns it, it holds an earlier
-    run's results, an OS error such as a full disk); ``out_dir`` is the folder."""
+    run's results, an OS error such as a full disk); ``out_dir`` is the folder once the run has
+    written to it."""
 
-    def __init__(self, message: str, out_dir: Path | None = None) -> None:
-        super().__init__(message)
-        self.out_dir = out_dir
+    out_dir: Path | None = None
 
 
 class ResultWarning(UserWarning):

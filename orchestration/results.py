@@ -321,8 +321,8 @@ class Result:
             status, error = "failed", (f"{CSV_NAME} holds {len(data)} of the {info['rows']} rows "
                                        "the run wrote (cut short after the run)")
         if status != "ok":
-            reached = f"{data[-1, 0]:.6g} s" if len(data) else "no row"
-            warnings.warn(f"{out_dir}: the run is {status} ({error}); results up to t = {reached}"
+            reached = f"results up to t = {data[-1, 0]:.6g} s" if len(data) else "no result row"
+            warnings.warn(f"{out_dir}: the run is {status} ({error}); {reached}"
                           + ("; a torn last row was left out" if torn else ""), ResultWarning,
                           stacklevel=2)
         return cls(out_dir, data[:, 0].copy(), columns, data[:, 1:], metrics, units, against, status,

@@ -118,8 +118,13 @@ def test_writer_cuts_a_failed_block_back_to_whole_rows(tmp_path, monkeypatch):
     w = CsvWriter(tmp_path / "results.csv", ["a"], flush_every=2)
     for t in (0.0, 0.1):
         w(t, np.array([t]))
-    monkeypatch.setattr(os, "write", lambda fd, data: real_write(fd, bytes(data)[:5]) if len(data) > 5
-                        else (_ for _ in ()).throw(OSError(errno.ENOSPC, "full")))
+
+    def filling(fd: int, data: bytes) -> int:       # 5 bytes a call while there is more, then full
+        if len(data) <= 5:
+            raise OSError(errno.ENOSPC, "full")
+        return real_write(fd, bytes(data)[:5])
+
+    monkeypatch.setattr(os, "write", filling)
     w(0.2, np.array([0.2]))
     with pytest.raises(OSError):
         w(0.3, np.array([0.3]))

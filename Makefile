@@ -25,7 +25,7 @@ $(FMUS): $(STAMP) $(shell find fmus -name '*.py' 2>/dev/null)
 build: $(FMUS)
 
 demo: $(FMUS)
-	$(BIN)/flexfusion run orchestration/scenarios/flagship.toml --out results/flagship
+	$(BIN)/flexfusion run orchestration/scenarios/flagship.toml --out results/flagship --force
 	$(BIN)/flexfusion plot results/flagship
 
 test: $(FMUS)

@@ -6,10 +6,10 @@ Python API::
     result = run("orchestration/scenarios/flagship.toml", ["scenario.seed=3"], out_dir="results/x")
     result["plant.p_tool"]      # (n, 2) array;  result.time, result.metrics
 """
-from .master import CouplingWarning, RunError, run
-from .results import Result
+from .master import CouplingWarning, Interrupted, RunError, run
+from .results import OutputError, Result, ResultWarning
 from .roles import HonestSignalWarning
 from .scenario import ScenarioError, load_scenario
 
-__all__ = ["run", "Result", "ScenarioError", "RunError", "CouplingWarning", "HonestSignalWarning",
-           "load_scenario"]
+__all__ = ["run", "Result", "ScenarioError", "RunError", "OutputError", "Interrupted", "ResultWarning",
+           "CouplingWarning", "HonestSignalWarning", "load_scenario"]

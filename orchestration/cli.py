@@ -1,10 +1,14 @@
 """The ``flexfusion`` command line: build, run, plot, export-ssp, check-estimator, study.
 
-Every error a user can cause ends in one line ``error: ...`` on stderr and exit status 2.
+Every error a user can cause ends in one line ``error: ...`` on stderr and exit status 2. A run
+stopped by SIGINT (Ctrl-C) or SIGTERM ends with one line ``error: interrupted ...`` and exit
+status 128 + the signal number (130, 143: the shell's rule for a process ended by a signal),
+its results up to then on disk (``run.json`` status ``interrupted``).
 """
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import warnings
 from contextlib import contextmanager
@@ -43,7 +47,8 @@ def loaded(path: Path, overrides: list[str] | tuple[str, ...] = ()) -> Iterator[
 
 def cmd_run(args: argparse.Namespace) -> int:
     from . import fork
-    from .master import RunError, run
+    from .master import Interrupted, RunError, run, stop_on_signals
+    from .results import OutputError
     from .scenario import ScenarioError
 
     if (args.save_state_at is None) != (args.state_out is None):
@@ -51,25 +56,27 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.from_state is not None and args.save_state_at is not None:
         return _error("--from-state and --save-state-at cannot be combined")
     try:
-        with loaded(args.scenario, args.set or ()) as scenario:
+        with stop_on_signals(), loaded(args.scenario, args.set or ()) as scenario:
             out = args.out or Path("results") / scenario.name
             hook = (fork.from_state(scenario, args.from_state) if args.from_state is not None else
                     fork.saving(scenario, args.save_state_at, args.state_out)
                     if args.save_state_at is not None else None)
-            result = run(scenario, out_dir=out, progress=not args.no_progress, hook=hook)
-    except (ScenarioError, RunError) as exc:
+            result = run(scenario, out_dir=out, progress=not args.no_progress, force=args.force, hook=hook)
+    except (ScenarioError, RunError, OutputError, Interrupted) as exc:
         msg = str(exc)
         out_dir = getattr(exc, "out_dir", None)
         if out_dir is not None:
-            msg += f" (results up to the failure in {out_dir})"
-        return _error(msg)
-    except OSError as exc:          # the output folder: not creatable, not writable, disk full
+            msg += f" (results up to then in {out_dir})"
+        _error(msg)
+        return 128 + exc.signum if isinstance(exc, Interrupted) else EXIT_USER_ERROR
+    except OSError as exc:          # the output folder: not creatable, not writable
         return _output_folder_error(exc, args.out)
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
     if args.state_out is not None:
         print(f"  state at t = {args.save_state_at:g} s in {args.state_out}")
     for name, value in result.metrics.items():
-        print(f"  {name:<32} {value:.6g}")
+        unit = result.units.get(name, "")
+        print(f"  {name:<32} {value:.6g} {unit if unit != '1' else ''}".rstrip())   # "1": no unit
     return 0
 
 
@@ -149,7 +156,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
         return _error(f"{out}: no such run folder")
     try:
         written = plot_run(out)
-    except (FileNotFoundError, ValueError, KeyError) as exc:
+    except (OSError, ValueError, KeyError) as exc:     # OSError: also a full disk
         return _error(f"{out}: cannot plot: {exc}")
     for p in written:
         print(p)
@@ -193,7 +200,10 @@ def main(argv: list[str] | None = None) -> int:
     p_run.add_argument("scenario", type=Path, help="scenario file (TOML), or an SSP package (.ssp, .ssd)")
     p_run.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE",
                        help="override a parameter (repeatable); also scenario.seed=N, scenario.stop_time=T")
-    p_run.add_argument("--out", type=Path, help="output folder (default results/<scenario name>)")
+    p_run.add_argument("--out", type=Path, help="output folder (default results/<scenario name>); "
+                       "one run at a time owns it")
+    p_run.add_argument("--force", action="store_true",
+                       help="replace the results of an earlier run in the output folder")
     p_run.add_argument("--no-progress", action="store_true", help="no progress bar")
     p_run.add_argument("--save-state-at", type=float, metavar="T",
                        help="save the whole co-simulation's state at time T (s) into --state-out")
@@ -256,6 +266,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     """A study in its ``--out`` folder (:class:`orchestration.study.StudyFolder`): checked and
     locked before any run, each finished run kept, ``--resume`` reuses them."""
     from .master import RunError
+    from .results import OutputError
     from .scenario import ScenarioError
     from .study import StudyError, StudyInterrupted, study_folder
 
@@ -269,15 +280,19 @@ def cmd_study(args: argparse.Namespace) -> int:
                 if folder else "no run had started")
         print(f"error: interrupted by {exc}: {kept}", file=sys.stderr)
         return 128 + exc.signum
-    except (StudyError, ScenarioError, RunError) as exc:
+    except (StudyError, ScenarioError, RunError, OutputError) as exc:
         return _error(str(exc))
     except OSError as exc:
         return _output_folder_error(exc, args.out)
 
 
 def console_main() -> None:
-    """The ``flexfusion`` console script."""
-    sys.exit(main())
+    """The ``flexfusion`` console script (Ctrl-C outside a run: one line, no traceback)."""
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:
+        _error("interrupted")
+        sys.exit(128 + signal.SIGINT)
 
 
 if __name__ == "__main__":

@@ -4,9 +4,10 @@
   steps (``doStep(t, k h)``) and its outputs are held in between (multi-rate).
 * Gauss–Seidel: the components are stepped in topological order of the connection graph, each
   one's inputs set from the freshest outputs of its producers. A cycle of connections is broken
-  at one edge, preferably one whose target input has no direct feedthrough to an output; the
-  consumer on that edge reads the producer's previous value (Jacobi) and a
-  :class:`CouplingWarning` names the edge once. A cycle made of direct-feedthrough dependencies
+  at one edge, preferably one the scenario declares in ``delays`` (an intended one-step delay),
+  else one whose target input has no direct feedthrough to an output; the consumer on that edge
+  reads the producer's previous value (Jacobi) and, unless declared, a :class:`CouplingWarning`
+  names the edge once. A cycle made of direct-feedthrough dependencies
   only (output -> input -> output ...) is an algebraic loop and is rejected.
 * Initialisation in dependency order: every instance enters initialisation mode and gets its
   parameters; then, in Gauss–Seidel order, each gets its inputs from its producers' initial
@@ -17,23 +18,32 @@
 * A NaN on a connection, or an FMU status error/discard/fatal, stops the run with a
   :class:`RunError` naming the component, the variable and the time (with the FMU's own log).
   Instances are always terminated and freed.
+* No step past the stop time: a component whose step does not divide the stop time takes its
+  last step where the next one would pass it, and its outputs are held from then on (the
+  multi-rate rule).
+* Inside :func:`stop_on_signals`, SIGINT and SIGTERM stop the stepping loop at its next check
+  (every 100 base steps at most, between FMU calls, never inside one) with
+  :class:`Interrupted`.
 """
 from __future__ import annotations
 
 import ctypes
 import heapq
 import shutil
+import signal
 import sys
 import tempfile
+import threading
 import time
 import warnings
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from .scenario import Component, Scenario, ScenarioError
+from .scenario import Component, Scenario, ScenarioError, check_metric_windows
 
 if TYPE_CHECKING:
     from .results import Result
@@ -50,6 +60,42 @@ class RunError(RuntimeError):
 
 class CouplingWarning(UserWarning):
     """A connection of a cycle uses the producer's previous value (Jacobi)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM stopped a run (inside :func:`stop_on_signals`) at simulated time ``time``."""
+
+    def __init__(self, signum: int, time: float) -> None:
+        self.signum, self.time = signum, time
+        super().__init__(f"interrupted by {signal.Signals(signum).name} at t = {time:.6g} s")
+
+
+_STOP = [0]   # the signal that asked the running simulation to stop (0: none)
+
+
+@contextmanager
+def stop_on_signals() -> Iterator[None]:
+    """While active (in the main thread), SIGINT and SIGTERM do not raise where they land (that
+    could be inside an FMU's Python code, which would turn them into an FMU error) but ask the
+    stepping loop to stop with :class:`Interrupted` at its next check; a second signal raises
+    KeyboardInterrupt at once (for a run stuck before its first step). The previous handlers
+    are restored on exit."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def request_stop(signum: int, frame: Any) -> None:
+        if _STOP[0]:
+            raise KeyboardInterrupt
+        _STOP[0] = signum
+
+    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        _STOP[0] = 0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -115,7 +161,8 @@ def plan(scenario: Scenario) -> Plan:
     Raises
     ------
     ScenarioError
-        On an algebraic loop (a cycle of direct-feedthrough dependencies).
+        On an algebraic loop (a cycle of direct-feedthrough dependencies); a connection declared
+        in ``delays`` where no cycle is broken (it would read the fresh value).
     """
     loop = find_algebraic_loop(scenario)
     if loop:
@@ -133,14 +180,20 @@ def plan(scenario: Scenario) -> Plan:
         order = _kahn(names, active, rank)
         if len(order) == len(names):
             result.order = order
+            unbroken = sorted(set(scenario.delays) - set(result.broken_text))
+            if unbroken:
+                raise ScenarioError(f"{scenario.path or scenario.name}: delays: "
+                                    f"{', '.join(repr(d) for d in unbroken)} is where no cycle is "
+                                    "broken: it reads the fresh value, not a delayed one")
             return result
         placed = set(order)
         rest = [n for n in names if n not in placed]
         cycle = _find_cycle(rest, active, rank)
-        # prefer an edge whose consumer inputs have no direct feedthrough (a true delay)
-        def cost(e: tuple[str, str]) -> tuple[int, int, int]:
+        # prefer a declared delay, then an edge whose consumer inputs have no direct feedthrough
+        def cost(e: tuple[str, str]) -> tuple[int, int, int, int]:
             ft = any(_feedthrough(scenario.components[e[1]], d) for c in edges[e] for _, d in c.pairs)
-            return (1 if ft else 0, rank[e[1]], rank[e[0]])
+            declared = all(str(c) in scenario.delays for c in edges[e])
+            return (0 if declared else 1, 1 if ft else 0, rank[e[1]], rank[e[0]])
         edge = min(cycle, key=cost)
         active.discard(edge)
         result.broken.append(edge)
@@ -304,6 +357,7 @@ class _Slot:
     out_start: int
     n_check: int             # the first n_check outputs are connected: checked for NaN
     out_names: list[str]
+    last_k: int              # the base step of its last step (the next would pass the stop time)
 
 
 def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | None = None,
@@ -326,7 +380,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
 
     p = plan(scenario)
     notes = []
-    for text in p.broken_text:
+    for text in (t for t in p.broken_text if t not in scenario.delays):
         msg = (f"{scenario.name}: connection '{text}' is in a cycle; it uses the previous step's "
                "value (Jacobi)")
         warnings.warn(msg, CouplingWarning, stacklevel=2)
@@ -407,7 +461,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
                                np.ctypeslib.as_array(in_buf),
                                np.array([offsets[(s, v)] for _, s, v in ins], dtype=np.intp),
                                len(needed[n]), out_vr, out_ptr, starts[n], connected[n],
-                               needed[n]))
+                               needed[n], scenario.n_steps - comps[n].ratio))
 
         # ---- initialisation in dependency order ------------------------------------------
         for s in slots:
@@ -437,12 +491,12 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
         # ---- stepping --------------------------------------------------------------------
         n_steps = scenario.n_steps
         every = scenario.record_every
-        tick = max(1, n_steps // 200)
+        tick = max(1, min(n_steps // 200, 100))
         save_at = getattr(hook, "step", None)
         for k in range(k0, n_steps):
             t_now = k * h
             for s in slots:
-                if k % s.ratio:
+                if k % s.ratio or k > s.last_k:
                     continue
                 inst = s.inst
                 if s.n_in:
@@ -465,8 +519,13 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
                 sink(round((k + 1) * h, 12), values[record_idx])
             if k + 1 == save_at:
                 hook.save(k + 1, by_name, values, offsets)
-            if progress is not None and ((k + 1) % tick == 0 or k + 1 == n_steps):
-                progress(k + 1)
+            if (k + 1) % tick == 0:
+                if _STOP[0]:
+                    raise Interrupted(_STOP[0], round((k + 1) * h, 12))
+                if progress is not None:
+                    progress(k + 1)
+        if progress is not None:
+            progress(n_steps)
         t_now = scenario.stop_time
     except FMICallException as exc:
         if current is not None:
@@ -533,7 +592,8 @@ def _check_nan(s: _Slot, values: np.ndarray, t: float) -> None:
 # the public entry point
 # ---------------------------------------------------------------------------------------------
 def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[str] = (),
-        out_dir: str | Path | None = None, progress: bool = False, hook: Any = None) -> "Result":
+        out_dir: str | Path | None = None, progress: bool = False, force: bool = False,
+        hook: Any = None) -> "Result":
     """Run a scenario and write its results.
 
     Parameters
@@ -543,10 +603,12 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     overrides
         ``comp.param=value``, ``comp.param[i]=value``, ``scenario.seed=3`` ... strings.
     out_dir
-        Folder for ``results.csv``, ``metrics.json``, ``run.json`` (created); default: a new
-        temporary folder.
+        Folder for ``results.csv``, ``metrics.json``, ``run.json`` (created, and owned by this
+        run: :func:`orchestration.results.own_folder`); default: a new temporary folder.
     progress
         Show a tqdm progress bar on stderr.
+    force
+        Replace an earlier run's results in ``out_dir`` (else they are refused).
     hook
         Save the state at a time, or start from a saved one (:mod:`orchestration.fork`).
 
@@ -559,11 +621,19 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     ------
     ScenarioError
         The scenario is wrong (nothing is written).
+    OutputError
+        The folder is another run's, holds earlier results, or cannot be written (a full disk:
+        the rows written before stay, whole).
     RunError
-        The run failed; ``results.csv`` holds the rows up to the failure and ``run.json`` the
-        message (``error.out_dir`` is the folder).
+        The run failed.
+    Interrupted, KeyboardInterrupt
+        The run was stopped.
+
+    After a failure or an interruption ``results.csv`` holds every row up to it and
+    ``run.json`` the status (``failed`` / ``interrupted``), the cause and the time reached; the
+    exception's ``out_dir`` is the folder.
     """
-    from .results import CSV_NAME, METRICS_NAME, RUN_NAME, CsvWriter, Result, versions, write_json
+    from .results import OutputError, own_folder
     from .scenario import load_scenario
 
     overrides = tuple(overrides)
@@ -574,17 +644,46 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     else:
         sc = load_scenario(scenario, overrides)
     plan(sc)  # reject an algebraic loop before anything is written
+    check_metric_windows(sc)
+    if _STOP[0]:      # a signal while the scenario was loading: stop before writing anything
+        raise Interrupted(_STOP[0], 0.0)
     out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix=f"flexfusion_{sc.name}_"))
-    out.mkdir(parents=True, exist_ok=True)
-    for stale in (METRICS_NAME, RUN_NAME):
-        (out / stale).unlink(missing_ok=True)
-    columns = sc.record_columns()
+    with own_folder(out, force):
+        try:
+            return _run_into(sc, overrides, out, progress, hook)
+        except (RunError, OutputError, KeyboardInterrupt) as exc:
+            exc.out_dir = out  # type: ignore[union-attr]
+            raise
+
+
+def _run_into(sc: Scenario, overrides: tuple[str, ...], out: Path, progress: bool, hook: Any) -> "Result":
+    """:func:`run`'s work in the owned folder ``out``: ``run.json`` says ``running`` first,
+    then the true end."""
+    from .results import (CSV_NAME, METRICS_NAME, RUN_NAME, CsvWriter, OutputError, Result, ResultWarning,
+                          versions, write_json)
+
     info: dict[str, Any] = {"scenario": sc.describe(), "overrides": list(overrides or sc.overrides),
-                            "versions": versions(), "status": "running", "error": None}
+                            "versions": versions(), "status": "running", "error": None, "rows": 0,
+                            "time_reached": None}
     t0 = time.perf_counter()
     bar = None
     notes: list[str] = []
+    writer: CsvWriter | None = None
+
+    def finish(status: str, error: str | None) -> None:
+        """Flush what was computed, then write the true status (whatever else fails)."""
+        if writer is not None:
+            try:
+                writer.close()
+            except OSError:
+                pass          # the rows of the failed block are cut off; the rest stays
+            info.update(rows=writer.rows, time_reached=writer.time_reached)
+        info.update(status=status, error=error, wall_time_s=time.perf_counter() - t0, warnings=notes)
+        write_json(out / RUN_NAME, info)
+
     try:
+        write_json(out / RUN_NAME, info)
+        writer = CsvWriter(out / CSV_NAME, sc.record_columns())
         if progress:
             from tqdm import tqdm
             bar = tqdm(total=sc.n_steps, unit="step", desc=sc.name, file=sys.stderr, leave=False)
@@ -597,47 +696,78 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
             report = None  # type: ignore[assignment]
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CouplingWarning)
-            with CsvWriter(out / CSV_NAME, columns) as writer:
-                notes = simulate(sc, writer, report, hook)
+            notes = simulate(sc, writer, report, hook)
         for w in caught:  # re-issue once, outside the recording context
-            warnings.warn(w.message, w.category, stacklevel=2)
+            warnings.warn(w.message, w.category, stacklevel=3)
+        writer.close()
+        info.update(rows=writer.rows, time_reached=writer.time_reached)
     except RunError as exc:
-        info.update(status="error", error=str(exc), wall_time_s=time.perf_counter() - t0,
-                    warnings=notes)
-        write_json(out / RUN_NAME, info)
-        exc.out_dir = out  # type: ignore[attr-defined]
+        finish("failed", str(exc))
+        raise
+    except OSError as exc:
+        at = f" after t = {writer.time_reached:.6g} s" if writer and writer.time_reached is not None else ""
+        message = f"cannot write the results{at}: {exc.strerror or exc}"
+        try:
+            finish("failed", message)
+        except OSError:
+            message += f" ({RUN_NAME} could not be updated either)"
+        raise OutputError(message + ("; the rows written before are kept, whole" if at else "")) from None
+    except KeyboardInterrupt as exc:
+        finish("interrupted", str(exc) or "KeyboardInterrupt")
         raise
     except BaseException as exc:
-        info.update(status="error", error=f"{type(exc).__name__}: {exc}",
-                    wall_time_s=time.perf_counter() - t0)
-        write_json(out / RUN_NAME, info)
+        finish("failed", f"{type(exc).__name__}: {exc}")
         raise
     finally:
         if bar is not None:
             bar.close()
     wall = time.perf_counter() - t0
     from . import metrics as _metrics        # after the run: a failed run never needs it
-    result = Result.load(out)
+    with warnings.catch_warnings():     # it still says "running": the status comes below
+        warnings.simplefilter("ignore", ResultWarning)
+        result = Result.load(out)
     values: dict[str, float] = {}
     described: dict[str, dict[str, Any]] = {}
-    for spec in sc.metrics:
+    try:
+        for spec in sc.metrics:
+            try:
+                computed = _metrics.compute(spec, result.time, result[spec.estimate],
+                                            result[spec.truth] if spec.truth else None,
+                                            result[spec.truth_time] if spec.truth_time else None,
+                                            result[spec.covariance] if spec.covariance else None)
+            except ValueError as exc:
+                raise ScenarioError(f"metric '{spec.name}': {exc}") from None
+            values.update(computed)
+            unit = metric_unit(sc, spec.estimate)
+            described.update({k: {**e, "unit": unit} for k, e in _metrics.entries(spec, computed).items()})
+        write_json(out / METRICS_NAME, described)
+        info.update(status="ok", wall_time_s=wall, real_time_factor=sc.stop_time / wall if wall > 0 else None,
+                    warnings=notes)
+        write_json(out / RUN_NAME, info)
+    except BaseException as exc:
+        info.update(status="failed", error=f"after the run: {exc}", wall_time_s=wall, warnings=notes)
         try:
-            computed = _metrics.compute(spec, result.time, result[spec.estimate],
-                                        result[spec.truth] if spec.truth else None,
-                                        result[spec.truth_time] if spec.truth_time else None,
-                                        result[spec.covariance] if spec.covariance else None)
-        except ValueError as exc:
-            raise ScenarioError(f"metric '{spec.name}': {exc}") from None
-        values.update(computed)
-        described.update(_metrics.entries(spec, computed))
-    write_json(out / METRICS_NAME, described)
-    info.update(status="ok", wall_time_s=wall, real_time_factor=sc.stop_time / wall if wall > 0 else None,
-                warnings=notes)
-    write_json(out / RUN_NAME, info)
+            write_json(out / RUN_NAME, info)
+        except OSError:
+            pass              # run.json still says "running": Result.load reports it, never as ok
+        if isinstance(exc, OSError):
+            raise OutputError(f"cannot write the metrics after the run: {exc.strerror or exc}") from None
+        raise
+    result.status = "ok"
+    result.error = None
     result.metrics = values
+    result.units = {name: e["unit"] for name, e in described.items()}
     result.against = {name: e["against"] for name, e in described.items()}
     result.warnings = notes
     return result
 
 
-__all__ = ["RunError", "CouplingWarning", "Plan", "plan", "find_algebraic_loop", "simulate", "run"]
+def metric_unit(sc: Scenario, ref: str) -> str:
+    """The unit of a recorded variable ``comp.var`` ("" when its FMU gives none)."""
+    comp, var = (part.strip() for part in ref.split(".", 1))
+    c = sc.components[comp]
+    return c.variables[c.group(var)[0]].unit or ""
+
+
+__all__ = ["RunError", "CouplingWarning", "Interrupted", "stop_on_signals", "metric_unit", "Plan", "plan",
+           "find_algebraic_loop", "simulate", "run"]

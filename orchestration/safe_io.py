@@ -89,5 +89,20 @@ class FolderLock:
         self.release()
 
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_write_json", "FolderLock",
+def is_locked(folder: str | Path) -> bool:
+    """Whether a process holds the folder's lock now (e.g. a run still writing to it)."""
+    try:
+        fd = os.open(Path(folder) / LOCK_NAME, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        return False
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+
+
+__all__ = ["is_locked", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "FolderLock",
            "FolderLockedError", "LOCK_NAME"]

@@ -8,9 +8,11 @@ one message naming the file, the component and the variable.
 Format::
 
     [scenario]
-    name = "flagship"          # default: the file's stem
+    name = "flagship"          # default: the file's stem; a plain folder name (the default
+                               # output folder is results/<name>): no '/', '\\', '..'
     description = "..."
-    stop_time = 10.0           # s
+    stop_time = 10.0           # s; at most MAX_STEPS (1e8) base steps, and no component
+                               # step may be longer
     base_step = 0.001          # s; every communication step is an integer multiple of it
     seed = 1                   # seeds every component that declares an Integer parameter `seed`
     include = ["tuned.toml"]   # optional: [components.X.parameters] and [parameter_sets.S] of
@@ -39,6 +41,10 @@ Format::
     connections = ["plant.q_m -> encoder.q_m"]   # (top level) whole vectors or scalars
     oracles = []   # (top level) connections that feed plant truth to an estimator or a
                    # controller on purpose, e.g. ["plant.p_tool -> observer.p_tool"]
+    delays = []    # (top level) connections of a cycle that are meant to read the producer's
+                   # previous value (a one-step delay): the master breaks the cycle there without
+                   # a warning, e.g. ["controller.tau_m -> plant.tau_m"]; each must be one of the
+                   # connections and must be where a cycle is broken
 
     [record]
     variables = ["plant.p_tool"]   # default: every connected output (whole vectors)
@@ -49,7 +55,7 @@ Format::
     name = "rigid_position"
     estimate = "rigid.p_tool_hat"
     truth = "plant.p_tool"
-    after = 0.5                    # s: ignore the start (default 0)
+    after = 0.5                    # s: ignore the start (default 0; before the last record)
     # metrics.json says what `truth` is: "against" = "truth" (plant, environment), "reference"
     # (a reference system such as the Tracker) or the providing component's role
     truth_time = "tracker.t_meas"  # optional: the truth's sample times; compare only at fresh
@@ -89,6 +95,9 @@ from . import roles
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_FMU_DIR = REPO / "dist" / "fmus"
+#: the most base steps a run may take: 1e8 is about a day of wall time at the flagship's
+#: ~1,400 base steps/s (11 s simulated in 7.7 s at base_step = 1 ms, README)
+MAX_STEPS = 10**8
 
 ParamValue = float | int | bool | str
 
@@ -189,6 +198,7 @@ class Scenario:
     overrides: tuple[str, ...] = ()
     source: dict[str, Any] = field(default_factory=dict)   # the merged TOML document
     oracles: list[str] = field(default_factory=list)        # connections marked as oracles
+    delays: list[str] = field(default_factory=list)         # connections declared as delays
 
     @property
     def n_steps(self) -> int:
@@ -216,6 +226,7 @@ class Scenario:
                                     "step": c.step, "parameters": c.parameters}
                            for c in self.components.values()},
             "connections": [str(c) for c in self.connections], "oracles": self.oracles,
+            "delays": self.delays,
             "record": self.record, "record_interval": self.record_interval,
             "metrics": [vars(m) for m in self.metrics], "overrides": list(self.overrides),
         }
@@ -266,7 +277,10 @@ def fmu_dir() -> Path:
 
 
 def stable_seed(seed: int, component: str) -> int:
-    """The seed of a component: a stable hash (crc32) of the scenario seed and its name."""
+    """The seed of a component: a stable hash (crc32, 31 bits) of the scenario seed (any integer)
+    and its name. Distinct scenario seeds give distinct component seeds for 0 .. 2,000,000 and
+    the shipped scenarios' component names (checked; beyond, a hash cannot promise it). A
+    component ``seed`` set directly is an FMI Integer: 32 bits, a larger value is refused."""
     return zlib.crc32(f"{int(seed)}:{component}".encode()) & 0x7FFFFFFF
 
 
@@ -410,10 +424,11 @@ def _coerce(where: str, info: VariableInfo, v: Any) -> ParamValue:
             raise ScenarioError(f"{where} is Real, got {v!r}")
         return float(v)
     if t in ("Integer", "Enumeration"):
-        if isinstance(v, bool) or not isinstance(v, int):
-            if isinstance(v, float) and v.is_integer():
-                return int(v)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, float) and not v.is_integer()):
             raise ScenarioError(f"{where} is Integer, got {v!r}")
+        if not -2**31 <= v < 2**31:      # fmi2Integer is 32-bit: a larger value would wrap
+            raise ScenarioError(f"{where} = {v!r} is out of the FMI Integer range "
+                                f"[{-2**31}, {2**31 - 1}]")
         return int(v)
     if t == "Boolean":
         if not isinstance(v, bool):
@@ -507,8 +522,8 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
         path = Path(source)
         doc = _read_toml(path)
         label, base_dir = str(path), path.resolve().parent
-    _check_keys(label, doc, {"scenario", "components", "connections", "oracles", "record", "metrics",
-                             "parameter_sets"})
+    _check_keys(label, doc, {"scenario", "components", "connections", "oracles", "delays", "record",
+                             "metrics", "parameter_sets"})
     head = doc.get("scenario", {})
     _check_keys(f"{label}: [scenario]", head, _SCENARIO_KEYS)
     comps_doc = _table(f"{label}: [components]", doc.get("components", {}))
@@ -662,6 +677,9 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     name = head.get("name", path.stem if path else "scenario")
     if not isinstance(name, str):
         raise ScenarioError(f"{label}: [scenario] name must be a string")
+    if name in ("", ".", "..") or any(c in name for c in "/\\") or not name.isprintable():
+        raise ScenarioError(f"{label}: [scenario] name {name!r} must be a plain folder name "
+                            "(it names the default output folder): no '/', '\\', '..'")
     description = str(head.get("description", ""))
     if "stop_time" not in head:
         raise ScenarioError(f"{label}: [scenario] stop_time is missing")
@@ -751,6 +769,7 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
         connections.append(Connection(sc.name, svar, dc.name, dvar,
                                       tuple(zip(sgroup, dgroup)), text))
     oracles = _check_honest_signals(label, doc.get("oracles", []), connections, components)
+    delays = _marked_connections(label, "delays", doc.get("delays", []), connections)
 
     # record
     rec = doc.get("record", {})
@@ -846,10 +865,39 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     if dup:
         raise ScenarioError(f"{label}: duplicate metric name(s) {', '.join(sorted(dup))}")
 
+    _check_run_length(label, stop_time, base_step, components)
     return Scenario(path=path, name=name, description=description, stop_time=stop_time,
                     base_step=base_step, seed=int(seed), components=components,
                     connections=connections, record=record, record_interval=interval,
-                    metrics=metrics, overrides=overrides, source=doc, oracles=oracles)
+                    metrics=metrics, overrides=overrides, source=doc, oracles=oracles, delays=delays)
+
+
+def _check_run_length(label: str, stop_time: float, base_step: float, components: dict[str, Component]) -> None:
+    """At most :data:`MAX_STEPS` base steps, and every component one step at least (the master
+    never steps past the stop time)."""
+    n_steps = round(stop_time / base_step)
+    if n_steps > MAX_STEPS:
+        raise ScenarioError(f"{label}: stop_time / base_step = {n_steps:.3g} base steps, more than "
+                            f"the limit {MAX_STEPS:.0e} (a day or more of wall time): shorten the run "
+                            "or lengthen base_step")
+    for c in components.values():
+        if c.ratio > n_steps:
+            raise ScenarioError(f"{label}: component '{c.name}': step {c.step:g} s is longer than "
+                                f"the stop time {stop_time:g} s (it would never step)")
+
+
+def check_metric_windows(sc: Scenario) -> None:
+    """Every metric has a recorded sample at or after its ``after`` (else it would be NaN).
+
+    Not part of :func:`load_scenario`: a study that shortens a scenario and computes its own
+    metrics may leave the scenario's unused; a run that computes them calls this first.
+    """
+    last = sc.record_interval * (sc.n_steps // sc.record_every)
+    for m in sc.metrics:
+        if m.after > last + 1e-12:
+            raise ScenarioError(f"{sc.path or sc.name}: metric '{m.name}': after = {m.after:g} s leaves "
+                                f"no recorded sample (the last is at t = {last:g} s, stop_time "
+                                f"{sc.stop_time:g} s)")
 
 
 def connection_key(text: str) -> str:
@@ -862,16 +910,7 @@ def _check_honest_signals(label: str, oracles: Any, connections: list[Connection
     """Warn once per connection that feeds plant truth to an estimator or controller and is
     not listed in ``oracles``; an oracle that is not a connection is an error. Returns the
     oracles as ``"a.x -> b.y"``."""
-    if not isinstance(oracles, list) or not all(isinstance(o, str) for o in oracles):
-        raise ScenarioError(f"{label}: 'oracles' must be a list of \"a.x -> b.y\" strings "
-                            "(put it before the first [table])")
-    written = {str(c) for c in connections}
-    marked = []
-    for text in oracles:
-        key = connection_key(text)
-        if text.count("->") != 1 or key not in written:
-            raise ScenarioError(f"{label}: oracle {text!r} is not one of the connections")
-        marked.append(key)
+    marked = _marked_connections(label, "oracles", oracles, connections)
     for c in roles.dishonest_connections(connections, components):
         if str(c) not in marked:
             dst = components[c.dst]
@@ -880,6 +919,19 @@ def _check_honest_signals(label: str, oracles: Any, connections: list[Connection
                           "sensor or an estimate, or mark it in oracles = [...]",
                           roles.HonestSignalWarning, stacklevel=3)
     return marked
+
+
+def _marked_connections(label: str, key: str, texts: Any, connections: list[Connection]) -> list[str]:
+    """The connections a top-level list (``oracles``, ``delays``) marks, as ``"a.x -> b.y"``;
+    each entry must be one of the connections."""
+    if not isinstance(texts, list) or not all(isinstance(o, str) for o in texts):
+        raise ScenarioError(f"{label}: '{key}' must be a list of \"a.x -> b.y\" strings "
+                            "(put it before the first [table])")
+    written = {str(c) for c in connections}
+    for text in texts:
+        if text.count("->") != 1 or connection_key(text) not in written:
+            raise ScenarioError(f"{label}: {key[:-1]} {text!r} is not one of the connections")
+    return [connection_key(t) for t in texts]
 
 
 def _article(word: str) -> str:
@@ -896,4 +948,4 @@ def _deepcopy(doc: Any) -> Any:
 
 __all__ = ["ScenarioError", "Scenario", "Component", "Connection", "MetricSpec", "VariableInfo",
            "load_scenario", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
-           "connection_key"]
+           "connection_key", "check_metric_windows", "MAX_STEPS"]

@@ -11,7 +11,7 @@ import pytest
 from fmpy.util import read_csv
 from numpy.testing import assert_allclose, assert_array_equal
 
-from orchestration import CouplingWarning, Result, RunError, ScenarioError, run
+from orchestration import CouplingWarning, Result, ResultWarning, RunError, ScenarioError, run
 from orchestration.master import plan
 from orchestration.scenario import load_scenario
 from toys import FAILING, MASS_SPRING, analytic, write
@@ -297,11 +297,14 @@ def test_fmu_error_in_do_step_stops_with_log_and_keeps_rows(tmp_path):
     assert "toy failure: the solver diverged at t = 0.051 s" in msg   # the FMU's own log
     assert "\n" not in msg
     assert info.value.time == pytest.approx(0.05) and info.value.component == "bad"
-    r = Result.load(tmp_path / "o")
+    with pytest.warns(ResultWarning, match=r"the run is failed \(component 'bad' failed.*results up to t = 0.05 s"):
+        r = Result.load(tmp_path / "o")
+    assert r.status == "failed" and "toy failure" in r.error
     assert_allclose(r.time, np.arange(51) * 0.001, atol=1e-12)        # rows 0 .. 0.05 s
     assert_allclose(r["bad.y"], r.time, atol=1e-12)
     run_info = json.loads((tmp_path / "o" / "run.json").read_text())
-    assert run_info["status"] == "error" and "toy failure" in run_info["error"]
+    assert run_info["status"] == "failed" and "toy failure" in run_info["error"]
+    assert run_info["rows"] == 51 and run_info["time_reached"] == 0.05
 
 
 def test_nan_on_a_connection_names_producer_variable_and_time(tmp_path):
@@ -309,7 +312,8 @@ def test_nan_on_a_connection_names_producer_variable_and_time(tmp_path):
     with pytest.raises(RunError, match=r"NaN on a connection: component 'bad' output 'y' is NaN "
                                        r"at t = 0\.051 s"):
         run(path, out_dir=tmp_path / "o")
-    r = Result.load(tmp_path / "o")
+    with pytest.warns(ResultWarning, match="the run is failed"):
+        r = Result.load(tmp_path / "o")
     assert r.time[-1] == pytest.approx(0.05)
     assert np.all(np.isfinite(r["bad.y"]))
 

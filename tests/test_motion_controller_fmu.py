@@ -112,5 +112,5 @@ def test_bad_csv_row_is_named(fmu: Path, tmp_path: Path) -> None:
     s = Slave(fmu, {"path": "csv", "csv_file": str(bad)}, instance_name="mc")
     with pytest.raises(Exception):
         s.fmu.exitInitializationMode()
-    assert any(f"{bad}, line 3: column 'speed' = 'fast' is not a number" in m for m in s.log), s.log
+    assert any(f"{bad}, line 3: column 'speed' is not a number" in m for m in s.log), s.log
     s.fmu.freeInstance()

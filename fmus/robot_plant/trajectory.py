@@ -610,9 +610,9 @@ def from_csv(path: str | Path, start: Sequence[float] | None = None, speed_scale
     head_line, header = rows[0]
     cols = [h.lower() for h in header]
     allowed = {"t", "x", "z", "speed", "accel", "dwell"}
-    for c in cols:
-        if c not in allowed:
-            raise ValueError(f"{fname}, line {head_line}: unknown column '{c}' in the header "
+    for i, c in enumerate(cols, start=1):
+        if c not in allowed:      # the cell is not quoted: the file may be anything (issue 14)
+            raise ValueError(f"{fname}, line {head_line}: field {i} of the header is no known column "
                              f"(allowed: x, z, speed, accel, dwell, or t, x, z)")
     if len(set(cols)) != len(cols):
         raise ValueError(f"{fname}, line {head_line}: a column is named twice in the header")
@@ -637,9 +637,9 @@ def from_csv(path: str | Path, start: Sequence[float] | None = None, speed_scale
             try:
                 val = float(cell)
             except ValueError:
-                raise ValueError(f"{fname}, line {lineno}: column '{c}' = '{cell}' is not a number") from None
+                raise ValueError(f"{fname}, line {lineno}: column '{c}' is not a number") from None
             if not math.isfinite(val):
-                raise ValueError(f"{fname}, line {lineno}: column '{c}' = '{cell}' is not finite")
+                raise ValueError(f"{fname}, line {lineno}: column '{c}' is not finite")
             if c in ("speed", "accel") and val <= 0:
                 raise ValueError(f"{fname}, line {lineno}: {c} must be > 0, got {cell}")
             if c == "dwell" and val < 0:

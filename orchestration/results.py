@@ -27,6 +27,7 @@ Files in a run's folder:
 """
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -198,8 +199,21 @@ def _json_safe(x: Any) -> Any:
 
 def write_json(path: Path, data: Any) -> None:
     """Write JSON atomically: a temporary file in the same folder, synced, renamed over ``path``
-    (a reader sees the old file or the new one, never a part)."""
-    atomic_write_text(path, json.dumps(_json_safe(data), indent=2, sort_keys=False) + "\n")
+    (a reader sees the old file or the new one, never a part).
+
+    On a full disk the temporary file may find no free block while the old file holds some:
+    then the old file is overwritten in place (truncating it frees its blocks first), so that a
+    run's final status still reaches ``run.json``."""
+    text = json.dumps(_json_safe(data), indent=2, sort_keys=False) + "\n"
+    try:
+        atomic_write_text(path, text)
+    except OSError as exc:
+        if exc.errno != errno.ENOSPC or not Path(path).exists():
+            raise
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
 
 
 def versions() -> dict[str, str]:

@@ -182,7 +182,7 @@ def test_a_missing_column_stops_the_run_naming_it(live: Result, tmp_path: Path) 
     with pytest.raises(RunError, match=r"component 'log'.*column 'imu.acc\[1\]' \(for 'acc_s\[1\]'\) "
                                        r"is not in the log"):
         run(SCENARIOS / "replay_log.toml",
-            ["scenario.stop_time=0.1", f"log.log_file={str(live.out_dir / 'results.csv')!r}",
+            ["scenario.stop_time=0.6", f"log.log_file={str(live.out_dir / 'results.csv')!r}",
              'log.columns="q_m_meas = encoder.q_m_meas; acc_s = imu.acc; '
              'dddq_a_ref = controller.dddq_a_ref; p_tool = plant.p_tool; q_a = plant.q_a"'],
             out_dir=tmp_path)
@@ -191,7 +191,7 @@ def test_a_missing_column_stops_the_run_naming_it(live: Result, tmp_path: Path) 
 def test_an_unmapped_output_that_is_read_stops_the_run_naming_it(tmp_path: Path) -> None:
     with pytest.raises(RunError, match=r"output 'acc_s\[1\]' is read .* but no log column feeds it"):
         run(SCENARIOS / "replay_log.toml",
-            ["scenario.stop_time=0.1", 'log.columns="q_m_meas = encoder.q_m_meas; '
+            ["scenario.stop_time=0.6", 'log.columns="q_m_meas = encoder.q_m_meas; '
              'dddq_a_ref = controller.dddq_a_ref; p_tool = plant.p_tool; q_a = plant.q_a"'],
             out_dir=tmp_path)
 

@@ -21,6 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from fmus.common.frames import planar_pose  # noqa: E402
 from fmus.estimators import complementary_filter_model as cfm  # noqa: E402
 from fmus.estimators import imu_ekf_model as iem  # noqa: E402
 
@@ -84,7 +85,7 @@ def main(n: int = 4000) -> dict[str, float]:
     models = {"ComplementaryFilter": cfm.ComplementaryFilterModel(cfm.ComplementaryFilterParameters()),
               "ImuEkf": iem.ImuEkfModel(iem.ImuEkfParameters())}
     direct = {name: 0.0 for name in models}
-    poses = [cfm.planar_pose(r[0:2], r[2]) for r in u]
+    poses = [planar_pose(r[0:2], r[2]) for r in u]
     for m in models.values():
         m.reset(*poses[0], u[0, 3:6], u[0, 6:9])
     for k in range(1, n + 1):

@@ -82,12 +82,13 @@ from typing import Any
 
 import numpy as np
 
+from fmus.common.frames import G, rot_rpy
 from fmus.common import dynamics, kinematics
 from fmus.common.parameters import as_array, fields
 from fmus.common.robot_params import RobotParameters
 from fmus.robot_plant.motion_control_model import (MotionController, MotionControllerParameters,
                                                    build_controller)
-from fmus.robot_plant.sensor_model import butterworth_coefficients, rot_rpy
+from fmus.robot_plant.sensor_model import butterworth_coefficients
 
 JOINT_PARAMETERS = ("k_lo", "k_hi", "d", "J_m", "f_v", "f_c")
 #: The base parameters of the rigid links (the combinations the model depends on).
@@ -183,7 +184,7 @@ class Experiment:
     acc_cutoff: float = 200.0
     acc_filter_order: int = 2
     mount_rpy: tuple = (0.0, 0.0, 0.0)
-    g: float = 9.81
+    g: float = G
 
     @property
     def dt(self) -> float:

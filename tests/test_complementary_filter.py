@@ -6,10 +6,10 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.signal import lfilter
 
+from fmus.common import quaternion as qt
+from fmus.common.frames import planar_pose, rot_rpy
 from fmus.common.parameters import ParameterError, replace, validate
 from fmus.estimators import complementary_filter_model as cfm
-from fmus.estimators import quaternion as qt
-from fmus.robot_plant.sensor_model import rot_rpy
 
 G_VEC = np.array([0.0, 0.0, -9.81])
 
@@ -171,12 +171,12 @@ def test_fmu_matches_the_model_and_tracks_a_planar_motion(cf_fmu):
     s.set(p_fk=p[0], phi_fk=phi[0], acc_s=acc[0], gyro_s=gyro[0])
     s.init()
     m = cfm.ComplementaryFilterModel(params)
-    m.reset(*cfm.planar_pose(p[0], phi[0]), acc[0], gyro[0])
+    m.reset(*planar_pose(p[0], phi[0]), acc[0], gyro[0])
     out, ref, phis = [], [], []
     for k in range(1, n):
         s.set(p_fk=p[k], phi_fk=phi[k], acc_s=acc[k], gyro_s=gyro[k])
         s.step(dt)
-        m.step(*cfm.planar_pose(p[k], phi[k]), acc[k], gyro[k], dt)
+        m.step(*planar_pose(p[k], phi[k]), acc[k], gyro[k], dt)
         out.append(s.get("p_tool_hat", 2))
         phis.append(s.get("phi_tool_hat"))
         ref.append(m.p_tool[[0, 2]])

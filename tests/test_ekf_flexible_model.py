@@ -13,7 +13,7 @@ from fmus.common import dynamics, kinematics
 from fmus.common.parameters import ParameterError
 from fmus.common.robot_params import RobotParameters
 from fmus.estimators import ekf_flexible_model as em
-from fmus.robot_plant.sensor_model import rot_rpy
+from fmus.common.frames import rot_rpy
 import ekf_flexible_truth as truth
 
 P = RobotParameters()

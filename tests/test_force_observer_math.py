@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from fmus.common.frames import G
 from fmus.force_observer import force_observer_math as fom
 
 M = 12.0     # tool mass of the paper (kg)
@@ -43,7 +44,7 @@ def test_world_readings_cancel_gravity_and_rotate():
         a = rng.normal(size=2) * 3
         f_ext = rng.normal(size=2) * 20          # force ON the tool (ContactEnvironment)
         R = fom.rotation(phi)
-        gvec = np.array([0.0, -fom.G])
+        gvec = np.array([0.0, -G])
         f_s = R.T @ (M * (a - gvec) - f_ext)    # ForceTorqueSensor's reading, sensor frame
         acc_s = R.T @ (a - gvec)                 # accelerometer's specific force, sensor frame
         u, a_w = fom.world_readings(f_s, acc_s, phi, M)

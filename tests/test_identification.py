@@ -166,7 +166,7 @@ def test_prefiltered_residual_of_white_noise_has_unit_variance():
 def test_accelerometer_calibration_is_eliminated_exactly(clean_experiments):
     """A reading with scale, mounting and bias errors (the Imu's kind): at the true robot the
     residual without calibration is large, with it zero, and the estimated map is the applied one."""
-    from fmus.robot_plant.sensor_model import rot_rpy
+    from fmus.common.frames import rot_rpy
     cal = np.vstack([rot_rpy((0.004, 0.003, -0.003)) * (1.0 + np.array([0.003, -0.004, 0.002])),
                      [0.01, -0.02, 0.03]])                            # [f, 1] @ cal: mount, scale, bias
     exps = [dataclasses.replace(e, acc=np.column_stack([e.acc, np.ones(len(e.acc))]) @ cal)

@@ -9,7 +9,7 @@ previous step; the outputs after the step are the estimate of ``t + T``.
 from __future__ import annotations
 
 from fmus.common.fmi import FlexFusionSlave
-from fmus.common.robot_params import G
+from fmus.common.frames import G
 from fmus.estimators import acceleration_observer_model as om
 
 

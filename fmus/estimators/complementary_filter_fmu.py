@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import math
 
+from fmus.common import quaternion as qt
 from fmus.common.fmi import FlexFusionSlave
-from fmus.common.robot_params import G
+from fmus.common.frames import G, planar_pose
 from fmus.estimators import complementary_filter_model as cfm
-from fmus.estimators import quaternion as qt
 
 
 class ComplementaryFilter(FlexFusionSlave):
@@ -42,7 +42,7 @@ class ComplementaryFilter(FlexFusionSlave):
         self.output("b_gyro_hat", 3, unit="rad/s", description="gyro bias estimate, sensor frame")
 
     def _pose(self):
-        return cfm.planar_pose(self.p_fk, self.phi_fk)
+        return planar_pose(self.p_fk, self.phi_fk)
 
     def setup(self, params: cfm.ComplementaryFilterParameters) -> None:
         self.model = cfm.ComplementaryFilterModel(params)

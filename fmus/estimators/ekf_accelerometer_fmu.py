@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fmus.common.robot_params import G
+from fmus.common.frames import G
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators.stamped_estimator import StampedEstimator
 

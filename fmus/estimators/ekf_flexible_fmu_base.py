@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import copy
 
-from fmus.common.robot_params import G
+from fmus.common.frames import G
 from fmus.estimators import ekf_flexible_model as em
 from fmus.estimators.stamped_estimator import StampedEstimator
 

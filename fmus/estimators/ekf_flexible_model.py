@@ -141,7 +141,7 @@ from scipy.linalg.lapack import dpotrf, dpotrs
 from fmus.common import dynamics, kinematics
 from fmus.common.parameters import ParameterError, param, replace
 from fmus.common.robot_params import RobotAtInitialPose, RobotParameters
-from fmus.robot_plant.sensor_model import rot_rpy
+from fmus.common.frames import rot_rpy
 
 PAPER = "Henriksson et al. 2009"
 VARIANTS = ("complete", "motor", "integrated")

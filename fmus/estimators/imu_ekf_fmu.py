@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from fmus.common import quaternion as qt
 from fmus.common.fmi import FlexFusionSlave
-from fmus.common.robot_params import G
-from fmus.estimators import complementary_filter_model as cfm
+from fmus.common.frames import G, planar_pose
 from fmus.estimators import imu_ekf_model as iem
-from fmus.estimators import quaternion as qt
 
 
 class ImuEkf(FlexFusionSlave):
@@ -49,7 +48,7 @@ class ImuEkf(FlexFusionSlave):
         self.output("nis", unit="1", description="normalised innovation squared of the last update")
 
     def _pose(self):
-        return cfm.planar_pose(self.p_fk, self.phi_fk)
+        return planar_pose(self.p_fk, self.phi_fk)
 
     def setup(self, params: iem.ImuEkfParameters) -> None:
         self.ekf = iem.ImuEkfModel(params)

@@ -42,10 +42,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fmus.common import quaternion as qt
+from fmus.common.frames import G, RigidMount, rot_rpy
 from fmus.common.parameters import ParameterError, param
-from fmus.common.robot_params import G
-from fmus.estimators import quaternion as qt
-from fmus.robot_plant.sensor_model import rot_rpy
 
 PAPER = "IMU paper (CF vs EKF on an IRB4600), section 4.2"
 N = 21
@@ -104,7 +103,7 @@ class ImuEkfModel:
 
     def __init__(self, params: ImuEkfParameters) -> None:
         self.params = params
-        self.mount = qt.RigidMount(params.lever_arm, rot_rpy(params.mount_rpy))
+        self.mount = RigidMount(params.lever_arm, rot_rpy(params.mount_rpy))
         self.g_vec = np.array([0.0, 0.0, -params.g])
         p = params
         self.R = np.diag(np.repeat([p.r_position ** 2, p.r_orientation ** 2, p.r_acc ** 2,

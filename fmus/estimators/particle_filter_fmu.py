@@ -24,7 +24,7 @@ import numpy as np
 from pythonfmu.enums import Fmi2Status
 
 from fmus.common.fmi import FlexFusionSlave
-from fmus.common.robot_params import G
+from fmus.common.frames import G
 from fmus.estimators import particle_filter_model as pm
 from fmus.estimators.ekf_accelerometer_model import FilterDivergence
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from pythonfmu.enums import Fmi2Status
 
+from fmus.common.frames import G
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.parameters import ParameterError, param
 from fmus.force_observer import force_observer_math as fom
@@ -52,7 +53,7 @@ class ForceObserverParameters:
                          low=1, high=3)
     index_z: int = param(3, "1", "index (1-based) of the sensor-frame z component in f_s and acc_s",
                          low=1, high=3)
-    g: float = param(9.81, "m/s2", "gravity", low=0.0)
+    g: float = param(G, "m/s2", "gravity", low=0.0)
 
     def check(self) -> None:
         if self.index_x == self.index_z:

@@ -79,7 +79,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-G = 9.81
+from fmus.common.frames import G
+
 OBSERVER_KINDS = ("static", "kalman", "lowpass")
 
 # fault codes of a sensor reading (see :func:`reading_fault`)
@@ -319,7 +320,7 @@ class ForceObserverCore:
         return self.xi[:, 0].copy()
 
 
-__all__ = ["G", "OBSERVER_KINDS", "FAULT_NONE", "FAULT_SATURATED", "FAULT_NOT_FINITE", "rotation",
+__all__ = ["OBSERVER_KINDS", "FAULT_NONE", "FAULT_SATURATED", "FAULT_NOT_FINITE", "rotation",
            "world_readings", "lever_arm_acceleration", "static_force", "model_matrices", "force_left_inverse", "kalman_gain",
            "lowpass_matrices", "zoh", "lowpass_error_tf", "reading_fault", "ObserverConfig",
            "ForceObserverCore"]

@@ -10,7 +10,8 @@ import numpy as np
 
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.parameters import param
-from fmus.robot_plant.sensor_model import G, SensorChannels, force_sensor_reading
+from fmus.common.frames import G
+from fmus.robot_plant.sensor_model import SensorChannels, force_sensor_reading
 
 PAPER = "García, Robertsson, Gómez Ortega, Johansson (impedance paper)"
 JR3 = "JR3 6-DOF wrist sensor class (the impedance paper's sensor): +-660 N, 16-bit output"

@@ -10,7 +10,8 @@ import numpy as np
 
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.parameters import param
-from fmus.robot_plant.sensor_model import (G, T_TRUTH_DESCRIPTION, UNSTAMPED, SensorChannels, imu_reading,
+from fmus.common.frames import G
+from fmus.robot_plant.sensor_model import (T_TRUTH_DESCRIPTION, UNSTAMPED, SensorChannels, imu_reading,
                                            input_time)
 
 MEMS = ("16-bit MEMS IMU class (e.g. Bosch BMI160 / TDK ICM-20948 data sheets: +-16 g, "

@@ -17,10 +17,10 @@ from typing import Sequence
 
 import numpy as np
 
+from fmus.common.frames import G, sensor_rotation
 from fmus.common.noise import make_rng, random_walk_increment, white_noise
 from fmus.common.sample_time import UNSTAMPED, measurement_time
 
-G = 9.81
 
 
 # ---------------------------------------------------------------------------------------------
@@ -252,27 +252,6 @@ class SensorChannels:
 # ---------------------------------------------------------------------------------------------
 # Rotations and ideal readings
 # ---------------------------------------------------------------------------------------------
-def rot_y(phi: float) -> np.ndarray:
-    """``Ry(phi)``: tool frame to world (rotation about +y)."""
-    c, s = math.cos(phi), math.sin(phi)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rot_rpy(rpy: Sequence[float]) -> np.ndarray:
-    """Mounting rotation from roll, pitch, yaw (``Rz(yaw) @ Ry(pitch) @ Rx(roll)``), sensor to tool."""
-    r, p, y = (float(v) for v in rpy)
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
-    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-    return rz @ ry @ rx
-
-
-def sensor_rotation(phi: float, mount_rpy: Sequence[float]) -> np.ndarray:
-    """``R_s = Ry(phi) @ R_mount``: sensor frame to world."""
-    return rot_y(phi) @ rot_rpy(mount_rpy)
-
-
 def _xz(v: Sequence[float]) -> np.ndarray:
     return np.array([float(v[0]), 0.0, float(v[1])])
 
@@ -407,6 +386,5 @@ def hammer_force(t: float, times: Sequence[float], force_xz: Sequence[float], du
 
 
 __all__ = ["UNSTAMPED", "T_TRUTH_DESCRIPTION", "input_time", "SensorChannels", "butterworth_coefficients",
-           "butterworth_magnitude", "quantise", "rot_y", "rot_rpy", "sensor_rotation", "imu_reading",
-           "force_sensor_reading", "calibrate_tool", "Wall", "penetration", "contact_force", "hammer_force",
-           "G"]
+           "butterworth_magnitude", "quantise", "imu_reading",
+           "force_sensor_reading", "calibrate_tool", "Wall", "penetration", "contact_force", "hammer_force"]

@@ -360,7 +360,7 @@ class AccelerationObserverModel:
         self.r = as_array(p.gear_ratio)
         self.q_fused = x0[0:2].copy()
         self._integral = np.zeros(2)
-        self._k = dynamics._constants(self.robot)
+        self._k = dynamics.arm_constants(self.robot)
         self._D = list(dynamics.spring_deflection(dynamics.gravity_torque(x0[0:2], self.robot),
                                                   self.robot))    # warm start of the deflection
         self._T: float | None = None

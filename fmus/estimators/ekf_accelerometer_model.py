@@ -207,20 +207,20 @@ def initial_covariance(p: EkfAccelerometerParameters, layout: Layout) -> np.ndar
 class MeasurementModel:
     """``h(x)`` of eq. 15 and its analytic Jacobian, for the robot model ``p``.
 
-    The inertia, Coriolis and gravity constants are read back from the public functions of
-    :mod:`fmus.common.dynamics` (``M(q)`` at ``q_2 = 0`` and ``pi/2``, ``G(q)`` at one pose), so
-    the filter's model is the plant's model with the filter's parameters.
+    The inertia, Coriolis and gravity constants are the arm's
+    (:class:`fmus.common.dynamics.ArmConstants`), so the filter's model is the plant's model with
+    the filter's parameters.
     """
 
     def __init__(self, p: RobotParameters, layout: Layout) -> None:
         self.p = p
         self.layout = layout
-        M0 = dynamics.mass_matrix((0.0, 0.0), p)
-        self.a, self.c = float(M0[0, 0]), float(M0[1, 1])
-        self.e = self.c - float(dynamics.mass_matrix((0.0, math.pi / 2), p)[0, 1])   # b = -e sin q2
-        G = dynamics.gravity_torque((math.pi / 2, -math.pi / 2), p)                   # q1 = pi/2, phi = 0
-        self.g2 = -float(G[1])
-        self.g1 = -float(G[0]) - self.g2
+        k = dynamics.arm_constants(p)
+        self.a, self.c, self.g2 = k.a, k.c, k.g2
+        # e and g1 rounded as when they were read back from M(q) at q2 = pi/2 and G(q) at
+        # q = (pi/2, -pi/2): the filters' results keep their bits (k.g1 differs in the last one)
+        self.e = k.c - (k.c - k.e)
+        self.g1 = (k.g1 + k.g2) - k.g2
         self.g = float(p.g)
         self.l1 = float(p.l1)
         self.v = np.array([p.l2 + p.sensor_offset[0], p.sensor_offset[1]], float)   # mount, tool frame

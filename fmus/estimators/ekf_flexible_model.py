@@ -320,7 +320,7 @@ class FlexibleModel:
 
     def __init__(self, p: RobotParameters) -> None:
         self.p = p
-        self.k = k = dynamics._Constants(p)      # the plant's own constants and f(x, u)
+        self.k = k = dynamics.arm_constants(p)      # the plant's own constants and f(x, u)
         self.l1, self.l2, self.g = k.l1, k.l2, k.g
         self.vx = float(p.l2 + p.sensor_offset[0])   # sensor mount, tool frame
         self.vz = float(p.sensor_offset[1])

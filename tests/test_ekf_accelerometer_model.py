@@ -12,6 +12,7 @@ from numpy.testing import assert_allclose
 from scipy.linalg import expm
 
 from fmus.common import dynamics, kinematics
+from fmus.common.kalman import FilterDivergence
 from fmus.common.parameters import ParameterError, replace, validate
 from fmus.common.robot_params import RobotParameters
 from fmus.estimators import ekf_accelerometer_model as em
@@ -212,17 +213,17 @@ def test_measurement_update_is_the_kalman_update() -> None:
 
 def test_divergence_raises_a_clear_error() -> None:
     f = em.EkfAccelerometerModel(em.EkfAccelerometerParameters())
-    with pytest.raises(em.FilterDivergence, match="non-finite"):
+    with pytest.raises(FilterDivergence, match="non-finite"):
         for _ in range(3):     # an absurd reading throws the state far out, then h overflows
             f.update(np.array([0.0, 0.0, 1e200, 9.81]))
             f.predict((0.0, 0.0), 0.01)
     g = em.EkfAccelerometerModel(em.EkfAccelerometerParameters())
     g.P = -g.P
-    with pytest.raises(em.FilterDivergence, match="not positive definite"):
+    with pytest.raises(FilterDivergence, match="not positive definite"):
         g.predict((0.0, 0.0), 0.01)
     h = em.EkfAccelerometerModel(em.EkfAccelerometerParameters())
     h.x[0] = np.nan
-    with pytest.raises(em.FilterDivergence):
+    with pytest.raises(FilterDivergence):
         h.update(np.array([0.0, 0.0, 0.0, 9.81]))
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.frames import G
+from fmus.common.kalman import FilterDivergence
 from fmus.estimators import acceleration_observer_model as om
 
 
@@ -58,10 +59,10 @@ class AccelerationObserver(FlexFusionSlave):
 
     def step(self, t: float, dt: float) -> None:
         if self._diverged:
-            raise om.ObserverDivergence(f"{self._diverged}; the outputs hold the last good estimate")
+            raise FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate")
         try:
             self.model.step(self.q_m_meas, self.acc_s, self.tau_m, dt)
-        except om.ObserverDivergence as exc:
+        except FilterDivergence as exc:
             self._diverged = f"{exc} (at t = {t:.6g} s)"
-            raise om.ObserverDivergence(self._diverged) from None
+            raise FilterDivergence(self._diverged) from None
         self._write()

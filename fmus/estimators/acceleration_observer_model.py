@@ -94,6 +94,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from fmus.common import dynamics, kinematics
+from fmus.common.kalman import FilterDivergence
 from fmus.common.parameters import ParameterError, as_array, param, replace
 from fmus.common.robot_params import RobotAtInitialPose, RobotParameters
 
@@ -146,10 +147,6 @@ def model_robot(p: AccelerationObserverParameters) -> RobotParameters:
         return r
     s = float(p.stiffness_scale)
     return replace(r, k_hi=tuple(s * k for k in r.k_hi), k_lo=tuple(s * k for k in r.k_lo))
-
-
-class ObserverDivergence(FloatingPointError):
-    """The observer's state became non-finite."""
 
 
 # ---- the linear part -----------------------------------------------------------------------
@@ -444,7 +441,7 @@ class AccelerationObserverModel:
 
         Raises
         ------
-        ObserverDivergence
+        FilterDivergence
             If the state becomes non-finite (e.g. non-finite inputs).
         """
         self._matrices(float(T))
@@ -456,7 +453,7 @@ class AccelerationObserverModel:
             u_prev = u if self._u_prev is None else self._u_prev
             z_new = self.Phi @ z + self.G0 @ u_prev + self.G1 @ (u - u_prev)
         if not np.all(np.isfinite(z_new)):
-            raise ObserverDivergence("the acceleration observer diverged: non-finite state "
+            raise FilterDivergence("the acceleration observer diverged: non-finite state "
                                      "(non-finite inputs, or an estimate far from the truth)")
         q_old = z[[0, 4]]
         self.z = z_new
@@ -472,7 +469,7 @@ class AccelerationObserverModel:
         return kinematics.tool_position(self.q_a, self.robot)
 
 
-__all__ = ["AccelerationObserverParameters", "AccelerationObserverModel", "ObserverDivergence",
+__all__ = ["AccelerationObserverParameters", "AccelerationObserverModel",
            "joint_matrices", "characteristic_polynomial", "poles", "ackermann_gain",
            "model_robot", "observer_gains", "closed_loop_matrix", "discretise", "damped_solve",
            "measured_arm_acceleration", "nonlinear_torque"]

@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fmus.common.frames import G
+from fmus.common.kalman import FilterDivergence
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators.stamped_estimator import StampedEstimator
 
@@ -39,7 +40,7 @@ class EkfAccelerometer(StampedEstimator):
 
     parameters_class = em.EkfAccelerometerParameters
     description = "EKF of arm angles from motor angles and a tool accelerometer (Axelsson et al. 2012)"
-    divergence = em.FilterDivergence
+    divergence = FilterDivergence
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)

@@ -59,6 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fmus.common import dynamics, kinematics
+from fmus.common.kalman import FilterDivergence, check_estimate
 from fmus.common.parameters import ParameterError, param
 from fmus.common.robot_params import RobotAtInitialPose, RobotParameters
 
@@ -71,10 +72,6 @@ PAPER = "Axelsson, Karlsson, Norrlöf 2012"
 #: the tests (4e-6 ... 1e4) puts the motor-only filter's best angle RMSE at about 10, where the
 #: filter with the accelerometer is within 5 % of its own best.
 Q_JERK_DEFAULT = 10.0
-
-
-class FilterDivergence(FloatingPointError):
-    """The filter's state or covariance became non-finite or lost positive definiteness."""
 
 
 @dataclass(frozen=True)
@@ -384,17 +381,6 @@ class MeasurementModel:
 
 
 # ---- the filter (eq. 3) --------------------------------------------------------------------
-def _check(x: np.ndarray, P: np.ndarray, where: str) -> None:
-    """Raise :class:`FilterDivergence` unless ``x`` is finite and ``P`` finite and positive definite."""
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
-        raise FilterDivergence(f"EKF diverged in the {where}: non-finite state or covariance")
-    try:
-        np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
-        raise FilterDivergence(f"EKF diverged in the {where}: the covariance is not positive definite "
-                               f"(smallest eigenvalue {np.linalg.eigvalsh(P).min():.3g})") from None
-
-
 class EkfAccelerometerModel:
     """The EKF of eq. 3 with the model of eqs. 12-19.
 
@@ -465,7 +451,7 @@ class EkfAccelerometerModel:
         Pf = IKH @ P @ IKH.T + K @ self.R @ K.T      # Joseph form of P - K H P
         Pf = 0.5 * (Pf + Pf.T)
         z = np.linalg.solve(Sc, nu)
-        _check(xf, Pf, "measurement update")
+        check_estimate(xf, Pf, "EKF diverged in the measurement update")
         return xf, Pf, float(math.sqrt(z @ z))
 
     def update(self, y) -> np.ndarray:
@@ -488,7 +474,7 @@ class EkfAccelerometerModel:
             x = self.F @ x + self.Gu @ np.asarray(u, float)
             P = self.F @ P @ self.F.T + self.GQG
             P = 0.5 * (P + P.T)
-        _check(x, P, "time update")
+        check_estimate(x, P, "EKF diverged in the time update")
         return x, P
 
     def tool_position(self, x=None) -> np.ndarray:
@@ -496,6 +482,6 @@ class EkfAccelerometerModel:
         return kinematics.tool_position((self.x if x is None else x)[Q_], self.meas.p)
 
 
-__all__ = ["EkfAccelerometerParameters", "EkfAccelerometerModel", "FilterDivergence", "Layout",
+__all__ = ["EkfAccelerometerParameters", "EkfAccelerometerModel", "Layout",
            "MeasurementModel", "continuous_model", "transition_matrices", "process_noise",
            "measurement_noise", "initial_covariance", "Q_JERK_DEFAULT"]

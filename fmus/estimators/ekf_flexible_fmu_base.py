@@ -16,6 +16,7 @@ from __future__ import annotations
 import copy
 
 from fmus.common.frames import G
+from fmus.common.kalman import FilterDivergence
 from fmus.estimators import ekf_flexible_model as em
 from fmus.estimators.stamped_estimator import StampedEstimator
 
@@ -25,7 +26,7 @@ class EkfFlexibleSlave(StampedEstimator):
     ``description``. An estimate is an :class:`~fmus.estimators.ekf_flexible_model.EkfFlexibleModel`
     (copied before it changes)."""
 
-    divergence = em.FilterDivergence
+    divergence = FilterDivergence
     variant = "motor"
 
     def __init__(self, **kwargs):

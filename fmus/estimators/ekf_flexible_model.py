@@ -139,9 +139,10 @@ import numpy as np
 from scipy.linalg.lapack import dpotrf, dpotrs
 
 from fmus.common import dynamics, kinematics
+from fmus.common.frames import rot_rpy
+from fmus.common.kalman import FilterDivergence, check_estimate
 from fmus.common.parameters import ParameterError, param, replace
 from fmus.common.robot_params import RobotAtInitialPose, RobotParameters
-from fmus.common.frames import rot_rpy
 
 PAPER = "Henriksson et al. 2009"
 VARIANTS = ("complete", "motor", "integrated")
@@ -160,10 +161,6 @@ DEFAULT_LAMBDAS = {
     "motor": (1.0, 1.0, 1.0, 1.0, 1.0),
     "integrated": (1.0, 1.0, 1.0, 1.0, 1.0),
 }
-
-
-class FilterDivergence(FloatingPointError):
-    """The filter's state or covariance became non-finite or lost positive definiteness."""
 
 
 # ---- parameters ------------------------------------------------------------------------------
@@ -486,22 +483,6 @@ class FlexibleModel:
 
 
 # ---- the filter (eqs. 3-5) -------------------------------------------------------------------
-def _not_pd(P: np.ndarray, where: str) -> FilterDivergence:
-    with np.errstate(all="ignore"):
-        ev = np.linalg.eigvalsh(P).min() if np.all(np.isfinite(P)) else float("nan")
-    return FilterDivergence(f"EKF diverged in the {where}: the covariance is not positive definite "
-                            f"(smallest eigenvalue {ev:.3g})")
-
-
-def _check(x: np.ndarray, P: np.ndarray, where: str, definite: bool = True) -> None:
-    """Raise :class:`FilterDivergence` unless ``x`` is finite and ``P`` finite (and, with
-    ``definite``, positive definite: a Cholesky factorisation)."""
-    if not (math.isfinite(float(x.sum())) and math.isfinite(float(P.sum()))):
-        raise FilterDivergence(f"EKF diverged in the {where}: non-finite state or covariance")
-    if definite and dpotrf(P, lower=1, clean=0)[1] != 0:
-        raise _not_pd(P, where)
-
-
 @dataclass
 class Filtered:
     """A measurement update not yet committed (see :meth:`EkfFlexibleModel.filtered`)."""
@@ -820,7 +801,7 @@ class EkfFlexibleModel:
         IKH = self._I - K @ H
         Pf = IKH @ P @ IKH.T + (K * self._rdiag) @ KT   # Joseph form of eq. 4b (R diagonal)
         Pf = 0.5 * (Pf + Pf.T)
-        _check(xf, Pf, "measurement update")
+        check_estimate(xf, Pf, "EKF diverged in the measurement update")
         nnu = math.sqrt(abs(float(nu @ dpotrs(Sc, nu, lower=1)[0])))
         if not math.isfinite(nnu):
             raise FilterDivergence("EKF diverged in the measurement update: the innovation is not finite")
@@ -849,7 +830,7 @@ class EkfFlexibleModel:
             P = 0.5 * (P + P.T)
         # A P A^T + Q is positive definite if P is: finiteness suffices here (the measurement
         # update checks definiteness)
-        _check(x, P, "time update", definite=False)
+        check_estimate(x, P, "EKF diverged in the time update", definite=False)
         self.x, self.P, self._T = x, P, T
         self._started = True
         return x
@@ -882,6 +863,6 @@ def make_filter(variant: str, **params) -> EkfFlexibleModel:
 
 
 __all__ = ["EkfCompleteParameters", "EkfFlexibleModel", "EkfIntegratedParameters", "EkfMotorParameters",
-           "FilterDivergence", "Filtered", "DRIFT_CORRECTIONS", "FlexibleModel", "PARAMETERS", "VARIANTS",
+           "Filtered", "DRIFT_CORRECTIONS", "FlexibleModel", "PARAMETERS", "VARIANTS",
            "DEFAULT_LAMBDAS",
            "make_filter"]

@@ -14,6 +14,7 @@ import numpy as np
 from fmus.common import quaternion as qt
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.frames import G, planar_pose
+from fmus.common.kalman import FilterDivergence
 from fmus.estimators import imu_ekf_model as iem
 
 
@@ -71,11 +72,11 @@ class ImuEkf(FlexFusionSlave):
 
     def step(self, t: float, dt: float) -> None:
         if self._diverged:
-            raise iem.FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate")
+            raise FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate")
         p, q = self._pose()
         try:
             self.ekf.step(p, q, self.acc_s, self.gyro_s, dt)
-        except iem.FilterDivergence as exc:
+        except FilterDivergence as exc:
             self._diverged = f"{exc} (at t = {t + dt:.6g} s)"
-            raise iem.FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate") from None
+            raise FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate") from None
         self._publish()

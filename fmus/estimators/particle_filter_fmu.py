@@ -25,8 +25,8 @@ from pythonfmu.enums import Fmi2Status
 
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.frames import G
+from fmus.common.kalman import FilterDivergence
 from fmus.estimators import particle_filter_model as pm
-from fmus.estimators.ekf_accelerometer_model import FilterDivergence
 
 
 class ParticleFilter(FlexFusionSlave):

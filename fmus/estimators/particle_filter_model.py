@@ -61,7 +61,7 @@ the initial covariance ``P_0``, and fuses the measurement again from that prior;
 gives no finite weight, the measurement is skipped (the cloud is the re-initialised prior,
 equal weights). Each such event increments :attr:`ParticleFilterModel.n_reinit` (the FMU logs
 a warning). Only if the last good estimate itself cannot be propagated to a finite value does
-the filter raise :class:`~fmus.estimators.ekf_accelerometer_model.FilterDivergence`.
+the filter raise :class:`~fmus.common.kalman.FilterDivergence`.
 
 Limits (measured, see tests/test_particle_filter_model.py and the study below)
 -----------------------------------------------------------------------------
@@ -101,8 +101,9 @@ import numpy as np
 from fmus.common import dynamics, kinematics
 from fmus.common.noise import make_rng
 from fmus.common.parameters import param
+from fmus.common.kalman import FilterDivergence
 from fmus.estimators.ekf_accelerometer_model import (DDQ_, DQ_, Q_, EkfAccelerometerParameters,
-                                                     FilterDivergence, Layout, MeasurementModel,
+                                                     Layout, MeasurementModel,
                                                      initial_covariance, measurement_noise,
                                                      process_noise, transition_matrices)
 

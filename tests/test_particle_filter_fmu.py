@@ -46,7 +46,7 @@ def test_model_description(fmu: Path) -> None:
         assert v[name].causality == "parameter", name
     assert v["proposal"].type == "String" and v["n_particles"].type == "Integer"
     deps = {o.variable.name: {d.name for d in o.dependencies} for o in md.outputs}
-    meas = {"q_m_meas[1]", "q_m_meas[2]", "acc_s[1]", "acc_s[2]", "acc_s[3]"}
+    meas = {"q_m_meas[1]", "q_m_meas[2]", "acc_s[1]", "acc_s[2]", "acc_s[3]", "t_meas"}
     for name in ("q_a_hat[1]", "ess", "n_reinit", "trace_P_q"):
         assert deps[name] == meas, name
 

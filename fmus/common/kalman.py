@@ -16,7 +16,7 @@ from scipy.linalg.lapack import dpotrf
 class FilterDivergence(FloatingPointError):
     """The estimate became non-finite or its covariance lost positive definiteness; an estimator
     FMU ends the step with an FMI error naming the cause and holds its last good estimate
-    (:class:`fmus.estimators.filter_adapter.FilterAdapter`)."""
+    (:class:`fmus.common.filter_adapter.FilterAdapter`)."""
 
 
 def is_positive_definite(P: np.ndarray) -> bool:

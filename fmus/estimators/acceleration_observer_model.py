@@ -408,6 +408,7 @@ class AccelerationObserverModel:
         q1, q2 = float(self.q_fused[0]), float(self.q_fused[1])
         cp = math.cos(q1 + q2)
         G = (-k.g1 * math.sin(q1) - k.g2 * cp, -k.g2 * cp)          # dynamics.gravity_torque
+        self._D = list(self._D)          # a new list: a copy of the observer shares the old one
         for i in range(2):
             D = self._D[i]
             for _ in range(20):
@@ -430,6 +431,16 @@ class AccelerationObserverModel:
         n = nonlinear_torque(z, self.robot)
         return np.array([ddq[0], float(tau_m[0]) + n[0], float(q_m_meas[0]),
                          ddq[1], float(tau_m[1]) + n[1], float(q_m_meas[1])])
+
+    def predict(self, T: float) -> None:
+        """The estimate ``T`` ahead without new measurements: the observer's model with its last
+        inputs held (the output of an observer whose newest measurement is older than now)."""
+        if self._u_prev is None:
+            return                            # no measurement yet: the start estimate holds
+        self._matrices(float(T))
+        z_new = self.Phi @ self.z + self.G0 @ self._u_prev
+        self.q_fused = self.q_fused + (z_new[[0, 4]] - self.z[[0, 4]])
+        self.z = z_new
 
     def step(self, q_m_meas, acc_s, tau_m, T: float) -> None:
         """Advance from ``t`` to ``t + T``; the measurements are those of ``t + T``.
@@ -461,7 +472,7 @@ class AccelerationObserverModel:
         if self.omega_c > 0:
             pred = self.q_fused + (z_new[[0, 4]] - q_old)
             e = self.static_angles(q_m_meas) - pred
-            self._integral += e
+            self._integral = self._integral + e
             self.q_fused = pred + self.alpha * e + self.beta * self._integral
 
     def tool_position(self) -> np.ndarray:

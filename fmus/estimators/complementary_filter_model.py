@@ -174,6 +174,15 @@ class ComplementaryFilterModel:
         self._w_prev = tuple(float(x) for x in gyro_s)
         self._a_prev = self.world_acceleration(self.q_s, acc_s)
 
+    def predict(self, dt: float) -> None:
+        """The estimate ``dt`` ahead without a new sample: the last rate (bias removed) and
+        acceleration held (the output of a filter whose newest sample is older than now)."""
+        w, b = self._w_prev, self.b_gyro
+        self.q_s = qt.propagate(self.q_s, (w[0] - b[0], w[1] - b[1], w[2] - b[2]), dt)
+        a = self._a_prev
+        self.p_s = self.p_s + dt * self.v_s + (0.5 * dt * dt) * a
+        self.v_s = self.v_s + dt * a
+
     def step(self, p_tool_fk, q_tool_fk, acc_s, gyro_s, dt: float) -> None:
         """Advance one sample of length ``dt`` with the new kinematic pose and IMU sample."""
         if self._dt is None or abs(dt - self._dt) > 1e-12 * dt:

@@ -3,22 +3,25 @@
 The math is in :mod:`fmus.estimators.imu_ekf_model` (3-D, error-state quaternion); this adapter
 maps the planar kinematic pose (world x, z and the angle about +y) to 3-D and back.
 
-Timing: as the ComplementaryFilter, no direct feedthrough: ``do_step(t, T)`` predicts to
-``t + T`` and fuses the inputs present at the call as the measurements at ``t + T`` (on time
-under a Gauss-Seidel master).
+Timing: no direct feedthrough. ``do_step(t, T)`` fuses the inputs present at the call at the
+time they were taken, the optional input ``t_meas`` (the Imu's output; the kinematic pose counts
+as taken with it), and outputs the estimate predicted on to ``t + T``
+(:mod:`fmus.common.filter_adapter`). Unconnected, the inputs count as the measurements at
+``t + T``: on time under a Gauss-Seidel master. The initial inputs start the filter.
 """
 from __future__ import annotations
+
+import copy
 
 import numpy as np
 
 from fmus.common import quaternion as qt
-from fmus.common.fmi import FlexFusionSlave
+from fmus.common.filter_adapter import FilterAdapter
 from fmus.common.frames import G, planar_pose
-from fmus.common.kalman import FilterDivergence
 from fmus.estimators import imu_ekf_model as iem
 
 
-class ImuEkf(FlexFusionSlave):
+class ImuEkf(FilterAdapter):
     """Tool pose from forward kinematics and a tool IMU by an error-state EKF with position,
     velocity, acceleration, orientation, angular rate and IMU bias states.
 
@@ -29,6 +32,7 @@ class ImuEkf(FlexFusionSlave):
 
     parameters_class = iem.ImuEkfParameters
     description = "EKF of the tool pose from forward kinematics and a tool IMU (bias states)"
+    feedthrough = False
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -37,6 +41,7 @@ class ImuEkf(FlexFusionSlave):
         self.input("acc_s", 3, unit="m/s2", description="IMU specific force, sensor frame",
                    start=(0.0, 0.0, G))
         self.input("gyro_s", 3, unit="rad/s", description="IMU angular rate, sensor frame")
+        self.declare_t_meas()
         self.output("p_tool_hat", 2, unit="m", description="estimated tool position, world x and z")
         self.output("phi_tool_hat", unit="rad", description="estimated tool angle about world y")
         self.output("p_hat", 3, unit="m", description="estimated tool position, world x, y, z")
@@ -52,14 +57,21 @@ class ImuEkf(FlexFusionSlave):
         return planar_pose(self.p_fk, self.phi_fk)
 
     def setup(self, params: iem.ImuEkfParameters) -> None:
-        self.ekf = iem.ImuEkfModel(params)
-        p, q = self._pose()
-        self.ekf.reset(p, q, self.acc_s, self.gyro_s)
-        self._diverged = ""
-        self._publish()
+        ekf = iem.ImuEkfModel(params)
+        ekf.reset(*self._pose(), self.acc_s, self.gyro_s)
+        self.start_fusion(ekf)
 
-    def _publish(self) -> None:
-        e = self.ekf
+    def _predicted(self, est: iem.ImuEkfModel, T: float) -> iem.ImuEkfModel:
+        est = copy.copy(est)          # shallow: predict and update replace arrays, never change them
+        est.predict(T)
+        return est
+
+    def _fused(self, prior: iem.ImuEkfModel) -> iem.ImuEkfModel:
+        est = copy.copy(prior)
+        est.update(*self._pose(), self.acc_s, self.gyro_s)
+        return est
+
+    def _show(self, e: iem.ImuEkfModel) -> None:
         p, q = e.mount.tool_pose(e.p, e.q)
         self.p_hat[:] = p
         self.p_tool_hat[0], self.p_tool_hat[1] = p[0], p[2]
@@ -69,14 +81,3 @@ class ImuEkf(FlexFusionSlave):
         self.b_gyro_hat[:] = e.b_gyro
         self.std_position = float(np.sqrt(np.trace(e.P[0:3, 0:3])))
         self.nis = e.nis
-
-    def step(self, t: float, dt: float) -> None:
-        if self._diverged:
-            raise FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate")
-        p, q = self._pose()
-        try:
-            self.ekf.step(p, q, self.acc_s, self.gyro_s, dt)
-        except FilterDivergence as exc:
-            self._diverged = f"{exc} (at t = {t + dt:.6g} s)"
-            raise FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate") from None
-        self._publish()

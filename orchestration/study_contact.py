@@ -323,8 +323,8 @@ def scenario_setup(path: Path, overrides: tuple[str, ...] = ()) -> ContactSetup:
     * free window: from the start of the first move to 0.2 s after the second ends;
     * steady window: from 0.5 s after the last move ends to the stop time.
     """
-    from fmus.force_observer.impedance_controller_fmu import ImpedanceControllerParameters
-    from fmus.robot_plant.contact_environment_fmu import ContactEnvironmentParameters
+    from fmus.force_observer.impedance_math import ImpedanceControllerParameters
+    from fmus.robot_plant.sensor_model import ContactEnvironmentParameters
     from fmus.robot_plant.trajectory import make_path
     from orchestration.scenario import ScenarioError, scenario_document
 

@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from fmus.estimators import axelsson2012_model as am
+
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators.ekf_accelerometer_fmu import EkfAccelerometer
 from fmus.estimators.rigid_kinematics_fmu import RigidKinematics
@@ -180,11 +182,11 @@ def test_sensor_with_the_plants_stamp_is_bit_identical_under_our_master(cls, inp
 
 
 # ---- estimators ----------------------------------------------------------------------------
-def _measurements(n: int, p: em.EkfAccelerometerParameters, seed: int = 3):
+def _measurements(n: int, p: am.EkfAccelerometerParameters, seed: int = 3):
     """Motor angles and accelerometer readings (eq. 15 plus noise) of a smooth motion at the
     sample times k T, k = 0..n (jerk reference zero: the test isolates the measurement timing)."""
     rng = np.random.default_rng(seed)
-    model = em.MeasurementModel(p.robot(), em.Layout(True, False))
+    model = am.MeasurementModel(p.robot(), am.Layout(True, False))
     t = np.arange(n + 1) * T
     q0 = np.array(p.initial_angles())
     w = 2 * math.pi * 1.5
@@ -197,7 +199,7 @@ def _measurements(n: int, p: em.EkfAccelerometerParameters, seed: int = 3):
     return y
 
 
-def _ekf(p: em.EkfAccelerometerParameters, y0, t0: float | None) -> InProcess:
+def _ekf(p: am.EkfAccelerometerParameters, y0, t0: float | None) -> InProcess:
     s = InProcess(EkfAccelerometer, q_a0=tuple(p.q_a0))
     s.set(q_m_meas=y0[0:2], acc_s=(y0[2], 0.0, y0[3]))
     if t0 is not None:
@@ -211,7 +213,7 @@ def test_ekf_fuses_a_late_measurement_at_its_stamp() -> None:
     Gauss-Seidel master) and one step late with their stamps (a Jacobi master): the late run's
     estimate at t + T is the on-time run's estimate at t predicted by T. Without the stamp the
     late measurement would be fused as if taken at t + T (about 0.2 mrad off here)."""
-    p = em.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
+    p = am.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
     n = 60
     y = _measurements(n, p)
     on_time, late = _ekf(p, y[0], 0.0), _ekf(p, y[0], 0.0)
@@ -229,7 +231,7 @@ def test_ekf_fuses_a_late_measurement_at_its_stamp() -> None:
         late.set(q_m_meas=yl[0:2], acc_s=(yl[2], 0.0, yl[3]), t_meas=k * T)
         late.step()
         late_estimates.append(np.concatenate([late.get("q_a_hat", 2), late.get("dq_a_hat", 2)]))
-    F, _, _ = em.transition_matrices(T, ekf.layout)
+    F, _, _ = am.transition_matrices(T, ekf.layout)
     for k in range(1, n):
         expected = F @ posterior[k]              # the estimate at t_k predicted to t_{k+1}
         assert_allclose(late_estimates[k], expected[0:4], rtol=1e-9, atol=1e-12)
@@ -247,7 +249,7 @@ def test_ekf_stamped_on_time_is_bit_identical_to_unstamped(ratio: int) -> None:
     results must not change by a bit when the stamp is wired, also for a filter at 100 Hz fed
     by a 1 kHz sensor (whose stamp, t_k + 1 ms, differs from the filter's t + 10 ms in the last
     bits)."""
-    p = em.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
+    p = am.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
     y = _measurements(30, p)
     a, b = _ekf(p, y[0], 0.0), _ekf(p, y[0], None)
     for k in range(30):
@@ -265,7 +267,7 @@ def test_ekf_stamped_on_time_is_bit_identical_to_unstamped(ratio: int) -> None:
 def test_ekf_does_not_fuse_a_held_sample_twice() -> None:
     """A sensor at 500 Hz, the filter at 1 kHz: the held sample (same stamp) is not fused
     again; between samples the output is the prediction from the last one."""
-    p = em.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
+    p = am.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
     y = _measurements(20, p)
     s = _ekf(p, y[0], 0.0)
     ekf = em.EkfAccelerometerModel(p)
@@ -509,7 +511,7 @@ def test_particle_filter_predicts_over_periods_without_a_new_sample() -> None:
     x0 = pf.x.copy()
     pf.predict((0.0, 0.0), T)
     x2 = pf.predict((0.0, 0.0), T)
-    F, _, Gw = em.transition_matrices(T, pf.layout)
+    F, _, Gw = am.transition_matrices(T, pf.layout)
     assert_allclose(x2, F @ F @ x0, rtol=1e-13, atol=1e-15)
     GQG = Gw @ pf.Q @ Gw.T
     assert_allclose(pf.L @ pf.L.T, F @ GQG @ F.T + GQG, rtol=1e-10, atol=1e-18)

@@ -19,6 +19,7 @@ import numpy as np
 
 from fmus.common.filter_adapter import FilterAdapter
 from fmus.common.frames import G
+from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 
 _TRIL = np.tril_indices(6)     # the arm states' covariance, packed (output P_x)
@@ -37,7 +38,7 @@ class Estimate(NamedTuple):
 class EkfAccelerometer(FilterAdapter):
     """Arm angles, velocities and accelerations from motor angles and a tool accelerometer (EKF)."""
 
-    parameters_class = em.EkfAccelerometerParameters
+    parameters_class = am.EkfAccelerometerParameters
     description = "EKF of arm angles from motor angles and a tool accelerometer (Axelsson et al. 2012)"
 
     def __init__(self, **kwargs):
@@ -63,7 +64,7 @@ class EkfAccelerometer(FilterAdapter):
                     description="filtered covariance of (q_a, dq_a, ddq_a), lower triangle row by row "
                     "(numpy.tril_indices(6)); SI units (rad, rad/s, rad/s2) of each product")
 
-    def setup(self, params: em.EkfAccelerometerParameters) -> None:
+    def setup(self, params: am.EkfAccelerometerParameters) -> None:
         self.ekf = em.EkfAccelerometerModel(params)
         self._ix, self._iz = params.index_x - 1, params.index_z - 1
         self._u = self.dddq_a_ref.copy()           # the jerk input at the last step

@@ -3,11 +3,11 @@ and a tool accelerometer, with the estimation model of the EKF.
 
 Model
 -----
-Exactly the model of :mod:`fmus.estimators.ekf_accelerometer_model` (section 3.2, eqs. 12-19):
+Exactly the model of :mod:`fmus.estimators.axelsson2012_model` (section 3.2, eqs. 12-19):
 the state, the transition matrices ``F, G_u, G_w`` (eq. 14), ``Q`` and ``R`` (eq. 26, the
 EKF's parameters) and the measurement function ``h`` (eq. 15). :class:`BatchMeasurementModel`
 evaluates ``h`` and its Jacobian for all particles at once (checked against the scalar
-:class:`~fmus.estimators.ekf_accelerometer_model.MeasurementModel` in the tests).
+:class:`~fmus.estimators.axelsson2012_model.MeasurementModel` in the tests).
 
 Algorithm (section 2.2, Algorithm 1)
 ------------------------------------
@@ -100,12 +100,11 @@ import numpy as np
 
 from fmus.common import dynamics, kinematics
 from fmus.common.noise import make_rng
-from fmus.common.parameters import param
 from fmus.common.kalman import FilterDivergence
-from fmus.estimators.ekf_accelerometer_model import (DDQ_, DQ_, Q_, EkfAccelerometerParameters,
-                                                     Layout, MeasurementModel,
-                                                     initial_covariance, measurement_noise,
-                                                     process_noise, transition_matrices)
+from fmus.common.parameters import param
+from fmus.estimators.axelsson2012_model import (DDQ_, DQ_, Q_, EkfAccelerometerParameters, Layout,
+                                                MeasurementModel, initial_covariance, measurement_noise,
+                                                process_noise, transition_matrices)
 
 PAPER = "Axelsson, Karlsson, Norrlöf 2012"
 PROPOSALS = ("prior", "ekf")

@@ -14,6 +14,7 @@ from fmus.common.frames import rot_rpy
 from fmus.common.kalman import FilterDivergence
 from fmus.common.parameters import ParameterError
 from fmus.common.robot_params import RobotParameters
+from fmus.estimators import henriksson2009_model as hm
 from fmus.estimators import ekf_flexible_model as em
 import ekf_flexible_truth as truth
 
@@ -49,7 +50,7 @@ def _fd(fun, x: np.ndarray, rel: float = 1e-7) -> np.ndarray:
 
 # ---- the model is the plant's --------------------------------------------------------------------
 def test_model_is_the_plants_dynamics_without_tool_force() -> None:
-    fm = em.FlexibleModel(P)
+    fm = hm.FlexibleModel(P)
     for x in _states():
         u = (1.3, -0.4)
         assert_allclose(fm.f(tuple(x), u), dynamics.derivatives(x, u, (0.0, 0.0), P), rtol=1e-14)
@@ -65,7 +66,7 @@ def test_stiffness_scale_scales_the_model_springs() -> None:
 
 # ---- Jacobians against finite differences ----------------------------------------------------------
 def test_dynamics_jacobian_matches_finite_differences() -> None:
-    fm = em.FlexibleModel(P)
+    fm = hm.FlexibleModel(P)
     u = (2.0, -1.0)
     for x in _states():
         A = fm.jacobian(tuple(x), u)

@@ -79,11 +79,8 @@ filter adds no integration error. ``static_gravity_compensation = false`` uses `
 (the paper's rigid kinematics: no stiffness in it, so immune to stiffness errors, but sagging
 under gravity).
 
-Measured (``flexfusion study robustness``, path P1 at 2 kHz, default poles, 2026-11-26): the
-paper's observer 1.74 / 0.82 mm max / mean error over all frequencies (rigid kinematics 2.18 /
-0.55), 0.043 mm mean in 3-30 Hz (rigid 0.181); with the fusion at 1 Hz 0.94 / 0.43 mm and
-0.031 mm. The fusion's static estimate uses the model's stiffness, so with a 50 % stiffness
-error its low-frequency error is that of the wrong gravity compensation (a few mm).
+Measured figures (P1, with and without the fusion, and with a stiffness error):
+docs/henriksson2009_ekf_notes.md.
 """
 from __future__ import annotations
 

@@ -86,10 +86,11 @@ the bootstrap is at 1.02. Without the regularisation: 11.6 and 94, growing with 
 
 Randomness
 ----------
-One generator, ``make_rng(seed, "particle_filter")``. :meth:`ParticleFilterModel.filtered`
-works on a copy of its state, so recomputing the update for changed inputs (as an FMU does
-when a master sets inputs more than once) draws the same random numbers; :meth:`commit`
-advances it.
+One stream, ``make_rng(seed, "particle_filter")``, whose state is a value of the filter
+(``rng_state``): :meth:`ParticleFilterModel.filtered` draws from a scratch generator set to it,
+so recomputing the update for changed inputs (as an FMU does when a master sets inputs more
+than once) draws the same random numbers, and a copy of the filter shares no generator;
+:meth:`commit` stores the advanced state.
 """
 from __future__ import annotations
 

@@ -73,7 +73,7 @@ def bench_observer_fmu(path: Path, kind: str, h: float, steps: int) -> float:
 
 
 def bench_observer_math(kind: str, h: float, steps: int) -> float:
-    core = fom.ForceObserverCore(fom.ObserverConfig(kind=kind))
+    core = fom.ForceObserverCore(fom.ForceObserverParameters(observer=kind))
     rng = np.random.default_rng(0)
     f_s = rng.normal(0, 5, (steps, 2)) + [0, 117.7]
     acc = rng.normal(0, 0.5, (steps, 2)) + [0, 9.81]

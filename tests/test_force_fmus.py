@@ -45,7 +45,7 @@ def test_observer_fmu_matches_math_and_recovers_force(fmu_dir, kind):
     t, f_s, acc_s, x, F = sensor_signals(n, phi)
     s = Slave(fmu_dir / "ForceObserver.fmu", {"observer": kind})
     s.init()
-    core = fom.ForceObserverCore(fom.ObserverConfig(kind=kind, m=M))
+    core = fom.ForceObserverCore(fom.ForceObserverParameters(observer=kind, m_tool=M))
     out = np.empty((n, 2))
     for k in range(n):
         s.set(f_s=f_s[k], acc_s=acc_s[k], p_tool=x[k], phi_tool=phi)

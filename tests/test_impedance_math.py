@@ -89,7 +89,7 @@ def test_closed_loop_steady_state_matches_impedance_relation(use_raw, observer, 
     plant = imp.OneAxisPlant()
     xr = imp.smooth_ramp(-0.05, 0.02, 0.1, 1.0)
     # low-pass observer with well-damped gains (1 Hz, zeta 0.7); the paper's settle in ~15 s
-    cfg = imp.fom.ObserverConfig(kind=observer, m=plant.m_t, k11=8.8, k21=39.5)
+    cfg = imp.fom.ForceObserverParameters(observer=observer, m_tool=plant.m_t, k11=8.8, k21=39.5)
     out = imp.simulate_1dof(plant, d, xr, 3.0, obs_cfg=cfg, use_raw=use_raw, F_d=4.0)
     xs, Fs = imp.stationary_contact(d.K_z, plant.k_w, 0.02, plant.x_w, 4.0)
     assert_allclose(out["F"][-1], Fs, rtol=0.01)

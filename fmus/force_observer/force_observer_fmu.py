@@ -49,7 +49,7 @@ class ForceObserver(FlexFusionSlave):
         self.output("n_faults", unit="1", description="number of steps with a faulty reading")
 
     def setup(self, params: ForceObserverParameters) -> None:
-        self.core = fom.ForceObserverCore(params.config())
+        self.core = fom.ForceObserverCore(params)
         self._ix, self._iz = params.index_x - 1, params.index_z - 1
         self._last_good = np.zeros(2)
         self._in_fault = 0             # fault code of the episode being flagged

@@ -215,27 +215,6 @@ def reading_fault(f_s: np.ndarray, acc_s: np.ndarray, f_range: float, acc_range:
     return FAULT_NONE
 
 
-@dataclass(frozen=True)
-class ObserverConfig:
-    """Settings of :class:`ForceObserverCore` (all SI)."""
-
-    kind: str = "lowpass"
-    m: float = 12.0
-    k11: float = 8.8
-    k13: float = -0.0073
-    k21: float = 39.5
-    k23: float = 1.0
-    sigma_f: float = 20.0
-    sigma_x: float = 1e-4
-    sigma_a: float = 0.05
-
-    def __post_init__(self) -> None:
-        if self.kind not in OBSERVER_KINDS:
-            raise ValueError(f"observer kind {self.kind!r} is not one of {list(OBSERVER_KINDS)}")
-        if not self.m > 0:
-            raise ValueError(f"tool mass m = {self.m} must be > 0")
-
-
 class ForceObserverCore:
     """One of the three observers on both world axes (x, z), sampled with step ``h``.
 
@@ -245,14 +224,14 @@ class ForceObserverCore:
     tool acceleration), ``x`` (world tool position), each shape (2,).
     """
 
-    def __init__(self, cfg: ObserverConfig) -> None:
+    def __init__(self, cfg: ForceObserverParameters) -> None:
         self.cfg = cfg
         self.xi = np.zeros((2, 2))         # per axis: (position, velocity) estimate
         self.initialised = False
         self._h: float | None = None
         self._Phi = self._Gam = None
         self._K: np.ndarray | None = None
-        m = cfg.m
+        m = cfg.m_tool
         mats = model_matrices(m)
         self.C, self.D_u = mats["C"], mats["D_u"]
         # measurement-noise weighted left inverse of D_F (eqs. 17-19)
@@ -263,12 +242,12 @@ class ForceObserverCore:
         if self._h == h:
             return
         cfg = self.cfg
-        if cfg.kind == "lowpass":
+        if cfg.observer == "lowpass":
             self._Phi, self._Gam = zoh(self.A_o, self.B_o, h)
-        elif cfg.kind == "kalman":
+        elif cfg.observer == "kalman":
             self._Phi = np.array([[1.0, h], [0.0, 1.0]])
-            self._Gam = np.array([h * h / 2.0, h]) / cfg.m
-            self._K = kalman_gain(cfg.m, h, cfg.sigma_f, cfg.sigma_x, cfg.sigma_a)
+            self._Gam = np.array([h * h / 2.0, h]) / cfg.m_tool
+            self._K = kalman_gain(cfg.m_tool, h, cfg.sigma_f, cfg.sigma_x, cfg.sigma_a)
         self._h = h
 
     def reset(self, x: np.ndarray, v: np.ndarray | None = None) -> None:
@@ -287,29 +266,29 @@ class ForceObserverCore:
         if not self.initialised:
             self.xi[:, 0] = x
             self.xi[:, 1] = 0.0
-        if cfg.kind == "static":
-            return static_force(u, a, cfg.m)
-        if cfg.kind == "kalman":
+        if cfg.observer == "static":
+            return static_force(u, a, cfg.m_tool)
+        if cfg.observer == "kalman":
             # eq. 19: F^ = D_F^+ (y - C xi^ - D_u u) with y = (x, a), per axis
-            innov = np.stack([x - self.xi[:, 0], a - u / cfg.m], axis=1)   # (axes, 2)
+            innov = np.stack([x - self.xi[:, 0], a - u / cfg.m_tool], axis=1)   # (axes, 2)
             return innov @ self.D_F_pinv[0]
         # low-pass structure, eqs. 30/33: F^ = k23 (u - m a) - m k21 (x - x^)
-        return cfg.k23 * (u - cfg.m * a) - cfg.m * cfg.k21 * (x - self.xi[:, 0])
+        return cfg.k23 * (u - cfg.m_tool * a) - cfg.m_tool * cfg.k21 * (x - self.xi[:, 0])
 
     def advance(self, u: np.ndarray, a: np.ndarray, x: np.ndarray, h: float) -> None:
         """Move the observer state over one step ``h`` with the inputs held."""
         cfg = self.cfg
         if not self.initialised:
             self.reset(x)
-        if cfg.kind == "static":
+        if cfg.observer == "static":
             return
         self._discretise(h)
-        if cfg.kind == "lowpass":
+        if cfg.observer == "lowpass":
             # per axis: xi+ = Phi xi + Gam (u, a, x)
             self.xi = self.xi @ self._Phi.T + np.column_stack((u, a, x)) @ self._Gam.T
             return
         # Kalman predictor (eq. 13 discretised): xi+ = Phi xi + Gam u + K (y - C xi - D_u u)
-        innov = np.stack([x - self.xi[:, 0], a - u / cfg.m], axis=0)      # (2, axes)
+        innov = np.stack([x - self.xi[:, 0], a - u / cfg.m_tool], axis=0)      # (2, axes)
         self.xi = (self._Phi @ self.xi.T + np.outer(self._Gam, u) + self._K @ innov).T
 
     def velocity(self) -> np.ndarray:
@@ -365,14 +344,8 @@ class ForceObserverParameters:
         if self.index_x == self.index_z:
             raise ParameterError(f"parameters 'index_x' and 'index_z' must differ (both {self.index_x})")
 
-    def config(self) -> ObserverConfig:
-        """The math module's configuration."""
-        return ObserverConfig(kind=self.observer, m=self.m_tool, k11=self.k11, k13=self.k13,
-                              k21=self.k21, k23=self.k23, sigma_f=self.sigma_f,
-                              sigma_x=self.sigma_x, sigma_a=self.sigma_a)
-
 
 __all__ = ["OBSERVER_KINDS", "FAULT_NONE", "FAULT_SATURATED", "FAULT_NOT_FINITE", "rotation",
            "world_readings", "lever_arm_acceleration", "static_force", "model_matrices", "force_left_inverse", "kalman_gain",
-           "lowpass_matrices", "zoh", "lowpass_error_tf", "reading_fault", "ObserverConfig",
+           "lowpass_matrices", "zoh", "lowpass_error_tf", "reading_fault",
            "ForceObserverCore", "ForceObserverParameters"]

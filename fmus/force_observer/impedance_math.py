@@ -344,7 +344,7 @@ def _wall(x: float, v: float, p: OneAxisPlant) -> float:
 
 def simulate_1dof(plant: OneAxisPlant, design: ImpedanceDesign, x_ref, t_end: float, *,
                   h: float = 0.004, substeps: int = 16, observer: str = "static",
-                  obs_cfg: fom.ObserverConfig | None = None, use_raw: bool = False,
+                  obs_cfg: fom.ForceObserverParameters | None = None, use_raw: bool = False,
                   x0: float = -0.05, F_d: float = 0.0, noise_f: float = 0.0, noise_a: float = 0.0,
                   seed: int = 0, tau_v: float = 0.01, controller=None) -> dict[str, np.ndarray]:
     """Close the impedance loop on :class:`OneAxisPlant`.
@@ -359,7 +359,7 @@ def simulate_1dof(plant: OneAxisPlant, design: ImpedanceDesign, x_ref, t_end: fl
     rng = np.random.default_rng(seed)
     L = design_gains(design)
     law = ImpedanceLaw(L, design.K_z, design.D_z, tau_v=tau_v, force_gain=force_gain(design, L))
-    cfg = obs_cfg or fom.ObserverConfig(kind=observer, m=plant.m_t)
+    cfg = obs_cfg or fom.ForceObserverParameters(observer=observer, m_tool=plant.m_t)
     obs = fom.ForceObserverCore(cfg)
     k_r = plant.m_r * plant.w_r ** 2
     d_r = 2 * plant.zeta_r * plant.w_r * plant.m_r

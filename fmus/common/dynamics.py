@@ -25,7 +25,6 @@ import math
 
 import numpy as np
 
-from fmus.common import kinematics
 from fmus.common.parameters import as_array
 from fmus.common.robot_params import RobotParameters
 

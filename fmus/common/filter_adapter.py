@@ -28,6 +28,7 @@ the acceleration observer) fuses only in ``do_step``: its initial inputs start t
 """
 from __future__ import annotations
 
+import copy
 import math
 from typing import Any
 
@@ -45,7 +46,8 @@ class FilterAdapter(FlexFusionSlave):
 
     ``_predicted(est, T)``
         the estimate ``est`` predicted over ``T`` without a measurement (a new value: estimates
-        are never changed);
+        are never changed); by default a shallow copy of ``est`` after its ``predict(T)``, for a
+        model object that replaces its arrays rather than changing them;
     ``_fused(prior)``
         the measurement update of ``prior`` with the measurement inputs (a new value), or,
         instead, ``_advanced(est, T)``: ``est`` carried over ``T`` to the measurement inputs'
@@ -82,7 +84,9 @@ class FilterAdapter(FlexFusionSlave):
             self._show(initial)
 
     def _predicted(self, est: Any, T: float) -> Any:
-        raise NotImplementedError
+        est = copy.copy(est)
+        est.predict(T)
+        return est
 
     def _fused(self, prior: Any) -> Any:
         raise NotImplementedError

@@ -52,11 +52,6 @@ class AccelerationObserver(FilterAdapter):
     def setup(self, params: om.AccelerationObserverParameters) -> None:
         self.start_fusion(om.AccelerationObserverModel(params))
 
-    def _predicted(self, est: om.AccelerationObserverModel, T: float) -> om.AccelerationObserverModel:
-        est = copy.copy(est)          # shallow: the model replaces its arrays, never changes them
-        est.predict(T)
-        return est
-
     def _advanced(self, est: om.AccelerationObserverModel, t0: float, t1: float) -> om.AccelerationObserverModel:
         # one step over the whole interval: the measurements are the observer's inputs
         est = copy.copy(est)

@@ -62,7 +62,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fmus.common import dynamics, kinematics
+from fmus.common import dynamics
 from fmus.common.parameters import ParameterError, param
 from fmus.common.robot_params import RobotAtInitialPose, RobotParameters
 

@@ -16,50 +16,28 @@ from __future__ import annotations
 import copy
 import math
 
-from fmus.common import quaternion as qt
-from fmus.common.filter_adapter import FilterAdapter
-from fmus.common.frames import G, planar_pose
 from fmus.common.kalman import FilterDivergence
 from fmus.common.sample_time import span
 from fmus.estimators import complementary_filter_model as cfm
+from fmus.estimators.imu_pose_adapter import ImuPoseAdapter
 
 
-class ComplementaryFilter(FilterAdapter):
+class ComplementaryFilter(ImuPoseAdapter):
     """Tool pose from forward kinematics and a tool IMU by a distortionless second-order
     complementary split (cut-off and damping are parameters)."""
 
     parameters_class = cfm.ComplementaryFilterParameters
     description = "Complementary filter: forward-kinematics pose fused with a tool IMU (distortionless)"
-    feedthrough = False
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.input("p_fk", 2, unit="m", description="forward-kinematics tool position, world x and z")
-        self.input("phi_fk", unit="rad", description="forward-kinematics tool angle about world y")
-        self.input("acc_s", 3, unit="m/s2", description="IMU specific force, sensor frame",
-                   start=(0.0, 0.0, G))
-        self.input("gyro_s", 3, unit="rad/s", description="IMU angular rate, sensor frame")
-        self.declare_t_meas()
-        self.output("p_tool_hat", 2, unit="m", description="estimated tool position, world x and z")
-        self.output("phi_tool_hat", unit="rad", description="estimated tool angle about world y")
-        self.output("p_hat", 3, unit="m", description="estimated tool position, world x, y, z")
-        self.output("q_hat", 4, unit="1", description="estimated tool orientation, unit quaternion "
-                    "(w, x, y, z), tool to world", start=(1.0, 0.0, 0.0, 0.0))
         self.output("v_hat", 3, unit="m/s", description="estimated velocity of the IMU point, world")
         self.output("b_gyro_hat", 3, unit="rad/s", description="gyro bias estimate, sensor frame")
-
-    def _pose(self):
-        return planar_pose(self.p_fk, self.phi_fk)
 
     def setup(self, params: cfm.ComplementaryFilterParameters) -> None:
         model = cfm.ComplementaryFilterModel(params)
         model.reset(*self._pose(), self.acc_s, self.gyro_s)
         self.start_fusion(model)
-
-    def _predicted(self, est: cfm.ComplementaryFilterModel, T: float) -> cfm.ComplementaryFilterModel:
-        est = copy.copy(est)          # shallow: the model replaces its arrays, never changes them
-        est.predict(T)
-        return est
 
     def _advanced(self, est: cfm.ComplementaryFilterModel, t0: float, t1: float) -> cfm.ComplementaryFilterModel:
         # one sample over the whole interval: the gyro and accelerometer readings enter the
@@ -71,10 +49,6 @@ class ComplementaryFilter(FilterAdapter):
         return est
 
     def _show(self, m: cfm.ComplementaryFilterModel) -> None:
-        p, q = m.mount.tool_pose(m.p_s, m.q_s)
-        self.p_hat[:] = p
-        self.p_tool_hat[0], self.p_tool_hat[1] = p[0], p[2]
-        self.q_hat[:] = q
-        self.phi_tool_hat = qt.angle_y(q)
+        self._show_pose(m.mount, m.p_s, m.q_s)
         self.v_hat[:] = m.v_s
         self.b_gyro_hat[:] = m.b_gyro

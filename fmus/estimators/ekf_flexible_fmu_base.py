@@ -63,11 +63,6 @@ class EkfFlexibleSlave(FilterAdapter):
     def setup(self, params) -> None:
         self.start_fusion(em.EkfFlexibleModel(params, self.variant))
 
-    def _predicted(self, est: em.EkfFlexibleModel, T: float) -> em.EkfFlexibleModel:
-        est = copy.copy(est)          # shallow: a prediction replaces arrays, never changes them
-        est.predict(T)
-        return est
-
     def _fused(self, prior: em.EkfFlexibleModel) -> em.EkfFlexibleModel:
         r = prior.filtered(self.q_m_meas, None if self.variant == "motor" else self.acc_s, self.tau_m)
         est = copy.copy(prior)

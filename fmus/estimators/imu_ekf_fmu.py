@@ -15,13 +15,11 @@ import copy
 
 import numpy as np
 
-from fmus.common import quaternion as qt
-from fmus.common.filter_adapter import FilterAdapter
-from fmus.common.frames import G, planar_pose
 from fmus.estimators import imu_ekf_model as iem
+from fmus.estimators.imu_pose_adapter import ImuPoseAdapter
 
 
-class ImuEkf(FilterAdapter):
+class ImuEkf(ImuPoseAdapter):
     """Tool pose from forward kinematics and a tool IMU by an error-state EKF with position,
     velocity, acceleration, orientation, angular rate and IMU bias states.
 
@@ -32,39 +30,19 @@ class ImuEkf(FilterAdapter):
 
     parameters_class = iem.ImuEkfParameters
     description = "EKF of the tool pose from forward kinematics and a tool IMU (bias states)"
-    feedthrough = False
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.input("p_fk", 2, unit="m", description="forward-kinematics tool position, world x and z")
-        self.input("phi_fk", unit="rad", description="forward-kinematics tool angle about world y")
-        self.input("acc_s", 3, unit="m/s2", description="IMU specific force, sensor frame",
-                   start=(0.0, 0.0, G))
-        self.input("gyro_s", 3, unit="rad/s", description="IMU angular rate, sensor frame")
-        self.declare_t_meas()
-        self.output("p_tool_hat", 2, unit="m", description="estimated tool position, world x and z")
-        self.output("phi_tool_hat", unit="rad", description="estimated tool angle about world y")
-        self.output("p_hat", 3, unit="m", description="estimated tool position, world x, y, z")
-        self.output("q_hat", 4, unit="1", description="estimated tool orientation, unit quaternion "
-                    "(w, x, y, z), tool to world", start=(1.0, 0.0, 0.0, 0.0))
         self.output("b_acc_hat", 3, unit="m/s2", description="accelerometer bias estimate, sensor frame")
         self.output("b_gyro_hat", 3, unit="rad/s", description="gyro bias estimate, sensor frame")
         self.output("std_position", unit="m", description="filter's position standard deviation "
                     "(root of the trace of the position covariance)")
         self.output("nis", unit="1", description="normalised innovation squared of the last update")
 
-    def _pose(self):
-        return planar_pose(self.p_fk, self.phi_fk)
-
     def setup(self, params: iem.ImuEkfParameters) -> None:
         ekf = iem.ImuEkfModel(params)
         ekf.reset(*self._pose(), self.acc_s, self.gyro_s)
         self.start_fusion(ekf)
-
-    def _predicted(self, est: iem.ImuEkfModel, T: float) -> iem.ImuEkfModel:
-        est = copy.copy(est)          # shallow: predict and update replace arrays, never change them
-        est.predict(T)
-        return est
 
     def _fused(self, prior: iem.ImuEkfModel) -> iem.ImuEkfModel:
         est = copy.copy(prior)
@@ -72,11 +50,7 @@ class ImuEkf(FilterAdapter):
         return est
 
     def _show(self, e: iem.ImuEkfModel) -> None:
-        p, q = e.mount.tool_pose(e.p, e.q)
-        self.p_hat[:] = p
-        self.p_tool_hat[0], self.p_tool_hat[1] = p[0], p[2]
-        self.q_hat[:] = q
-        self.phi_tool_hat = qt.angle_y(q)
+        self._show_pose(e.mount, e.p, e.q)
         self.b_acc_hat[:] = e.b_acc
         self.b_gyro_hat[:] = e.b_gyro
         self.std_position = float(np.sqrt(np.trace(e.P[0:3, 0:3])))

@@ -10,7 +10,6 @@ from pythonfmu.enums import Fmi2Status
 
 from fmus.common.fmi import FlexFusionSlave
 from fmus.force_observer import force_observer_math as fom
-from fmus.force_observer.force_observer_math import ForceObserverParameters
 
 
 class ForceObserver(FlexFusionSlave):
@@ -26,7 +25,7 @@ class ForceObserver(FlexFusionSlave):
     begins (or its kind changes), holds the last good estimate and freezes the observer state. No NaN ever leaves.
     """
 
-    parameters_class = ForceObserverParameters
+    parameters_class = fom.ForceObserverParameters
     nan_inputs = "pass"
     description = "Contact-force observer: static, Kalman or low-pass (force + acceleration fusion)"
 
@@ -48,7 +47,7 @@ class ForceObserver(FlexFusionSlave):
                     description="reading fault: 0 none, 1 saturated, 2 not finite")
         self.output("n_faults", unit="1", description="number of steps with a faulty reading")
 
-    def setup(self, params: ForceObserverParameters) -> None:
+    def setup(self, params: fom.ForceObserverParameters) -> None:
         self.core = fom.ForceObserverCore(params)
         self._ix, self._iz = params.index_x - 1, params.index_z - 1
         self._last_good = np.zeros(2)

@@ -10,7 +10,6 @@ from pythonfmu.enums import Fmi2Status
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.parameters import ParameterError
 from fmus.force_observer import impedance_math as imp
-from fmus.force_observer.impedance_math import ImpedanceControllerParameters
 
 
 class ImpedanceController(FlexFusionSlave):
@@ -27,7 +26,7 @@ class ImpedanceController(FlexFusionSlave):
     sets ``fault`` and logs a warning when the episode begins. No NaN ever leaves.
     """
 
-    parameters_class = ImpedanceControllerParameters
+    parameters_class = imp.ImpedanceControllerParameters
     nan_inputs = "pass"
     description = "LQR impedance controller along a contact normal (reference offset output)"
 
@@ -58,7 +57,7 @@ class ImpedanceController(FlexFusionSlave):
         self.output("force_gain", unit="m/N", description="the paper structure's force gain c (eq. 40); "
                     "0 for the integral structure")
 
-    def setup(self, params: ImpedanceControllerParameters) -> None:
+    def setup(self, params: imp.ImpedanceControllerParameters) -> None:
         d = params.design()
         L = imp.design_gains(d)
         poles = imp.closed_loop_poles(d, L, d.k_env)

@@ -2,8 +2,6 @@
 pulses (math in :mod:`fmus.robot_plant.sensor_model`)."""
 from __future__ import annotations
 
-import math
-
 from fmus.common.fmi import FlexFusionSlave
 from fmus.robot_plant.sensor_model import (ContactEnvironmentParameters, Wall, contact_force,
                                            hammer_force, penetration)

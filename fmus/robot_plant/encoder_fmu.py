@@ -2,8 +2,6 @@
 :mod:`fmus.robot_plant.sensor_model`)."""
 from __future__ import annotations
 
-import math
-
 from fmus.common.fmi import FlexFusionSlave
 from fmus.robot_plant.sensor_model import (EncoderParameters, SensorChannels, T_TRUTH_DESCRIPTION,
                                            UNSTAMPED, input_time)

@@ -2,8 +2,6 @@
 math in :mod:`fmus.robot_plant.sensor_model`; the impedance paper's eq. 1)."""
 from __future__ import annotations
 
-import math
-
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.frames import G
 from fmus.robot_plant.sensor_model import (ForceTorqueSensorParameters, SensorChannels,

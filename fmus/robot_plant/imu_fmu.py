@@ -3,8 +3,6 @@ the sensor frame (math in :mod:`fmus.robot_plant.sensor_model`; the 2012 paper's
 model, eqs. 17-19)."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from fmus.common.fmi import FlexFusionSlave

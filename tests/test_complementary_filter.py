@@ -197,3 +197,20 @@ def test_fmu_rejects_a_bad_cutoff(cf_fmu):
     with pytest.raises(Exception):
         s.init()
     assert s.log.has("cutoff")
+
+
+def test_prediction_holds_the_last_rate_and_acceleration():
+    """Analytic case of ComplementaryFilterModel.predict (the output between samples): with the
+    last world acceleration a, velocity v and gyro rate w (bias b removed) held, after dt the
+    sensor point is at p + v dt + a dt^2 / 2, moves at v + a dt, and has turned by (w - b) dt
+    about its own axes."""
+    m = cfm.ComplementaryFilterModel(cfm.ComplementaryFilterParameters(lever_arm=(0.0, 0.0, 0.0)))
+    m.reset(np.array([1.0, 0.0, 0.5]), qt.from_angle_y(0.2), np.array([0.0, 0.0, 9.81]), np.zeros(3))
+    m.v_s, m._a_prev = np.array([0.1, 0.0, -0.2]), np.array([0.5, 0.0, 0.3])
+    m._w_prev, m.b_gyro = (0.0, 0.4, 0.0), np.array([0.0, 0.1, 0.0])
+    p0, v0, q0 = m.p_s.copy(), m.v_s.copy(), m.q_s.copy()
+    dt = 0.02
+    m.predict(dt)
+    assert_allclose(m.p_s, p0 + v0 * dt + 0.5 * np.array([0.5, 0.0, 0.3]) * dt * dt, rtol=0, atol=1e-15)
+    assert_allclose(m.v_s, v0 + np.array([0.5, 0.0, 0.3]) * dt, rtol=0, atol=1e-15)
+    assert_allclose(qt.angle_y(m.q_s), 0.2 + 0.3 * dt, rtol=0, atol=1e-14)

@@ -107,7 +107,7 @@ def bench_controller_fmu(path: Path, h: float, steps: int) -> float:
 
 
 def bench_controller_math(h: float, steps: int) -> float:
-    d = imp.ImpedanceDesign()
+    d = imp.ImpedanceControllerParameters()
     law = imp.ImpedanceLaw(imp.design_gains(d), d.K_z, d.D_z)
     rng = np.random.default_rng(0)
     t0 = time.perf_counter()

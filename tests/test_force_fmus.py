@@ -102,7 +102,7 @@ def test_impedance_fmu_matches_math(fmu_dir, structure):
     params = {"K_z": 1500.0, "D_z": 300.0, "q_int": 5.0, "structure": structure, "tool_compliance": 2e-5}
     s = Slave(fmu_dir / "ImpedanceController.fmu", params)
     s.init()
-    d = imp.ImpedanceDesign(K_z=1500.0, D_z=300.0, q_int=5.0, structure=structure, tool_k=5e4)
+    d = imp.ImpedanceControllerParameters(**params)
     L = imp.design_gains(d)
     assert_allclose(s.get("lqr_gain", 5)[:L.size], L, rtol=1e-12)
     c = imp.force_gain(d, L)
@@ -152,7 +152,7 @@ def test_impedance_fmu_holds_on_bad_input(fmu_dir):
 @pytest.mark.parametrize("use_raw", [False, True])
 def test_fmus_close_the_impedance_loop_like_the_math(fmu_dir, use_raw):
     """Observer + controller FMUs on the one-axis plant reproduce the math-only loop."""
-    d = imp.ImpedanceDesign()
+    d = imp.ImpedanceControllerParameters()
     plant = imp.OneAxisPlant(x_w=1.30)
     ref = imp.smooth_ramp(1.25, 1.32, 0.1, 1.0)
     obs = Slave(fmu_dir / "ForceObserver.fmu", {"observer": "lowpass"})
@@ -189,7 +189,7 @@ def test_impedance_fmu_with_the_tool_in_the_design_model(fmu_dir):
     params = {"structure": "paper", "tool_compliance": C, "tool_mass": 12.0, "tool_damping": 600.0}
     s = Slave(fmu_dir / "ImpedanceController.fmu", params)
     s.init()
-    d = imp.ImpedanceDesign(structure="paper", tool_k=1 / C, tool_m=12.0, tool_d=600.0)
+    d = imp.ImpedanceControllerParameters(**params)
     L = imp.design_gains(d)
     assert L.shape == (4,)
     assert_allclose(s.get("lqr_gain", 5), list(L) + [0.0], rtol=1e-12)

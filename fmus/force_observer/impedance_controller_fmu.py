@@ -58,7 +58,7 @@ class ImpedanceController(FlexFusionSlave):
                     "0 for the integral structure")
 
     def setup(self, params: imp.ImpedanceControllerParameters) -> None:
-        d = params.design()
+        d = params
         L = imp.design_gains(d)
         poles = imp.closed_loop_poles(d, L, d.k_env)
         if not np.all(np.real(poles) < 0):

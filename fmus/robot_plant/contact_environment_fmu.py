@@ -3,8 +3,8 @@ pulses (math in :mod:`fmus.robot_plant.sensor_model`)."""
 from __future__ import annotations
 
 from fmus.common.fmi import FlexFusionSlave
-from fmus.robot_plant.sensor_model import (ContactEnvironmentParameters, Wall, contact_force,
-                                           hammer_force, penetration)
+from fmus.robot_plant.sensor_model import (ContactEnvironmentParameters, contact_force, hammer_force,
+                                           penetration)
 
 
 class ContactEnvironment(FlexFusionSlave):
@@ -28,18 +28,16 @@ class ContactEnvironment(FlexFusionSlave):
                     depends_on=("p_tool", "v_tool"))
         self.output("penetration", unit="m", description="depth of the tool inside the wall "
                     "(0 outside or without wall)", depends_on=("p_tool",))
-        self._wall: Wall | None = None
 
     def setup(self, p: ContactEnvironmentParameters) -> None:
-        self._wall = p.wall()
         self.update_outputs()
 
     def update_outputs(self) -> None:
         p = self.params
-        f = contact_force(self.p_tool, self.v_tool, self._wall)
+        f = contact_force(self.p_tool, self.v_tool, p)
         f = f + hammer_force(self._time, p.hammer_times, p.hammer_force, p.hammer_duration)
         self.f_ext[:] = f
-        self.penetration = max(penetration(self.p_tool, self._wall), 0.0) if p.enabled else 0.0
+        self.penetration = max(penetration(self.p_tool, p), 0.0) if p.enabled else 0.0
 
     def step(self, t: float, dt: float) -> None:
         self._time = t + dt

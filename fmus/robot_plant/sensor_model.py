@@ -330,26 +330,17 @@ def calibrate_tool(phis: Sequence[float], readings: np.ndarray, g: float = G
 # ---------------------------------------------------------------------------------------------
 # Environment
 # ---------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Wall:
-    """A one-sided spring-damper wall: plane through ``point`` with unit ``normal`` (x, z)
-    pointing out of the wall into free space."""
-
-    point: tuple[float, float] = (1.30, 0.0)
-    normal: tuple[float, float] = (-1.0, 0.0)
-    stiffness: float = 5000.0
-    damping: float = 50.0
-    enabled: bool = True
-
-
-def penetration(p_tool: Sequence[float], wall: Wall) -> float:
-    """Depth of the tool inside the wall along the normal (m); negative outside."""
-    n = np.asarray(wall.normal, dtype=float)
+def penetration(p_tool: Sequence[float], wall: ContactEnvironmentParameters) -> float:
+    """Depth of the tool inside the wall (plane through ``wall_point`` with the normal
+    ``wall_normal`` pointing out of the wall into free space) along the normal (m); negative
+    outside."""
+    n = np.asarray(wall.wall_normal, dtype=float)
     n = n / np.linalg.norm(n)
-    return float(-(np.asarray(p_tool, dtype=float) - np.asarray(wall.point, dtype=float)) @ n)
+    return float(-(np.asarray(p_tool, dtype=float) - np.asarray(wall.wall_point, dtype=float)) @ n)
 
 
-def contact_force(p_tool: Sequence[float], v_tool: Sequence[float], wall: Wall) -> np.ndarray:
+def contact_force(p_tool: Sequence[float], v_tool: Sequence[float],
+                  wall: ContactEnvironmentParameters) -> np.ndarray:
     """Force of the wall ON the tool, world x and z (N).
 
     ``f = n max(0, k d - c v.n)`` when the penetration ``d > 0`` (a Kelvin-Voigt contact,
@@ -361,7 +352,7 @@ def contact_force(p_tool: Sequence[float], v_tool: Sequence[float], wall: Wall) 
     d = penetration(p_tool, wall)
     if d <= 0.0:
         return np.zeros(2)
-    n = np.asarray(wall.normal, dtype=float)
+    n = np.asarray(wall.wall_normal, dtype=float)
     n = n / np.linalg.norm(n)
     push = wall.stiffness * d - wall.damping * float(np.asarray(v_tool, dtype=float) @ n)
     return max(push, 0.0) * n
@@ -552,12 +543,7 @@ class ContactEnvironmentParameters:
         if math.hypot(*self.wall_normal) < 1e-9:
             raise ParameterError(f"parameter 'wall_normal' = {self.wall_normal} must not be zero")
 
-    def wall(self) -> Wall:
-        """The math module's wall."""
-        return Wall(point=self.wall_point, normal=self.wall_normal, stiffness=self.stiffness,
-                    damping=self.damping, enabled=self.enabled)
-
 
 __all__ = ["UNSTAMPED", "T_TRUTH_DESCRIPTION", "input_time", "SensorChannels", "butterworth_coefficients",
            "butterworth_magnitude", "quantise", "imu_reading",
-           "force_sensor_reading", "calibrate_tool", "Wall", "penetration", "contact_force", "hammer_force", "EncoderParameters", "ImuParameters", "ForceTorqueSensorParameters", "sensor_channels", "calibration_readings", "ContactEnvironmentParameters"]
+           "force_sensor_reading", "calibrate_tool", "penetration", "contact_force", "hammer_force", "EncoderParameters", "ImuParameters", "ForceTorqueSensorParameters", "sensor_channels", "calibration_readings", "ContactEnvironmentParameters"]

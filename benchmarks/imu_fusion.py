@@ -21,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from fmus.common.frames import planar_pose  # noqa: E402
+from fmus.common.frames import G, planar_pose  # noqa: E402
 from fmus.estimators import complementary_filter_model as cfm  # noqa: E402
 from fmus.estimators import imu_ekf_model as iem  # noqa: E402
 
@@ -37,7 +37,7 @@ def inputs(n: int) -> np.ndarray:
     x = np.column_stack([1.0 + 0.05 * np.cos(w * t), 0.8 + 0.05 * np.sin(w * t), phi])
     a = -w * w * 0.05 * np.column_stack([np.cos(w * t), np.sin(w * t)])
     c, s = np.cos(phi), np.sin(phi)
-    fx, fz = c * a[:, 0] - s * (a[:, 1] + 9.81), s * a[:, 0] + c * (a[:, 1] + 9.81)
+    fx, fz = c * a[:, 0] - s * (a[:, 1] + G), s * a[:, 0] + c * (a[:, 1] + G)
     acc = np.column_stack([fx, np.zeros(n), fz]) + 0.02 * rng.standard_normal((n, 3))
     gyro = np.column_stack([np.zeros(n), 0.1 * w * np.cos(w * t), np.zeros(n)])
     gyro += 0.005 * rng.standard_normal((n, 3))

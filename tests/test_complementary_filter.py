@@ -7,11 +7,11 @@ from numpy.testing import assert_allclose
 from scipy.signal import lfilter
 
 from fmus.common import quaternion as qt
-from fmus.common.frames import planar_pose, rot_rpy
+from fmus.common.frames import G, planar_pose, rot_rpy
 from fmus.common.parameters import ParameterError, replace, validate
 from fmus.estimators import complementary_filter_model as cfm
 
-G_VEC = np.array([0.0, 0.0, -9.81])
+G_VEC = np.array([0.0, 0.0, -G])
 
 
 def exact_motion(t, lever, mount_rpy, axis=(0.2, 1.0, -0.3)):
@@ -205,7 +205,7 @@ def test_prediction_holds_the_last_rate_and_acceleration():
     sensor point is at p + v dt + a dt^2 / 2, moves at v + a dt, and has turned by (w - b) dt
     about its own axes."""
     m = cfm.ComplementaryFilterModel(cfm.ComplementaryFilterParameters(lever_arm=(0.0, 0.0, 0.0)))
-    m.reset(np.array([1.0, 0.0, 0.5]), qt.from_angle_y(0.2), np.array([0.0, 0.0, 9.81]), np.zeros(3))
+    m.reset(np.array([1.0, 0.0, 0.5]), qt.from_angle_y(0.2), np.array([0.0, 0.0, G]), np.zeros(3))
     m.v_s, m._a_prev = np.array([0.1, 0.0, -0.2]), np.array([0.5, 0.0, 0.3])
     m._w_prev, m.b_gyro = (0.0, 0.4, 0.0), np.array([0.0, 0.1, 0.0])
     p0, v0, q0 = m.p_s.copy(), m.v_s.copy(), m.q_s.copy()

@@ -10,6 +10,7 @@ from fmpy import read_model_description
 from numpy.testing import assert_allclose
 
 from fmus.common import kinematics
+from fmus.common.frames import G
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmu_host import Slave
@@ -125,9 +126,9 @@ def test_gauss_seidel_inputs_are_fused_after_the_prediction(fmu: Path) -> None:
 def test_divergence_is_an_fmi_error_not_nan(fmu: Path) -> None:
     s = Slave(fmu)
     s.init()
-    s.set(q_m_meas=(0.0, 0.0), acc_s=(0.0, 0.0, 9.81))
+    s.set(q_m_meas=(0.0, 0.0), acc_s=(0.0, 0.0, G))
     s.step(T)
-    s.set(acc_s=(1e200, 0.0, 9.81))      # an absurd (finite) reading throws the filter out
+    s.set(acc_s=(1e200, 0.0, G))      # an absurd (finite) reading throws the filter out
     with pytest.raises(Exception):
         for _ in range(3):
             s.step(T)
@@ -143,7 +144,7 @@ def test_divergence_is_an_fmi_error_not_nan(fmu: Path) -> None:
 def test_nan_input_and_bad_parameter_are_named(fmu: Path) -> None:
     s = Slave(fmu)
     s.init()
-    s.set(acc_s=(np.nan, 0.0, 9.81))
+    s.set(acc_s=(np.nan, 0.0, G))
     with pytest.raises(Exception):
         s.step(T)
     assert any("acc_s" in line for line in s.log), s.log

@@ -12,6 +12,7 @@ from numpy.testing import assert_allclose
 from scipy.linalg import expm
 
 from fmus.common import dynamics, kinematics
+from fmus.common.frames import G
 from fmus.common.kalman import FilterDivergence
 from fmus.common.parameters import ParameterError, replace, validate
 from fmus.common.robot_params import RobotParameters
@@ -216,7 +217,7 @@ def test_divergence_raises_a_clear_error() -> None:
     f = em.EkfAccelerometerModel(am.EkfAccelerometerParameters())
     with pytest.raises(FilterDivergence, match="non-finite"):
         for _ in range(3):     # an absurd reading throws the state far out, then h overflows
-            f.update(np.array([0.0, 0.0, 1e200, 9.81]))
+            f.update(np.array([0.0, 0.0, 1e200, G]))
             f.predict((0.0, 0.0), 0.01)
     g = em.EkfAccelerometerModel(am.EkfAccelerometerParameters())
     g.P = -g.P
@@ -225,7 +226,7 @@ def test_divergence_raises_a_clear_error() -> None:
     h = em.EkfAccelerometerModel(am.EkfAccelerometerParameters())
     h.x[0] = np.nan
     with pytest.raises(FilterDivergence):
-        h.update(np.array([0.0, 0.0, 0.0, 9.81]))
+        h.update(np.array([0.0, 0.0, 0.0, G]))
 
 
 @pytest.mark.parametrize("use_accelerometer", [True, False])

@@ -10,7 +10,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from fmus.common import dynamics, kinematics
-from fmus.common.frames import rot_rpy
+from fmus.common.frames import G, rot_rpy
 from fmus.common.kalman import FilterDivergence
 from fmus.common.parameters import ParameterError
 from fmus.common.robot_params import RobotParameters
@@ -132,7 +132,7 @@ def test_drift_correction_transition_jacobian_matches_finite_differences(variant
     u = (0.5, -0.5)
     for k, x in enumerate(_states(4)):
         x = _augmented(ekf, x, k % 3)
-        aux = (x[0] + x[1] + 0.02 * (k - 1), 30.0 - 10 * k, 9.81 + 5 * k)
+        aux = (x[0] + x[1] + 0.02 * (k - 1), 30.0 - 10 * k, G + 5 * k)
         A = ekf.transition_jacobian(x, u, T, aux)
         A_fd = _fd(lambda z: ekf.transition(z, u, T, aux), x)
         scale = np.abs(A_fd).max(axis=0) + 1.0
@@ -149,9 +149,9 @@ def test_drift_correction_transition_jacobian_matches_finite_differences(variant
     phi = x[0] + x[1]
     xn = ekf.transition(x, u, T, (phi, 3.0, 9.0))
     assert_allclose(xn[8:10], x[8:10], rtol=0, atol=1e-15)
-    xn = ekf.transition(x, u, T, (phi + 0.1, 0.0, 9.81))
+    xn = ekf.transition(x, u, T, (phi + 0.1, 0.0, G))
     R = lambda a: np.array([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]])   # noqa: E731
-    assert_allclose(xn[8:10] - x[8:10], T * (R(phi + 0.1) - R(phi)) @ (0.0, 9.81), rtol=1e-12)
+    assert_allclose(xn[8:10] - x[8:10], T * (R(phi + 0.1) - R(phi)) @ (0.0, G), rtol=1e-12)
 
 
 @pytest.mark.parametrize("correction", ["off", "tilt_stiffness"])

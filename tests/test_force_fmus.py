@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from fmus.common.frames import G
 from fmus.force_observer import force_observer_math as fom
 from fmus.force_observer import impedance_math as imp
 from fmu_host import Slave
@@ -32,7 +33,7 @@ def sensor_signals(n: int, phi: float = 0.3):
     x = np.stack([1.2 + 3 / w ** 2 * (1 - np.cos(w * t)), 0.9 + 2 / w ** 2 * np.sin(w * t) - 2 / w * t], axis=1)
     F = np.stack([np.where(t > 0.2, 30.0, 0.0), np.where(t > 0.2, -4.0, 0.0)], axis=1)
     R = fom.rotation(phi)
-    g = np.array([0.0, -9.81])
+    g = np.array([0.0, -G])
     f_s2 = (R.T @ (M * (a - g) + F).T).T            # F = force on the environment = -f_ext
     acc2 = (R.T @ (a - g).T).T
     to3 = lambda v: np.stack([v[:, 0], np.zeros(len(v)), v[:, 1]], axis=1)
@@ -66,7 +67,7 @@ def test_observer_fmu_matches_math_and_recovers_force(fmu_dir, kind):
 def test_observer_fmu_flags_nan_and_saturation(fmu_dir):
     s = Slave(fmu_dir / "ForceObserver.fmu", {"observer": "static", "f_range": 200.0})
     s.init()
-    good_f, good_a = np.array([10.0, 0.0, 117.72]), np.array([0.0, 0.0, 9.81])
+    good_f, good_a = np.array([10.0, 0.0, 117.72]), np.array([0.0, 0.0, G])
     s.set(f_s=good_f, acc_s=good_a, p_tool=[1.2, 0.9], phi_tool=0.0)
     est = s.get("f_contact_hat", 2)
     assert_allclose(est, [10.0, 0.0], atol=1e-9)
@@ -161,7 +162,7 @@ def test_fmus_close_the_impedance_loop_like_the_math(fmu_dir, use_raw):
     ctl.init()
 
     def through_fmus(t, u, a, x, xr):
-        g = 9.81
+        g = G
         obs.set(f_s=[u, 0.0, M * g], acc_s=[a, 0.0, g], p_tool=[x, 0.9], phi_tool=0.0)
         f_hat = obs.get("f_contact_hat", 2)
         f_fb = obs.get("f_raw", 2) if use_raw else f_hat

@@ -13,6 +13,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from fmus.common import dynamics, kinematics
+from fmus.common.frames import G
 from fmus.common.robot_params import RobotParameters
 from fmus.robot_plant.motion_control_model import MotionControllerParameters
 from fmus.robot_plant.sensor_model import imu_reading
@@ -67,8 +68,8 @@ def test_specific_force_is_the_imu_reading():
     rng = np.random.default_rng(1)
     a, phi = rng.normal(0, 5, (6, 2)), rng.uniform(-2, 2, 6)
     mount = (0.1, -0.2, 0.3)
-    expected = [imu_reading(a[i], phi[i], 0.0, mount, 9.81)[0] for i in range(6)]
-    assert_allclose(ident.specific_force(a, phi, mount, 9.81), expected, atol=1e-12)
+    expected = [imu_reading(a[i], phi[i], 0.0, mount, G)[0] for i in range(6)]
+    assert_allclose(ident.specific_force(a, phi, mount, G), expected, atol=1e-12)
 
 
 def test_rest_state_is_the_static_equilibrium():

@@ -7,12 +7,12 @@ import pytest
 from numpy.testing import assert_allclose
 
 from fmus.common import quaternion as qt
-from fmus.common.frames import planar_pose
+from fmus.common.frames import G, planar_pose
 from fmus.common.kalman import FilterDivergence
 from fmus.common.parameters import ParameterError, validate
 from fmus.estimators import imu_ekf_model as iem
 
-G_VEC = np.array([0.0, 0.0, -9.81])
+G_VEC = np.array([0.0, 0.0, -G])
 B_GYRO = np.array([0.01, -0.02, 0.005])
 B_ACC = np.array([0.05, -0.03, 0.04])
 

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from fmus.common.frames import G
 from fmus.estimators import axelsson2012_model as am
 
 from fmus.estimators import ekf_accelerometer_model as em
@@ -346,7 +347,7 @@ def _imu_pose_signals(t: float) -> dict:
     w = 2 * math.pi * 1.5
     return {"p_fk": (1.2 + 0.05 * math.sin(w * t), 0.8 + 0.03 * math.cos(w * t)),
             "phi_fk": 0.1 * math.sin(w * t),
-            "acc_s": (0.4 * math.sin(w * t), 0.01, 9.81 + 0.2 * math.cos(w * t)),
+            "acc_s": (0.4 * math.sin(w * t), 0.01, G + 0.2 * math.cos(w * t)),
             "gyro_s": (0.002, 0.1 * w * math.cos(w * t), -0.001)}
 
 
@@ -367,7 +368,7 @@ def _observer_signals(t: float) -> dict:
     s = math.sin(2 * math.pi * 2.0 * t)
     return {"q_m_meas": tuple(x0[2:4] + r * np.array([0.01, -0.005]) * s),
             "tau_m": tuple(dynamics.gravity_torque(x0[0:2], robot) / r * (1.0 + 0.1 * s)),
-            "acc_s": (0.3 * s, 0.0, 9.81 - 0.2 * s)}
+            "acc_s": (0.3 * s, 0.0, G - 0.2 * s)}
 
 
 def _plain_cf(sig0: dict):

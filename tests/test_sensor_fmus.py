@@ -12,7 +12,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 from fmu_host import Slave
 from orchestration.build import build_all, validate_fmu
 
-G = 9.81
+from fmus.common.frames import G
+
 NAMES = ["Encoder", "Imu", "ForceTorqueSensor", "ContactEnvironment"]
 STOP, DT = 0.05, 1e-3
 N_ROWS = int(round(STOP / DT)) + 1

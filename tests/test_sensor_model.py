@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from fmus.common.frames import G
 from fmus.common.noise import make_rng
 from fmus.robot_plant import sensor_model as sm
 
-G = 9.81
 
 
 # ---- noise helpers -------------------------------------------------------------------------

@@ -59,5 +59,5 @@ def test_the_rules_catch_a_violation() -> None:
     assert not allowed("common", "fmus.estimators.kalman")
     assert not allowed("robot_plant", "orchestration.master")
     assert not allowed("force_observer", "matplotlib.pyplot")
-    assert allowed("estimators", "fmus.common.frames") and allowed("estimators", "fmus.estimators.quaternion")
+    assert allowed("estimators", "fmus.common.frames") and allowed("estimators", "fmus.estimators.axelsson2012_model")
     assert allowed("common", "scipy.linalg") and allowed("common", "math")

@@ -69,7 +69,7 @@ class EkfAccelerometerModel:
         """
         x = self.x if x is None else x
         P = self.P if P is None else P
-        with np.errstate(all="ignore"):      # non-finite results are caught by _check
+        with np.errstate(all="ignore"):      # non-finite results are caught by check_estimate
             return self._filtered(np.asarray(y, float), x, P)
 
     def _filtered(self, y: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -107,7 +107,7 @@ class EkfAccelerometerModel:
         x = self.x if x is None else x
         P = self.P if P is None else P
         self._matrices(float(T))
-        with np.errstate(all="ignore"):      # non-finite results are caught by _check
+        with np.errstate(all="ignore"):      # non-finite results are caught by check_estimate
             x = self.F @ x + self.Gu @ np.asarray(u, float)
             P = self.F @ P @ self.F.T + self.GQG
             P = 0.5 * (P + P.T)

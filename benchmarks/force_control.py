@@ -23,6 +23,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from fmus.common.frames import G  # noqa: E402
 from fmus.force_observer import force_observer_math as fom  # noqa: E402
 from fmus.force_observer import impedance_math as imp  # noqa: E402
 
@@ -56,7 +57,7 @@ def bench_observer_fmu(path: Path, kind: str, h: float, steps: int) -> float:
     outs = [vr["f_contact_hat[1]"], vr["f_contact_hat[2]"], vr["fault"]]
     rng = np.random.default_rng(0)
     vals = np.column_stack([rng.normal(0, 5, (steps, 1)), np.zeros((steps, 1)), 117.7 + rng.normal(0, 5, (steps, 1)),
-                            rng.normal(0, 0.5, (steps, 1)), np.zeros((steps, 1)), 9.81 + rng.normal(0, 0.5, (steps, 1)),
+                            rng.normal(0, 0.5, (steps, 1)), np.zeros((steps, 1)), G + rng.normal(0, 0.5, (steps, 1)),
                             1.2 + rng.normal(0, 1e-3, (steps, 1)), 0.9 + np.zeros((steps, 1)), np.zeros((steps, 1))])
     t0 = time.perf_counter()
     t = 0.0
@@ -73,10 +74,10 @@ def bench_observer_fmu(path: Path, kind: str, h: float, steps: int) -> float:
 
 
 def bench_observer_math(kind: str, h: float, steps: int) -> float:
-    core = fom.ForceObserverCore(fom.ObserverConfig(kind=kind))
+    core = fom.ForceObserverCore(fom.ForceObserverParameters(observer=kind))
     rng = np.random.default_rng(0)
     f_s = rng.normal(0, 5, (steps, 2)) + [0, 117.7]
-    acc = rng.normal(0, 0.5, (steps, 2)) + [0, 9.81]
+    acc = rng.normal(0, 0.5, (steps, 2)) + [0, G]
     x = np.array([1.2, 0.9])
     t0 = time.perf_counter()
     for k in range(steps):
@@ -107,7 +108,7 @@ def bench_controller_fmu(path: Path, h: float, steps: int) -> float:
 
 
 def bench_controller_math(h: float, steps: int) -> float:
-    d = imp.ImpedanceDesign()
+    d = imp.ImpedanceControllerParameters()
     law = imp.ImpedanceLaw(imp.design_gains(d), d.K_z, d.D_z)
     rng = np.random.default_rng(0)
     t0 = time.perf_counter()

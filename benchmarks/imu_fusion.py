@@ -21,6 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from fmus.common.frames import G, planar_pose  # noqa: E402
 from fmus.estimators import complementary_filter_model as cfm  # noqa: E402
 from fmus.estimators import imu_ekf_model as iem  # noqa: E402
 
@@ -36,7 +37,7 @@ def inputs(n: int) -> np.ndarray:
     x = np.column_stack([1.0 + 0.05 * np.cos(w * t), 0.8 + 0.05 * np.sin(w * t), phi])
     a = -w * w * 0.05 * np.column_stack([np.cos(w * t), np.sin(w * t)])
     c, s = np.cos(phi), np.sin(phi)
-    fx, fz = c * a[:, 0] - s * (a[:, 1] + 9.81), s * a[:, 0] + c * (a[:, 1] + 9.81)
+    fx, fz = c * a[:, 0] - s * (a[:, 1] + G), s * a[:, 0] + c * (a[:, 1] + G)
     acc = np.column_stack([fx, np.zeros(n), fz]) + 0.02 * rng.standard_normal((n, 3))
     gyro = np.column_stack([np.zeros(n), 0.1 * w * np.cos(w * t), np.zeros(n)])
     gyro += 0.005 * rng.standard_normal((n, 3))
@@ -84,7 +85,7 @@ def main(n: int = 4000) -> dict[str, float]:
     models = {"ComplementaryFilter": cfm.ComplementaryFilterModel(cfm.ComplementaryFilterParameters()),
               "ImuEkf": iem.ImuEkfModel(iem.ImuEkfParameters())}
     direct = {name: 0.0 for name in models}
-    poses = [cfm.planar_pose(r[0:2], r[2]) for r in u]
+    poses = [planar_pose(r[0:2], r[2]) for r in u]
     for m in models.values():
         m.reset(*poses[0], u[0, 3:6], u[0, 6:9])
     for k in range(1, n + 1):

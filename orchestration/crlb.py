@@ -42,7 +42,7 @@ same models the EKF uses". So here the bound uses exactly the EKF's noise model:
   ``G = int_0^T expm(A_c s) ds B``, ``B = (0, 0, I)^T`` -- which is the EKF's ``G_w`` of eq. 14
   (``(T^3/6 I, T^2/2 I, T I)``) when ``A_c`` is the EKF's chain of integrators,
 * ``H``: the EKF's own measurement Jacobian (eq. 16 without damping, eqs. 17-19;
-  :meth:`fmus.estimators.ekf_accelerometer_model.MeasurementModel.jacobian`) at the true state,
+  :meth:`fmus.estimators.axelsson2012_model.MeasurementModel.jacobian`) at the true state,
   with or without the accelerometer, bias states off (section 4.3),
 * ``R``: the EKF's ``diag(r_motor I, r_acc I)`` (motor side, sensor frame).
 
@@ -88,6 +88,7 @@ import numpy as np
 import scipy.linalg
 
 from fmus.common.robot_params import RobotParameters
+from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 
 
@@ -233,7 +234,7 @@ class RobotCrlbModel:
 
     def __init__(self, p: RobotParameters) -> None:
         self.p = p
-        m = em.MeasurementModel(p, em.Layout(False, False))    # inertia/gravity constants of eq. 11
+        m = am.MeasurementModel(p, am.Layout(False, False))    # inertia/gravity constants of eq. 11
         self.a, self.c, self.e, self.g1, self.g2 = m.a, m.c, m.e, m.g1, m.g2
         self.r = np.asarray(p.gear_ratio, float)
         self.k_hi = np.asarray(p.k_hi, float)
@@ -332,7 +333,7 @@ class RobotCrlb:
         return self._rt(slice(4, 6))
 
 
-def robot_crlb(q_a, dq_a, ddq_a, q_m, dq_m, ddq_m, T: float, ekf: em.EkfAccelerometerParameters,
+def robot_crlb(q_a, dq_a, ddq_a, q_m, dq_m, ddq_m, T: float, ekf: am.EkfAccelerometerParameters,
                use_accelerometer: bool, plant: RobotParameters | None = None,
                rel_step: float = 1e-6, method: str = "doubling",
                dynamics: str = "physical") -> RobotCrlb:
@@ -380,22 +381,22 @@ def robot_crlb(q_a, dq_a, ddq_a, q_m, dq_m, ddq_m, T: float, ekf: em.EkfAccelero
         model = RobotCrlbModel(plant if plant is not None else ekf.robot())
         A = model.system_matrix(x, u, rel_step)
     elif dynamics == "ekf":
-        A = np.broadcast_to(em.continuous_model(em.Layout(False, False))[0], (len(x), 6, 6))
+        A = np.broadcast_to(am.continuous_model(am.Layout(False, False))[0], (len(x), 6, 6))
     else:
         raise CrlbError(f"dynamics must be 'physical' or 'ekf', not {dynamics!r}")
     F, G = discretise(A, T)
-    layout = em.Layout(bool(use_accelerometer), False)
-    meas = em.MeasurementModel(ekf.robot(), layout)
+    layout = am.Layout(bool(use_accelerometer), False)
+    meas = am.MeasurementModel(ekf.robot(), layout)
     H = np.stack([meas.jacobian(xi) for xi in x])
     Q = ekf.q_jerk * np.eye(2)
-    R = em.measurement_noise(ekf, layout)
+    R = am.measurement_noise(ekf, layout)
     return RobotCrlb(crlb_linear(F, H, Q, R, G, method=method))
 
 
 # ---------------------------------------------------------------------------------------------
 # validation: a true system that carries the process noise the bound assumes
 # ---------------------------------------------------------------------------------------------
-def validation_case(ekf: em.EkfAccelerometerParameters, q_true: float, runs: int, *, T: float = 0.01,
+def validation_case(ekf: am.EkfAccelerometerParameters, q_true: float, runs: int, *, T: float = 0.01,
                     stop_time: float = 2.0, after: float = 0.5, path: str = "square",
                     overtune: float = 10.0, seed: int = 1) -> dict:
     """Monte Carlo of the EKF on a true system that is the bound's own model: the EKF must not
@@ -443,12 +444,12 @@ def validation_case(ekf: em.EkfAccelerometerParameters, q_true: float, runs: int
                 for acc in (True, False)}
     params = {k: replace(ekf, q_jerk=q, use_accelerometer=acc, use_bias=False)
               for k, (q, acc) in variants.items()}
-    layout = em.Layout(True, False)
-    F, Gu, Gw = em.transition_matrices(T, layout)
-    meas = em.MeasurementModel(robot, layout)
-    Lr = np.sqrt(np.diag(em.measurement_noise(ekf, layout)))
+    layout = am.Layout(True, False)
+    F, Gu, Gw = am.transition_matrices(T, layout)
+    meas = am.MeasurementModel(robot, layout)
+    Lr = np.sqrt(np.diag(am.measurement_noise(ekf, layout)))
     x0 = np.concatenate([ekf.initial_angles(), np.zeros(4)])
-    L0 = np.linalg.cholesky(em.initial_covariance(ekf, em.Layout(False, False)))
+    L0 = np.linalg.cholesky(am.initial_covariance(ekf, am.Layout(False, False)))
     err = {k: np.zeros((runs, len(t), 6)) for k in variants}
     truth = np.zeros((runs, len(t), 6))
     for j in range(runs):

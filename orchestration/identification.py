@@ -38,7 +38,7 @@ this formulation:
 
 **Parameters.** Fitted, per joint (log-scale, so relative errors): gearbox stiffness ``k_lo``,
 ``k_hi``, damping ``d``, motor inertia ``J_m``, friction ``f_v``, ``f_c``. Of the rigid links
-only four combinations enter the model (:class:`dynamics._Constants`): ``a`` and ``c`` of the
+only four combinations enter the model (:class:`fmus.common.dynamics.ArmConstants`): ``a`` and ``c`` of the
 inertia matrix, the forearm's first moment ``m2 c2`` (both ``e = m2 l1 c2`` and
 ``g2 = g m2 c2``) and the shoulder's gravity moment ``m1 c1 + m2 l1``; these four base
 parameters are fitted and mapped to one consistent :class:`RobotParameters` with the masses
@@ -82,12 +82,13 @@ from typing import Any
 
 import numpy as np
 
+from fmus.common.frames import G, rot_rpy
 from fmus.common import dynamics, kinematics
 from fmus.common.parameters import as_array, fields
 from fmus.common.robot_params import RobotParameters
 from fmus.robot_plant.motion_control_model import (MotionController, MotionControllerParameters,
                                                    build_controller)
-from fmus.robot_plant.sensor_model import butterworth_coefficients, rot_rpy
+from fmus.robot_plant.sensor_model import butterworth_coefficients
 
 JOINT_PARAMETERS = ("k_lo", "k_hi", "d", "J_m", "f_v", "f_c")
 #: The base parameters of the rigid links (the combinations the model depends on).
@@ -118,7 +119,7 @@ class IdentificationError(RuntimeError):
 # ---------------------------------------------------------------------------------------------
 def base_parameters(p: RobotParameters) -> dict[str, float]:
     """The rigid links' base parameters of ``p`` (see the module docstring)."""
-    k = dynamics._Constants(p)
+    k = dynamics.arm_constants(p)
     return {"inertia_a": k.a, "inertia_c": k.c, "moment_m2c2": p.m2 * p.c2,
             "moment_g1": p.m1 * p.c1 + p.m2 * p.l1}
 
@@ -183,7 +184,7 @@ class Experiment:
     acc_cutoff: float = 200.0
     acc_filter_order: int = 2
     mount_rpy: tuple = (0.0, 0.0, 0.0)
-    g: float = 9.81
+    g: float = G
 
     @property
     def dt(self) -> float:

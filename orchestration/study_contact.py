@@ -47,6 +47,7 @@ from typing import Any
 
 import numpy as np
 
+from fmus.common.parameters import replace
 from fmus.force_observer import impedance_math as imp
 
 REPO = Path(__file__).resolve().parent.parent
@@ -226,7 +227,7 @@ def plot_contact(runs: dict[str, dict[str, np.ndarray]], setup: ContactSetup, ou
 # ---------------------------------------------------------------------------------------------
 # rigid vs compliant tool on the one-axis model
 # ---------------------------------------------------------------------------------------------
-def compliant_tool_study(design: imp.ImpedanceDesign | None = None, speed: float = 0.05,
+def compliant_tool_study(design: imp.ImpedanceControllerParameters | None = None, speed: float = 0.05,
                          t_end: float = 5.0) -> dict[str, dict[str, Any]]:
     """Close the impedance loop on :class:`imp.OneAxisPlant` with a rigid and with a compliant
     tool (12 kg on 3e4 N/m, damping ratio 0.3: an 8 Hz Optidrive-like mount), observer vs raw.
@@ -238,7 +239,7 @@ def compliant_tool_study(design: imp.ImpedanceDesign | None = None, speed: float
     the final force against the prediction and the peak tool speed (a loop that went unstable
     shows up as a large one).
     """
-    d = design or imp.ImpedanceDesign()
+    d = design or imp.ImpedanceControllerParameters()
     kc, dc, mt = 3e4, 360.0, 12.0
     x0, x1 = -0.05, 0.02
     T = 1.875 * (x1 - x0) / speed
@@ -246,7 +247,7 @@ def compliant_tool_study(design: imp.ImpedanceDesign | None = None, speed: float
     res: dict[str, dict[str, Any]] = {}
     for case in ("rigid", "compliant", "compliant_designed"):
         plant = imp.OneAxisPlant(compliant=case != "rigid", k_c=kc, d_c=dc, m_t=mt)
-        dd = imp.replace_design(d, tool_m=mt, tool_k=kc, tool_d=dc) if case == "compliant_designed" else d
+        dd = replace(d, tool_mass=mt, tool_compliance=1.0 / kc, tool_damping=dc) if case == "compliant_designed" else d
         _, F_pred = imp.stationary_contact(d.K_z, plant.k_w, x1, plant.x_w)
         for fb in ("observer", "raw"):
             o = imp.simulate_1dof(plant, dd, ref, t_end + T, observer="static", use_raw=fb == "raw")
@@ -279,7 +280,7 @@ def run_study_1dof(out_dir: Path | None = None, noise_f: float = 0.5, noise_a: f
     """The contact study on the one-axis model (rigid tool): observer vs raw reading in the
     loop; metrics of :func:`contact_metrics` per run and, with ``out_dir``, Figs. 6-8."""
     x_ref, t_end, setup = one_axis_reference()
-    d = imp.ImpedanceDesign(K_z=setup.K_z)
+    d = imp.ImpedanceControllerParameters(K_z=setup.K_z)
     plant = imp.OneAxisPlant(x_w=setup.x_wall, k_w=setup.k_wall)
     runs, metrics = {}, {}
     for label, raw in (("observer", False), ("raw", True)):
@@ -323,8 +324,8 @@ def scenario_setup(path: Path, overrides: tuple[str, ...] = ()) -> ContactSetup:
     * free window: from the start of the first move to 0.2 s after the second ends;
     * steady window: from 0.5 s after the last move ends to the stop time.
     """
-    from fmus.force_observer.impedance_controller_fmu import ImpedanceControllerParameters
-    from fmus.robot_plant.contact_environment_fmu import ContactEnvironmentParameters
+    from fmus.force_observer.impedance_math import ImpedanceControllerParameters
+    from fmus.robot_plant.sensor_model import ContactEnvironmentParameters
     from fmus.robot_plant.trajectory import make_path
     from orchestration.scenario import ScenarioError, scenario_document
 

@@ -116,7 +116,7 @@ def _experiment(name: str, sc: Any, run: Any) -> ident.Experiment:
     the accelerometer's data-sheet settings (filter, gravity) from the scenario, the recorded
     signals; the accelerometer at its nominal mounting (the Imu's ``mount_rpy`` is its unknown
     true misalignment)."""
-    from fmus.robot_plant.imu_fmu import ImuParameters
+    from fmus.robot_plant.sensor_model import ImuParameters
     from fmus.robot_plant.motion_control_model import MotionControllerParameters
     ctrl, imu, enc = (_component(sc, f) for f in ("MotionController", "Imu", "Encoder"))
     for c in (ctrl, imu, enc):
@@ -136,8 +136,8 @@ def _experiment(name: str, sc: Any, run: Any) -> ident.Experiment:
 
 def noise_levels(sc: Any) -> ident.NoiseLevels:
     """Whitening levels from the sensors' data-sheet settings in the scenario."""
-    from fmus.robot_plant.encoder_fmu import EncoderParameters
-    from fmus.robot_plant.imu_fmu import ImuParameters
+    from fmus.robot_plant.sensor_model import EncoderParameters
+    from fmus.robot_plant.sensor_model import ImuParameters
     enc = dataclass_from_scalars(EncoderParameters, _component(sc, "Encoder").parameters)
     imu = dataclass_from_scalars(ImuParameters, _component(sc, "Imu").parameters)
     return ident.NoiseLevels.of_sensors(enc.noise, enc.resolution, imu.acc_noise, imu.acc_resolution)

@@ -246,7 +246,7 @@ def run_study(scenario: str | Path, runs: int, out: str | Path, overrides: Seque
     """
     from .crlb import CrlbError, robot_crlb, validation_case
     from fmus.common.robot_params import RobotParameters
-    from fmus.estimators.ekf_accelerometer_model import EkfAccelerometerParameters
+    from fmus.estimators.axelsson2012_model import EkfAccelerometerParameters
     from .scenario import ScenarioError
 
     if runs < 1:

@@ -193,8 +193,8 @@ def sensor_floors(doc: dict[str, Any]) -> dict[str, float]:
     that claims a smaller measurement std than this trusts its sensor more than it can be
     trusted: a fit to one noise realisation.
     """
-    from fmus.robot_plant.encoder_fmu import EncoderParameters
-    from fmus.robot_plant.imu_fmu import ImuParameters
+    from fmus.robot_plant.sensor_model import EncoderParameters
+    from fmus.robot_plant.sensor_model import ImuParameters
 
     floors = {}
     for key, kind, defaults, noise, res in (("encoder", "Encoder", EncoderParameters(), "noise", "resolution"),

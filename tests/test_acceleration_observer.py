@@ -10,6 +10,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from fmus.common import dynamics, kinematics
+from fmus.common.frames import G
 from fmus.common.parameters import ParameterError, validate
 from fmus.common.robot_params import RobotParameters
 from fmus.estimators import acceleration_observer_model as om
@@ -95,7 +96,7 @@ def test_damped_least_squares_near_a_singular_pose() -> None:
     q = np.array([0.2, brentq(det, grid[k], grid[k + 1], xtol=1e-14)])
     s = np.linalg.svd(kinematics.jacobian(q, p, "sensor"), compute_uv=False)
     assert s[-1] < 1e-9
-    ddq, mu = om.measured_arm_acceleration(q, np.zeros(2), np.array([0.3, 9.81]), p, 0.05, 0.05)
+    ddq, mu = om.measured_arm_acceleration(q, np.zeros(2), np.array([0.3, G]), p, 0.05, 0.05)
     assert mu > 0 and np.all(np.isfinite(ddq))
 
 

@@ -6,12 +6,12 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.signal import lfilter
 
+from fmus.common import quaternion as qt
+from fmus.common.frames import G, planar_pose, rot_rpy
 from fmus.common.parameters import ParameterError, replace, validate
 from fmus.estimators import complementary_filter_model as cfm
-from fmus.estimators import quaternion as qt
-from fmus.robot_plant.sensor_model import rot_rpy
 
-G_VEC = np.array([0.0, 0.0, -9.81])
+G_VEC = np.array([0.0, 0.0, -G])
 
 
 def exact_motion(t, lever, mount_rpy, axis=(0.2, 1.0, -0.3)):
@@ -171,12 +171,12 @@ def test_fmu_matches_the_model_and_tracks_a_planar_motion(cf_fmu):
     s.set(p_fk=p[0], phi_fk=phi[0], acc_s=acc[0], gyro_s=gyro[0])
     s.init()
     m = cfm.ComplementaryFilterModel(params)
-    m.reset(*cfm.planar_pose(p[0], phi[0]), acc[0], gyro[0])
+    m.reset(*planar_pose(p[0], phi[0]), acc[0], gyro[0])
     out, ref, phis = [], [], []
     for k in range(1, n):
         s.set(p_fk=p[k], phi_fk=phi[k], acc_s=acc[k], gyro_s=gyro[k])
         s.step(dt)
-        m.step(*cfm.planar_pose(p[k], phi[k]), acc[k], gyro[k], dt)
+        m.step(*planar_pose(p[k], phi[k]), acc[k], gyro[k], dt)
         out.append(s.get("p_tool_hat", 2))
         phis.append(s.get("phi_tool_hat"))
         ref.append(m.p_tool[[0, 2]])
@@ -197,3 +197,20 @@ def test_fmu_rejects_a_bad_cutoff(cf_fmu):
     with pytest.raises(Exception):
         s.init()
     assert s.log.has("cutoff")
+
+
+def test_prediction_holds_the_last_rate_and_acceleration():
+    """Analytic case of ComplementaryFilterModel.predict (the output between samples): with the
+    last world acceleration a, velocity v and gyro rate w (bias b removed) held, after dt the
+    sensor point is at p + v dt + a dt^2 / 2, moves at v + a dt, and has turned by (w - b) dt
+    about its own axes."""
+    m = cfm.ComplementaryFilterModel(cfm.ComplementaryFilterParameters(lever_arm=(0.0, 0.0, 0.0)))
+    m.reset(np.array([1.0, 0.0, 0.5]), qt.from_angle_y(0.2), np.array([0.0, 0.0, G]), np.zeros(3))
+    m.v_s, m._a_prev = np.array([0.1, 0.0, -0.2]), np.array([0.5, 0.0, 0.3])
+    m._w_prev, m.b_gyro = (0.0, 0.4, 0.0), np.array([0.0, 0.1, 0.0])
+    p0, v0, q0 = m.p_s.copy(), m.v_s.copy(), m.q_s.copy()
+    dt = 0.02
+    m.predict(dt)
+    assert_allclose(m.p_s, p0 + v0 * dt + 0.5 * np.array([0.5, 0.0, 0.3]) * dt * dt, rtol=0, atol=1e-15)
+    assert_allclose(m.v_s, v0 + np.array([0.5, 0.0, 0.3]) * dt, rtol=0, atol=1e-15)
+    assert_allclose(qt.angle_y(m.q_s), 0.2 + 0.3 * dt, rtol=0, atol=1e-14)

@@ -11,6 +11,7 @@ from fmpy.fmi1 import FMICallException
 from numpy.testing import assert_allclose
 
 from fmu_host import Slave
+from fmus.common.frames import G
 from fmus.force_observer import impedance_math as imp
 from orchestration import study_contact as sc
 from orchestration.build import build_all
@@ -249,7 +250,7 @@ def _sample(fts, obs, ctl, f_ext):
     """One 4 ms sample: sensor -> observer -> controller (tool at rest at the wall)."""
     fts.set(f_ext=f_ext, a_tool=[0.0, 0.0], phi_tool=0.0)
     fts.step(H)
-    obs.set(f_s=fts.get("f_s", 3), acc_s=[0.0, 0.0, 9.81], p_tool=[1.305, 0.9], phi_tool=0.0)
+    obs.set(f_s=fts.get("f_s", 3), acc_s=[0.0, 0.0, G], p_tool=[1.305, 0.9], phi_tool=0.0)
     ctl.set(f_contact_hat=obs.get("f_contact_hat", 2), force_fault=obs.get("fault"),
             p_tool=[1.305, 0.9], p_ref=[1.32, 0.9])
     out = dict(saturated=fts.get("saturated"), obs_fault=obs.get("fault"), f_hat=obs.get("f_contact_hat", 2),
@@ -292,7 +293,7 @@ def test_nan_force_reading_is_flagged_never_a_nan_command(fmu_dir):
         fts.step(H)
     assert fts.log.has("f_ext", "not finite")
     # a NaN reading (a broken sensor) into the observer: flagged, estimate and command held
-    obs.set(f_s=[np.nan, 0.0, 117.72], acc_s=[0.0, 0.0, 9.81], p_tool=[1.305, 0.9], phi_tool=0.0)
+    obs.set(f_s=[np.nan, 0.0, 117.72], acc_s=[0.0, 0.0, G], p_tool=[1.305, 0.9], phi_tool=0.0)
     assert obs.get("fault") == 2.0
     f_hat = obs.get("f_contact_hat", 2)
     assert_allclose(f_hat, f_before)

@@ -9,7 +9,7 @@ from numpy.testing import assert_allclose
 
 from fmus.common import dynamics
 from fmus.common.robot_params import RobotParameters
-from fmus.estimators import ekf_accelerometer_model as em
+from fmus.estimators import axelsson2012_model as am
 from orchestration import crlb
 
 
@@ -107,9 +107,9 @@ def test_stacked_bounds_match_one_by_one():
 def test_discretise_of_the_integrator_chain_is_the_ekfs_model():
     """eq. 25 with A_c = integrators gives the EKF's F and G_w of eq. 14."""
     T = 0.01
-    A, _ = em.continuous_model(em.Layout(False, False))
+    A, _ = am.continuous_model(am.Layout(False, False))
     F, G = crlb.discretise(A, T)
-    F14, _, Gw = em.transition_matrices(T, em.Layout(False, False))
+    F14, _, Gw = am.transition_matrices(T, am.Layout(False, False))
     assert_allclose(F, F14, atol=1e-15)
     assert_allclose(G, Gw, atol=1e-15)
 
@@ -186,7 +186,7 @@ def _trajectory(p, n=6):
 
 
 def test_accelerometer_lowers_the_bound():
-    ekf = em.EkfAccelerometerParameters(q_jerk=4e-6, r_motor=0.04, r_acc=1e-4)
+    ekf = am.EkfAccelerometerParameters(q_jerk=4e-6, r_motor=0.04, r_acc=1e-4)
     traj = _trajectory(ekf.robot())
     with_acc = crlb.robot_crlb(*traj, 0.01, ekf, True)
     without = crlb.robot_crlb(*traj, 0.01, ekf, False)
@@ -203,20 +203,20 @@ def test_accelerometer_lowers_the_bound():
 def test_robot_bound_with_integrator_dynamics_is_the_ekfs_covariance():
     """Consistency: feeding the robot bound's pieces (G, H, Q, R) with the EKF's own F gives the
     covariance the EKF converges to when it linearises at the true state."""
-    ekf = em.EkfAccelerometerParameters(q_jerk=1.0, r_motor=0.04, r_acc=1e-4)
+    ekf = am.EkfAccelerometerParameters(q_jerk=1.0, r_motor=0.04, r_acc=1e-4)
     q, dq, ddq, *_ = _trajectory(ekf.robot(), n=1)
     x = np.concatenate([q[0], dq[0], ddq[0]])
-    layout = em.Layout(True, False)
-    F, _, Gw = em.transition_matrices(0.01, layout)
-    H = em.MeasurementModel(ekf.robot(), layout).jacobian(x)
-    Q = em.process_noise(ekf, layout)
-    R = em.measurement_noise(ekf, layout)
+    layout = am.Layout(True, False)
+    F, _, Gw = am.transition_matrices(0.01, layout)
+    H = am.MeasurementModel(ekf.robot(), layout).jacobian(x)
+    Q = am.process_noise(ekf, layout)
+    R = am.measurement_noise(ekf, layout)
     P = crlb.crlb_linear(F, H, Q, R, Gw)
     assert_allclose(P, _kalman_stationary(F, Gw, H, Q, R), rtol=1e-7)
 
 
 def test_bad_trajectory_is_a_clear_error():
-    ekf = em.EkfAccelerometerParameters()
+    ekf = am.EkfAccelerometerParameters()
     q, dq, ddq, qm, dqm, ddqm = _trajectory(ekf.robot(), n=3)
     q = q.copy()
     q[1, 0] = np.nan
@@ -227,7 +227,7 @@ def test_bad_trajectory_is_a_clear_error():
 
 
 def test_doubling_solver_matches_scipy():
-    ekf = em.EkfAccelerometerParameters(q_jerk=4e-6, r_motor=0.04, r_acc=1e-4)
+    ekf = am.EkfAccelerometerParameters(q_jerk=4e-6, r_motor=0.04, r_acc=1e-4)
     traj = _trajectory(ekf.robot())
     a = crlb.robot_crlb(*traj, 0.01, ekf, True, method="doubling")
     b = crlb.robot_crlb(*traj, 0.01, ekf, True, method="scipy")
@@ -242,9 +242,9 @@ def test_doubling_solver_matches_scipy():
 
 
 # ---- validation: a true system with the process noise the bound assumes -----------------------
-def _section4_ekf() -> em.EkfAccelerometerParameters:
+def _section4_ekf() -> am.EkfAccelerometerParameters:
     """The EKF of the section-4 scenario (eq. 26's R, motor side), at the square path's start."""
-    return em.EkfAccelerometerParameters(p_tool0=(1.2, 0.9), r_motor=1e-6, r_acc=1e-4, use_bias=False)
+    return am.EkfAccelerometerParameters(p_tool0=(1.2, 0.9), r_motor=1e-6, r_acc=1e-4, use_bias=False)
 
 
 def _check_validation(v, tol):

@@ -10,6 +10,8 @@ from fmpy import read_model_description
 from numpy.testing import assert_allclose
 
 from fmus.common import kinematics
+from fmus.common.frames import G
+from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmu_host import Slave
 from orchestration.build import build_all
@@ -25,7 +27,7 @@ def fmu(tmp_path_factory) -> Path:
 
 
 
-def _signals(n: int, p: em.EkfAccelerometerParameters, seed: int = 0):
+def _signals(n: int, p: am.EkfAccelerometerParameters, seed: int = 0):
     """A smooth arm motion, its noisy motor angles and accelerometer readings (eqs. 15-19) and
     its jerk, the inputs of the filter; accelerometer as 3-vectors with x at ``index_x`` and z
     at ``index_z``."""
@@ -34,7 +36,7 @@ def _signals(n: int, p: em.EkfAccelerometerParameters, seed: int = 0):
     x = np.column_stack([q0 + A * np.sin(np.outer(t, w)), A * w * np.cos(np.outer(t, w)),
                          -A * w ** 2 * np.sin(np.outer(t, w))])
     u = -A * w ** 3 * np.cos(np.outer(t, w))
-    mm = em.MeasurementModel(p.robot(), em.Layout(True, False))
+    mm = am.MeasurementModel(p.robot(), am.Layout(True, False))
     rng = np.random.default_rng(seed)
     qm = np.array([mm.motor_angles(xk) for xk in x]) + rng.normal(0, 1e-3, (n, 2))
     f = np.array([mm.specific_force(xk) for xk in x]) + rng.normal(0, 1e-2, (n, 2))
@@ -79,7 +81,7 @@ def test_runs_standalone_under_simulate_fmu(fmu: Path) -> None:
 ], ids=["paper", "motor-only", "bias-swapped-axes"])
 def test_fmu_matches_the_plain_model(fmu: Path, params: dict) -> None:
     n = 60
-    p = em.EkfAccelerometerParameters(q_a0=(0.2, -0.1), **params)
+    p = am.EkfAccelerometerParameters(q_a0=(0.2, -0.1), **params)
     qm, acc, f, u, x = _signals(n, p)
     s = Slave(fmu, dict(q_a0=(0.2, -0.1), **params))
     s.init()
@@ -104,7 +106,7 @@ def test_gauss_seidel_inputs_are_fused_after_the_prediction(fmu: Path) -> None:
     """Our master sets the measurements of t + T before doStep(t, T) and reads after it: the FMU
     must predict to t + T first and then fuse them (else the estimate runs one step ahead)."""
     n = 40
-    p = em.EkfAccelerometerParameters(q_a0=(0.2, -0.1))
+    p = am.EkfAccelerometerParameters(q_a0=(0.2, -0.1))
     qm, acc, f, u, x = _signals(n, p)
     s = Slave(fmu, dict(q_a0=(0.2, -0.1)))
     s.set(q_m_meas=qm[0], acc_s=acc[0], dddq_a_ref=u[0])
@@ -124,9 +126,9 @@ def test_gauss_seidel_inputs_are_fused_after_the_prediction(fmu: Path) -> None:
 def test_divergence_is_an_fmi_error_not_nan(fmu: Path) -> None:
     s = Slave(fmu)
     s.init()
-    s.set(q_m_meas=(0.0, 0.0), acc_s=(0.0, 0.0, 9.81))
+    s.set(q_m_meas=(0.0, 0.0), acc_s=(0.0, 0.0, G))
     s.step(T)
-    s.set(acc_s=(1e200, 0.0, 9.81))      # an absurd (finite) reading throws the filter out
+    s.set(acc_s=(1e200, 0.0, G))      # an absurd (finite) reading throws the filter out
     with pytest.raises(Exception):
         for _ in range(3):
             s.step(T)
@@ -142,7 +144,7 @@ def test_divergence_is_an_fmi_error_not_nan(fmu: Path) -> None:
 def test_nan_input_and_bad_parameter_are_named(fmu: Path) -> None:
     s = Slave(fmu)
     s.init()
-    s.set(acc_s=(np.nan, 0.0, 9.81))
+    s.set(acc_s=(np.nan, 0.0, G))
     with pytest.raises(Exception):
         s.step(T)
     assert any("acc_s" in line for line in s.log), s.log

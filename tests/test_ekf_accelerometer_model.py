@@ -12,17 +12,20 @@ from numpy.testing import assert_allclose
 from scipy.linalg import expm
 
 from fmus.common import dynamics, kinematics
+from fmus.common.frames import G
+from fmus.common.kalman import FilterDivergence
 from fmus.common.parameters import ParameterError, replace, validate
 from fmus.common.robot_params import RobotParameters
+from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.robot_plant import motion_control_model as mcm
 from fmus.robot_plant.trajectory import PathBuilder
 
-LAYOUTS = [em.Layout(a, b) for a in (True, False) for b in (True, False)]
+LAYOUTS = [am.Layout(a, b) for a in (True, False) for b in (True, False)]
 SCALE = np.array([0.6, 0.6, 1.0, 1.0, 3.0, 3.0, 1e-3, 1e-3, 0.1, 0.1])
 
 
-def _states(layout: em.Layout, n: int = 4, seed: int = 1) -> list[np.ndarray]:
+def _states(layout: am.Layout, n: int = 4, seed: int = 1) -> list[np.ndarray]:
     rng = np.random.default_rng(seed)
     return [rng.normal(size=layout.n) * SCALE[:layout.n] for _ in range(n)]
 
@@ -39,20 +42,20 @@ def _fd(fun, x: np.ndarray, rel: float = 1e-6) -> np.ndarray:
 
 # ---- parameters ----------------------------------------------------------------------------
 def test_parameters_inherit_the_robot_and_default_to_the_papers_noise() -> None:
-    p = validate(em.EkfAccelerometerParameters())
+    p = validate(am.EkfAccelerometerParameters())
     assert isinstance(p, RobotParameters)
     assert p.robot() == RobotParameters()
     assert (p.r_motor, p.r_acc) == (1e-6, 1e-4)          # eq. 26
     assert p.use_accelerometer and not p.use_bias        # section 4.3: no bias states
-    layout = em.Layout(True, False)
-    assert_allclose(em.measurement_noise(p, layout), np.diag([1e-6, 1e-6, 1e-4, 1e-4]))
+    layout = am.Layout(True, False)
+    assert_allclose(am.measurement_noise(p, layout), np.diag([1e-6, 1e-6, 1e-4, 1e-4]))
     # a model error is a changed inherited field
     p2 = replace(p, k_hi=(7e5, 2.4e5))
     assert p2.robot().k_hi == (7e5, 2.4e5)
 
 
 def test_bad_parameters_are_named() -> None:
-    p = em.EkfAccelerometerParameters()
+    p = am.EkfAccelerometerParameters()
     with pytest.raises(ParameterError, match="index_x"):
         replace(p, index_z=1)
     with pytest.raises(ParameterError, match="p_tool0"):
@@ -62,34 +65,34 @@ def test_bad_parameters_are_named() -> None:
 
 
 def test_initial_estimate_from_the_tool_position() -> None:
-    p = replace(em.EkfAccelerometerParameters(), p_tool0=(1.3, 0.7))
+    p = replace(am.EkfAccelerometerParameters(), p_tool0=(1.3, 0.7))
     f = em.EkfAccelerometerModel(p)
     assert_allclose(f.tool_position(), (1.3, 0.7), atol=1e-12)
     assert_allclose(f.x[2:], 0.0)
 
 
 @pytest.mark.parametrize("layout", LAYOUTS, ids=str)
-def test_state_layout(layout: em.Layout) -> None:
-    p = em.EkfAccelerometerParameters(use_accelerometer=layout.use_accelerometer, use_bias=layout.use_bias)
+def test_state_layout(layout: am.Layout) -> None:
+    p = am.EkfAccelerometerParameters(use_accelerometer=layout.use_accelerometer, use_bias=layout.use_bias)
     f = em.EkfAccelerometerModel(p)
     expected = 6 + (2 if layout.use_bias else 0) + (2 if layout.use_bias and layout.use_accelerometer else 0)
     assert f.layout == layout and f.x.shape == (expected,) and f.P.shape == (expected, expected)
     assert f.R.shape == ((4, 4) if layout.use_accelerometer else (2, 2))
     # the paper's full model (eq. 12) has 10 states
-    assert em.Layout(True, True).n == 10
+    assert am.Layout(True, True).n == 10
 
 
 # ---- eqs. 13-14: discretisation ------------------------------------------------------------
-@pytest.mark.parametrize("layout", [em.Layout(True, True), em.Layout(False, False)], ids=str)
+@pytest.mark.parametrize("layout", [am.Layout(True, True), am.Layout(False, False)], ids=str)
 @pytest.mark.parametrize("T", [1e-3, 0.01, 0.37])
-def test_zero_order_hold_matches_the_matrix_exponential(layout: em.Layout, T: float) -> None:
+def test_zero_order_hold_matches_the_matrix_exponential(layout: am.Layout, T: float) -> None:
     """``[F, G_u] = expm([[A, B], [0, 0]] T)`` of the continuous constant-acceleration model."""
-    A, B = em.continuous_model(layout)
+    A, B = am.continuous_model(layout)
     n = layout.n
     M = np.zeros((n + 2, n + 2))
     M[:n, :n], M[:n, n:] = A, B
     E = expm(M * T)
-    F, Gu, Gw = em.transition_matrices(T, layout)
+    F, Gu, Gw = am.transition_matrices(T, layout)
     assert_allclose(F, E[:n, :n], rtol=1e-12, atol=1e-15)
     assert_allclose(Gu, E[:n, n:], rtol=1e-12, atol=1e-15)
     # the jerk noise enters like the jerk input; the biases are random walks
@@ -101,7 +104,7 @@ def test_zero_order_hold_matches_the_matrix_exponential(layout: em.Layout, T: fl
 def test_time_update_against_finite_differences() -> None:
     """The transition is linear: its finite-difference Jacobian is F, the input's is G_u, and
     the covariance follows ``F P F^T + G_w Q G_w^T`` (eq. 3a)."""
-    p = em.EkfAccelerometerParameters(use_bias=True)
+    p = am.EkfAccelerometerParameters(use_bias=True)
     f = em.EkfAccelerometerModel(p)
     T = 0.01
     x0 = _states(f.layout, 1)[0]
@@ -115,20 +118,20 @@ def test_time_update_against_finite_differences() -> None:
         f.x = x0.copy()
         return f.predict(u, T)
 
-    F, Gu, Gw = em.transition_matrices(T, f.layout)
+    F, Gu, Gw = am.transition_matrices(T, f.layout)
     assert_allclose(_fd(step_x, x0), F, atol=1e-8)
     assert_allclose(_fd(step_u, u0), Gu, atol=1e-10)
     P0 = np.diag(np.linspace(1.0, 2.0, f.layout.n))
     f.x, f.P = x0.copy(), P0.copy()
     f.predict(u0, T)
-    assert_allclose(f.P, F @ P0 @ F.T + Gw @ em.process_noise(p, f.layout) @ Gw.T, rtol=1e-12)
+    assert_allclose(f.P, F @ P0 @ F.T + Gw @ am.process_noise(p, f.layout) @ Gw.T, rtol=1e-12)
 
 
 # ---- eqs. 15-19: measurement model -----------------------------------------------------------
 def test_closed_form_specific_force_is_the_shared_kinematics() -> None:
     p = RobotParameters(sensor_offset=(-0.2, 0.07))
-    mm = em.MeasurementModel(p, em.Layout(True, False))
-    for x in _states(em.Layout(True, False), 6):
+    mm = am.MeasurementModel(p, am.Layout(True, False))
+    for x in _states(am.Layout(True, False), 6):
         assert_allclose(mm.specific_force(x), kinematics.specific_force(x[0:2], x[2:4], x[4:6], p),
                         rtol=1e-12, atol=1e-12)
 
@@ -136,7 +139,7 @@ def test_closed_form_specific_force_is_the_shared_kinematics() -> None:
 def test_motor_angles_at_rest_are_the_static_equilibrium() -> None:
     """Eq. 16 at rest: the motors where the springs carry gravity (dynamics.static_equilibrium)."""
     p = RobotParameters()
-    mm = em.MeasurementModel(p, em.Layout(False, False))
+    mm = am.MeasurementModel(p, am.Layout(False, False))
     for q in ([0.0, 0.0], [0.4, -0.3], [-0.2, 0.6]):
         x = np.concatenate([q, np.zeros(4)])
         assert_allclose(mm.motor_angles(x), dynamics.static_equilibrium(q, p)[2:4], rtol=1e-12, atol=1e-12)
@@ -145,8 +148,8 @@ def test_motor_angles_at_rest_are_the_static_equilibrium() -> None:
 def test_motor_angles_in_motion_carry_the_arm_torque() -> None:
     """Eq. 16 in motion: the spring torque at q_m / r - q_a is the rigid arm torque."""
     p = RobotParameters()
-    mm = em.MeasurementModel(p, em.Layout(False, False))
-    for x in _states(em.Layout(False, False), 4):
+    mm = am.MeasurementModel(p, am.Layout(False, False))
+    for x in _states(am.Layout(False, False), 4):
         qm = mm.motor_angles(x)
         assert_allclose(dynamics.spring_torque(x[0:2], qm, p),
                         dynamics.inverse_dynamics_rigid(x[0:2], x[2:4], x[4:6], p), rtol=1e-9)
@@ -154,16 +157,16 @@ def test_motor_angles_in_motion_carry_the_arm_torque() -> None:
 
 def test_arm_torque_jacobian_against_finite_differences() -> None:
     p = RobotParameters()
-    mm = em.MeasurementModel(p, em.Layout(False, False))
-    for x in _states(em.Layout(False, False), 5, seed=3):
+    mm = am.MeasurementModel(p, am.Layout(False, False))
+    for x in _states(am.Layout(False, False), 5, seed=3):
         num = _fd(lambda z: dynamics.inverse_dynamics_rigid(z[0:2], z[2:4], z[4:6], p), x)
         assert_allclose(mm.arm_torque_jacobian(x[0:2], x[2:4], x[4:6]), num, rtol=1e-6, atol=1e-4)
 
 
 @pytest.mark.parametrize("layout", LAYOUTS, ids=str)
-def test_measurement_jacobian_against_finite_differences(layout: em.Layout) -> None:
+def test_measurement_jacobian_against_finite_differences(layout: am.Layout) -> None:
     """H of eq. 4c (analytic) against central differences of h (eq. 15)."""
-    mm = em.MeasurementModel(RobotParameters(), layout)
+    mm = am.MeasurementModel(RobotParameters(), layout)
     for x in _states(layout, 5, seed=7):
         H = mm.jacobian(x)
         num = _fd(mm.h, x)
@@ -173,9 +176,9 @@ def test_measurement_jacobian_against_finite_differences(layout: em.Layout) -> N
 
 
 @pytest.mark.parametrize("layout", LAYOUTS, ids=str)
-def test_fused_scalar_linearisation_equals_h_and_jacobian(layout: em.Layout) -> None:
+def test_fused_scalar_linearisation_equals_h_and_jacobian(layout: am.Layout) -> None:
     """The filter's hot path (scalar torque and spring inversion) gives the vectorised h and H."""
-    mm = em.MeasurementModel(RobotParameters(), layout)
+    mm = am.MeasurementModel(RobotParameters(), layout)
     states = list(_states(layout, 5, seed=3))
     states.append(np.r_[0.0, np.pi / 2, 0.0, 0.0, 1e-4, -2e-4, np.zeros(layout.n - 6)])  # soft zone
     states.append(np.r_[0.3, -0.2, 5.0, -4.0, 3e3, -2e3, np.zeros(layout.n - 6)])       # far out (no overflow)
@@ -188,8 +191,8 @@ def test_fused_scalar_linearisation_equals_h_and_jacobian(layout: em.Layout) -> 
 def test_measurement_jacobian_of_the_soft_spring_zone() -> None:
     """Near zero arm torque the spring stiffness changes fastest: still the analytic H is right."""
     p = RobotParameters()
-    layout = em.Layout(True, False)
-    mm = em.MeasurementModel(p, layout)
+    layout = am.Layout(True, False)
+    mm = am.MeasurementModel(p, layout)
     # q1 = 0 and phi = pi/2: no gravity torque on either joint, at rest
     x = np.array([0.0, np.pi / 2, 0.0, 0.0, 1e-4, -2e-4])
     assert_allclose(mm.jacobian(x), _fd(mm.h, x, rel=1e-8), rtol=1e-5, atol=1e-5)
@@ -198,7 +201,7 @@ def test_measurement_jacobian_of_the_soft_spring_zone() -> None:
 # ---- the filter (eq. 3) ----------------------------------------------------------------------
 def test_measurement_update_is_the_kalman_update() -> None:
     """With the analytic H, one update equals the textbook form ``P - K H P``."""
-    p = em.EkfAccelerometerParameters()
+    p = am.EkfAccelerometerParameters()
     f = em.EkfAccelerometerModel(p)
     f.P = np.diag(np.linspace(1e-6, 1e-2, 6))
     x0, P0 = f.x.copy(), f.P.copy()
@@ -211,28 +214,28 @@ def test_measurement_update_is_the_kalman_update() -> None:
 
 
 def test_divergence_raises_a_clear_error() -> None:
-    f = em.EkfAccelerometerModel(em.EkfAccelerometerParameters())
-    with pytest.raises(em.FilterDivergence, match="non-finite"):
+    f = em.EkfAccelerometerModel(am.EkfAccelerometerParameters())
+    with pytest.raises(FilterDivergence, match="non-finite"):
         for _ in range(3):     # an absurd reading throws the state far out, then h overflows
-            f.update(np.array([0.0, 0.0, 1e200, 9.81]))
+            f.update(np.array([0.0, 0.0, 1e200, G]))
             f.predict((0.0, 0.0), 0.01)
-    g = em.EkfAccelerometerModel(em.EkfAccelerometerParameters())
+    g = em.EkfAccelerometerModel(am.EkfAccelerometerParameters())
     g.P = -g.P
-    with pytest.raises(em.FilterDivergence, match="not positive definite"):
+    with pytest.raises(FilterDivergence, match="not positive definite"):
         g.predict((0.0, 0.0), 0.01)
-    h = em.EkfAccelerometerModel(em.EkfAccelerometerParameters())
+    h = em.EkfAccelerometerModel(am.EkfAccelerometerParameters())
     h.x[0] = np.nan
-    with pytest.raises(em.FilterDivergence):
-        h.update(np.array([0.0, 0.0, 0.0, 9.81]))
+    with pytest.raises(FilterDivergence):
+        h.update(np.array([0.0, 0.0, 0.0, G]))
 
 
 @pytest.mark.parametrize("use_accelerometer", [True, False])
 def test_filter_is_consistent_on_data_from_its_own_model(use_accelerometer: bool) -> None:
     """Data drawn from eqs. 13 and 15 themselves (no model error): the mean squared error of
     every state agrees with the filter's covariance (NEES per state near 1)."""
-    p = em.EkfAccelerometerParameters(use_accelerometer=use_accelerometer, q_a0=(0.3, -0.2))
+    p = am.EkfAccelerometerParameters(use_accelerometer=use_accelerometer, q_a0=(0.3, -0.2))
     f0 = em.EkfAccelerometerModel(p)
-    F, Gu, Gw = em.transition_matrices(0.01, f0.layout)
+    F, Gu, Gw = am.transition_matrices(0.01, f0.layout)
     Lq, Lr, L0 = (np.linalg.cholesky(m) for m in (f0.Q, f0.R, f0.P))
     rng = np.random.default_rng(42)
     n_runs, n_steps = 40, 100
@@ -299,7 +302,7 @@ def trajectory() -> dict[str, np.ndarray]:
     return out
 
 
-def _run(traj: dict, p: em.EkfAccelerometerParameters, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def _run(traj: dict, p: am.EkfAccelerometerParameters, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Filtered estimates x_{t|t} (first 6 states) and the angle covariance trace, one noise draw."""
     rng = np.random.default_rng(seed)
     N = traj["x"].shape[0]
@@ -314,7 +317,7 @@ def _run(traj: dict, p: em.EkfAccelerometerParameters, seed: int) -> tuple[np.nd
     return est, tr
 
 
-def _rmse(traj: dict, p: em.EkfAccelerometerParameters) -> tuple[np.ndarray, float]:
+def _rmse(traj: dict, p: am.EkfAccelerometerParameters) -> tuple[np.ndarray, float]:
     """Time-averaged RMSE (eq. 27, after the transient) of angle, velocity, acceleration over
     N_RUNS noise realisations, and the mean filter angle standard deviation."""
     sq, trs = [], []
@@ -329,8 +332,8 @@ def _rmse(traj: dict, p: em.EkfAccelerometerParameters) -> tuple[np.ndarray, flo
 
 def test_accelerometer_improves_the_estimates(trajectory) -> None:
     base = dict(q_a0=tuple(trajectory["q_a0"]))
-    with_acc, sd_acc = _rmse(trajectory, em.EkfAccelerometerParameters(**base))
-    without, sd_no = _rmse(trajectory, em.EkfAccelerometerParameters(use_accelerometer=False, **base))
+    with_acc, sd_acc = _rmse(trajectory, am.EkfAccelerometerParameters(**base))
+    without, sd_no = _rmse(trajectory, am.EkfAccelerometerParameters(use_accelerometer=False, **base))
     ratio = without / with_acc
     paper = np.array([2.18e-5 / 1.25e-5, 4.08e-4 / 7.57e-5, 3.91e-3 / 1.23e-3])
     print("\nTable 1 (RMSE after 0.3 s, %d runs, corner path at 100 Hz)" % N_RUNS)
@@ -354,8 +357,8 @@ def test_bias_states_do_not_spoil_the_estimate(trajectory) -> None:
     """With the bias states (eq. 12, unused in the paper's simulation) on bias-free data the
     filter still estimates within 1.5x of the filter without them."""
     base = dict(q_a0=tuple(trajectory["q_a0"]))
-    plain, _ = _rmse(trajectory, em.EkfAccelerometerParameters(**base))
-    biased, _ = _rmse(trajectory, em.EkfAccelerometerParameters(use_bias=True, **base))
+    plain, _ = _rmse(trajectory, am.EkfAccelerometerParameters(**base))
+    biased, _ = _rmse(trajectory, am.EkfAccelerometerParameters(use_bias=True, **base))
     assert np.all(biased < 1.5 * plain)
 
 
@@ -364,10 +367,10 @@ def test_bias_states_absorb_an_accelerometer_offset(trajectory) -> None:
     base = dict(q_a0=tuple(trajectory["q_a0"]))
     off = np.array([0.05, -0.08])
     shifted = dict(trajectory, f=trajectory["f"] + off)
-    plain, _ = _rmse(shifted, em.EkfAccelerometerParameters(**base))
-    biased, _ = _rmse(shifted, em.EkfAccelerometerParameters(use_bias=True, p0_bias_acc=0.1, **base))
+    plain, _ = _rmse(shifted, am.EkfAccelerometerParameters(**base))
+    biased, _ = _rmse(shifted, am.EkfAccelerometerParameters(use_bias=True, p0_bias_acc=0.1, **base))
     assert biased[0] < 0.7 * plain[0]
-    f = em.EkfAccelerometerModel(em.EkfAccelerometerParameters(use_bias=True, **base))
+    f = em.EkfAccelerometerModel(am.EkfAccelerometerParameters(use_bias=True, **base))
     rng = np.random.default_rng(0)
     for k in range(shifted["x"].shape[0]):
         f.update(f.measurement_vector(shifted["qm"][k] + rng.normal(0, SIGMA_M, 2),

@@ -10,10 +10,12 @@ import pytest
 from numpy.testing import assert_allclose
 
 from fmus.common import dynamics, kinematics
+from fmus.common.frames import G, rot_rpy
+from fmus.common.kalman import FilterDivergence
 from fmus.common.parameters import ParameterError
 from fmus.common.robot_params import RobotParameters
+from fmus.estimators import henriksson2009_model as hm
 from fmus.estimators import ekf_flexible_model as em
-from fmus.robot_plant.sensor_model import rot_rpy
 import ekf_flexible_truth as truth
 
 P = RobotParameters()
@@ -48,7 +50,7 @@ def _fd(fun, x: np.ndarray, rel: float = 1e-7) -> np.ndarray:
 
 # ---- the model is the plant's --------------------------------------------------------------------
 def test_model_is_the_plants_dynamics_without_tool_force() -> None:
-    fm = em.FlexibleModel(P)
+    fm = hm.FlexibleModel(P)
     for x in _states():
         u = (1.3, -0.4)
         assert_allclose(fm.f(tuple(x), u), dynamics.derivatives(x, u, (0.0, 0.0), P), rtol=1e-14)
@@ -64,7 +66,7 @@ def test_stiffness_scale_scales_the_model_springs() -> None:
 
 # ---- Jacobians against finite differences ----------------------------------------------------------
 def test_dynamics_jacobian_matches_finite_differences() -> None:
-    fm = em.FlexibleModel(P)
+    fm = hm.FlexibleModel(P)
     u = (2.0, -1.0)
     for x in _states():
         A = fm.jacobian(tuple(x), u)
@@ -130,7 +132,7 @@ def test_drift_correction_transition_jacobian_matches_finite_differences(variant
     u = (0.5, -0.5)
     for k, x in enumerate(_states(4)):
         x = _augmented(ekf, x, k % 3)
-        aux = (x[0] + x[1] + 0.02 * (k - 1), 30.0 - 10 * k, 9.81 + 5 * k)
+        aux = (x[0] + x[1] + 0.02 * (k - 1), 30.0 - 10 * k, G + 5 * k)
         A = ekf.transition_jacobian(x, u, T, aux)
         A_fd = _fd(lambda z: ekf.transition(z, u, T, aux), x)
         scale = np.abs(A_fd).max(axis=0) + 1.0
@@ -147,9 +149,9 @@ def test_drift_correction_transition_jacobian_matches_finite_differences(variant
     phi = x[0] + x[1]
     xn = ekf.transition(x, u, T, (phi, 3.0, 9.0))
     assert_allclose(xn[8:10], x[8:10], rtol=0, atol=1e-15)
-    xn = ekf.transition(x, u, T, (phi + 0.1, 0.0, 9.81))
+    xn = ekf.transition(x, u, T, (phi + 0.1, 0.0, G))
     R = lambda a: np.array([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]])   # noqa: E731
-    assert_allclose(xn[8:10] - x[8:10], T * (R(phi + 0.1) - R(phi)) @ (0.0, 9.81), rtol=1e-12)
+    assert_allclose(xn[8:10] - x[8:10], T * (R(phi + 0.1) - R(phi)) @ (0.0, G), rtol=1e-12)
 
 
 @pytest.mark.parametrize("correction", ["off", "tilt_stiffness"])
@@ -423,7 +425,7 @@ def test_drift_correction_with_sensor_noise() -> None:
 def test_divergence_raises_and_keeps_the_estimate() -> None:
     ekf = em.make_filter("complete")
     x0 = ekf.x.copy()
-    with pytest.raises(em.FilterDivergence, match="EKF diverged"):
+    with pytest.raises(FilterDivergence, match="EKF diverged"):
         for _ in range(5):
             ekf.update(x0[2:4], (1e300, 0.0, 1e300), (0.0, 0.0))
             ekf.predict(5e-4)

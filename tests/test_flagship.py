@@ -10,6 +10,8 @@ from numpy.testing import assert_allclose
 
 from orchestration import CouplingWarning, run
 
+from fmus.common.frames import G
+
 FLAGSHIP = Path(__file__).resolve().parent.parent / "orchestration" / "scenarios" / "flagship.toml"
 
 
@@ -42,7 +44,7 @@ def test_robot_follows_the_path_and_bends(result) -> None:
 
 def test_imu_at_the_start_reads_gravity(result) -> None:
     acc = result["imu.acc_s"][:200]
-    assert np.allclose(np.linalg.norm(acc, axis=1), 9.81, atol=0.2)
+    assert np.allclose(np.linalg.norm(acc, axis=1), G, atol=0.2)
 
 
 def test_ekf_with_accelerometer_beats_rigid_kinematics_and_is_on_time(result) -> None:

@@ -18,6 +18,8 @@ from numpy.testing import assert_array_equal
 
 from fmu_host import Slave, every_fmu
 
+from fmus.common.frames import G
+
 DISCARD, ERROR, FATAL = 2, 3, 4
 
 
@@ -99,7 +101,7 @@ def _drive(s: Slave, inputs: list[str], k0: int, n: int, h: float) -> np.ndarray
     for k in range(k0, k0 + n):
         if inputs:
             s.fmu.setReal([s.vr[i] for i in inputs],
-                          [0.01 * (j + 1) * np.sin(0.3 * k + j) + (9.81 if "acc_s[3]" == i else 0.0)
+                          [0.01 * (j + 1) * np.sin(0.3 * k + j) + (G if "acc_s[3]" == i else 0.0)
                            for j, i in enumerate(inputs)])
         s.fmu.doStep(k * h, h)
         rows.append(s.fmu.getReal(outputs))

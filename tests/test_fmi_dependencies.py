@@ -18,6 +18,7 @@ from numpy.testing import assert_allclose
 
 from fmu_host import every_fmu
 from orchestration.build import fmu_scripts
+from fmus.common.parameters import replace
 from fmus.force_observer import impedance_math as imp
 
 
@@ -60,7 +61,7 @@ def test_lqr_gain_equals_python_control() -> None:
     control = pytest.importorskip("control")
     rng = np.random.default_rng(3)
     cases = []
-    for d in (imp.ImpedanceDesign(), imp.replace_design(imp.ImpedanceDesign(), r=1e-3)):
+    for d in (imp.ImpedanceControllerParameters(), replace(imp.ImpedanceControllerParameters(), r=1e-3)):
         A, B = imp.design_model(d)              # the controller's own design problem
         cases.append((A, B, np.diag([d.q_e, d.q_de, d.q_int]), np.array([[d.r]])))
     for n in (2, 3, 4):                         # and random stabilisable ones

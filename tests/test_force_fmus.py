@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from fmus.common.frames import G
 from fmus.force_observer import force_observer_math as fom
 from fmus.force_observer import impedance_math as imp
 from fmu_host import Slave
@@ -32,7 +33,7 @@ def sensor_signals(n: int, phi: float = 0.3):
     x = np.stack([1.2 + 3 / w ** 2 * (1 - np.cos(w * t)), 0.9 + 2 / w ** 2 * np.sin(w * t) - 2 / w * t], axis=1)
     F = np.stack([np.where(t > 0.2, 30.0, 0.0), np.where(t > 0.2, -4.0, 0.0)], axis=1)
     R = fom.rotation(phi)
-    g = np.array([0.0, -9.81])
+    g = np.array([0.0, -G])
     f_s2 = (R.T @ (M * (a - g) + F).T).T            # F = force on the environment = -f_ext
     acc2 = (R.T @ (a - g).T).T
     to3 = lambda v: np.stack([v[:, 0], np.zeros(len(v)), v[:, 1]], axis=1)
@@ -45,7 +46,7 @@ def test_observer_fmu_matches_math_and_recovers_force(fmu_dir, kind):
     t, f_s, acc_s, x, F = sensor_signals(n, phi)
     s = Slave(fmu_dir / "ForceObserver.fmu", {"observer": kind})
     s.init()
-    core = fom.ForceObserverCore(fom.ObserverConfig(kind=kind, m=M))
+    core = fom.ForceObserverCore(fom.ForceObserverParameters(observer=kind, m_tool=M))
     out = np.empty((n, 2))
     for k in range(n):
         s.set(f_s=f_s[k], acc_s=acc_s[k], p_tool=x[k], phi_tool=phi)
@@ -66,7 +67,7 @@ def test_observer_fmu_matches_math_and_recovers_force(fmu_dir, kind):
 def test_observer_fmu_flags_nan_and_saturation(fmu_dir):
     s = Slave(fmu_dir / "ForceObserver.fmu", {"observer": "static", "f_range": 200.0})
     s.init()
-    good_f, good_a = np.array([10.0, 0.0, 117.72]), np.array([0.0, 0.0, 9.81])
+    good_f, good_a = np.array([10.0, 0.0, 117.72]), np.array([0.0, 0.0, G])
     s.set(f_s=good_f, acc_s=good_a, p_tool=[1.2, 0.9], phi_tool=0.0)
     est = s.get("f_contact_hat", 2)
     assert_allclose(est, [10.0, 0.0], atol=1e-9)
@@ -102,7 +103,7 @@ def test_impedance_fmu_matches_math(fmu_dir, structure):
     params = {"K_z": 1500.0, "D_z": 300.0, "q_int": 5.0, "structure": structure, "tool_compliance": 2e-5}
     s = Slave(fmu_dir / "ImpedanceController.fmu", params)
     s.init()
-    d = imp.ImpedanceDesign(K_z=1500.0, D_z=300.0, q_int=5.0, structure=structure, tool_k=5e4)
+    d = imp.ImpedanceControllerParameters(**params)
     L = imp.design_gains(d)
     assert_allclose(s.get("lqr_gain", 5)[:L.size], L, rtol=1e-12)
     c = imp.force_gain(d, L)
@@ -152,7 +153,7 @@ def test_impedance_fmu_holds_on_bad_input(fmu_dir):
 @pytest.mark.parametrize("use_raw", [False, True])
 def test_fmus_close_the_impedance_loop_like_the_math(fmu_dir, use_raw):
     """Observer + controller FMUs on the one-axis plant reproduce the math-only loop."""
-    d = imp.ImpedanceDesign()
+    d = imp.ImpedanceControllerParameters()
     plant = imp.OneAxisPlant(x_w=1.30)
     ref = imp.smooth_ramp(1.25, 1.32, 0.1, 1.0)
     obs = Slave(fmu_dir / "ForceObserver.fmu", {"observer": "lowpass"})
@@ -161,7 +162,7 @@ def test_fmus_close_the_impedance_loop_like_the_math(fmu_dir, use_raw):
     ctl.init()
 
     def through_fmus(t, u, a, x, xr):
-        g = 9.81
+        g = G
         obs.set(f_s=[u, 0.0, M * g], acc_s=[a, 0.0, g], p_tool=[x, 0.9], phi_tool=0.0)
         f_hat = obs.get("f_contact_hat", 2)
         f_fb = obs.get("f_raw", 2) if use_raw else f_hat
@@ -189,7 +190,7 @@ def test_impedance_fmu_with_the_tool_in_the_design_model(fmu_dir):
     params = {"structure": "paper", "tool_compliance": C, "tool_mass": 12.0, "tool_damping": 600.0}
     s = Slave(fmu_dir / "ImpedanceController.fmu", params)
     s.init()
-    d = imp.ImpedanceDesign(structure="paper", tool_k=1 / C, tool_m=12.0, tool_d=600.0)
+    d = imp.ImpedanceControllerParameters(**params)
     L = imp.design_gains(d)
     assert L.shape == (4,)
     assert_allclose(s.get("lqr_gain", 5), list(L) + [0.0], rtol=1e-12)

@@ -5,6 +5,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from fmus.common.frames import G
+from fmus.common.parameters import ParameterError, validate
 from fmus.force_observer import force_observer_math as fom
 
 M = 12.0     # tool mass of the paper (kg)
@@ -27,7 +29,7 @@ def contact_force(t: np.ndarray, t0: float = 1.0, level: float = 40.0) -> np.nda
     return np.stack([level * ramp, 5.0 * ramp], axis=1)
 
 
-def run(cfg: fom.ObserverConfig, u: np.ndarray, a: np.ndarray, x: np.ndarray, h: float = H) -> np.ndarray:
+def run(cfg: fom.ForceObserverParameters, u: np.ndarray, a: np.ndarray, x: np.ndarray, h: float = H) -> np.ndarray:
     obs = fom.ForceObserverCore(cfg)
     out = np.empty_like(u)
     for k in range(len(u)):
@@ -43,7 +45,7 @@ def test_world_readings_cancel_gravity_and_rotate():
         a = rng.normal(size=2) * 3
         f_ext = rng.normal(size=2) * 20          # force ON the tool (ContactEnvironment)
         R = fom.rotation(phi)
-        gvec = np.array([0.0, -fom.G])
+        gvec = np.array([0.0, -G])
         f_s = R.T @ (M * (a - gvec) - f_ext)    # ForceTorqueSensor's reading, sensor frame
         acc_s = R.T @ (a - gvec)                 # accelerometer's specific force, sensor frame
         u, a_w = fom.world_readings(f_s, acc_s, phi, M)
@@ -90,7 +92,7 @@ def test_steady_contact_force_recovered(kind):
     x, a = motion(t, amp=0.01)
     F = contact_force(t)
     u = F + M * a
-    F_hat = run(fom.ObserverConfig(kind=kind, m=M), u, a, x)
+    F_hat = run(fom.ForceObserverParameters(observer=kind, m_tool=M), u, a, x)
     late = t > 3.0
     assert_allclose(F_hat[late], F[late], rtol=0, atol=0.02 * 40.0)
 
@@ -101,7 +103,7 @@ def test_unbiased_observers_exact_without_noise(kind):
     t = np.arange(0, 2.0, H)
     x, a = motion(t)
     F = contact_force(t, t0=0.5)
-    F_hat = run(fom.ObserverConfig(kind=kind, m=M), F + M * a, a, x)
+    F_hat = run(fom.ForceObserverParameters(observer=kind, m_tool=M), F + M * a, a, x)
     assert_allclose(F_hat, F, atol=1e-9)
 
 
@@ -110,7 +112,7 @@ def test_kalman_estimate_equals_static_and_filter_is_stable():
     rng = np.random.default_rng(3)
     n = 500
     u, a, x = rng.normal(size=(n, 2)) * 30, rng.normal(size=(n, 2)), rng.normal(size=(n, 2))
-    cfg = fom.ObserverConfig(kind="kalman", m=M)
+    cfg = fom.ForceObserverParameters(observer="kalman", m_tool=M)
     assert_allclose(run(cfg, u, a, x), fom.static_force(u, a, M), atol=1e-9)
     K = fom.kalman_gain(M, H, cfg.sigma_f, cfg.sigma_x, cfg.sigma_a)
     Phi = np.array([[1.0, H], [0.0, 1.0]])
@@ -120,7 +122,7 @@ def test_kalman_estimate_equals_static_and_filter_is_stable():
 def test_kalman_tracks_tool_position():
     t = np.arange(0, 2.0, H)
     x, a = motion(t)
-    obs = fom.ForceObserverCore(fom.ObserverConfig(kind="kalman", m=M))
+    obs = fom.ForceObserverCore(fom.ForceObserverParameters(observer="kalman", m_tool=M))
     obs.reset(x[0] + 0.01)                   # 10 mm initial error
     u = M * a                                # free space
     for k in range(len(t)):
@@ -169,7 +171,7 @@ def test_lowpass_frequency_response_matches_eq32(k23):
     w = 2 * np.pi * f
     F = np.stack([F0 * np.sin(w * t), np.zeros_like(t)], axis=1)
     x, a = motion(t, amp=0.0)                 # the tool held still: the force alone drives it
-    cfg = fom.ObserverConfig(kind="lowpass", m=M, k11=k11, k13=k13, k21=k21, k23=k23)
+    cfg = fom.ForceObserverParameters(observer="lowpass", m_tool=M, k11=k11, k13=k13, k21=k21, k23=k23)
     err = F[:, 0] - run(cfg, F + M * a, a, x, h)[:, 0]
     late = t > 8.0
     # least-squares amplitude and phase of the error at the forcing frequency
@@ -188,8 +190,8 @@ def test_lowpass_removes_accelerometer_bias():
     u = F + M * a
     late = t > 7.0
     # gains whose bias transient (0.6 Hz, damping 0.75) is over within the run
-    lp = run(fom.ObserverConfig(kind="lowpass", m=M, k11=6.0, k21=16.0), u, a + bias, x)
-    st = run(fom.ObserverConfig(kind="static", m=M), u, a + bias, x)
+    lp = run(fom.ForceObserverParameters(observer="lowpass", m_tool=M, k11=6.0, k21=16.0), u, a + bias, x)
+    st = run(fom.ForceObserverParameters(observer="static", m_tool=M), u, a + bias, x)
     assert_allclose(st[late], F[late] - M * bias, atol=1e-9)
     assert_allclose(lp[late], F[late], atol=0.1)   # static is off by m*bias = 2.4 N; 0.06 N is the ZOH lag
 
@@ -202,8 +204,8 @@ def test_lowpass_k23_attenuates_accelerometer_noise():
     noise = rng.normal(size=(n, 2)) * 0.1
     u = np.zeros((n, 2))
     k23 = 0.2
-    lp = run(fom.ObserverConfig(kind="lowpass", m=M, k11=20.0, k13=0.0, k21=100.0, k23=k23), u, noise, x)
-    st = run(fom.ObserverConfig(kind="static", m=M), u, noise, x)
+    lp = run(fom.ForceObserverParameters(observer="lowpass", m_tool=M, k11=20.0, k13=0.0, k21=100.0, k23=k23), u, noise, x)
+    st = run(fom.ForceObserverParameters(observer="static", m_tool=M), u, noise, x)
     ratio = lp[n // 4:].std() / st[n // 4:].std()
     assert ratio < 1.2 * k23
 
@@ -217,7 +219,7 @@ def test_free_space_inertial_force_removed(kind):
     u = M * a + rng.normal(size=a.shape) * 0.5          # force sensor noise 0.5 N
     a_meas = a + rng.normal(size=a.shape) * 0.02          # accelerometer noise
     x_meas = x + rng.normal(size=x.shape) * 1e-5
-    F_hat = run(fom.ObserverConfig(kind=kind, m=M), u, a_meas, x_meas)
+    F_hat = run(fom.ForceObserverParameters(observer=kind, m_tool=M), u, a_meas, x_meas)
     rms_raw = np.sqrt(np.mean(np.sum(u ** 2, axis=1)))
     rms_hat = np.sqrt(np.mean(np.sum(F_hat ** 2, axis=1)))
     assert rms_hat <= 0.2 * rms_raw
@@ -233,7 +235,7 @@ def test_reading_fault_codes():
 
 
 def test_bad_config_rejected():
-    with pytest.raises(ValueError, match="kind"):
-        fom.ObserverConfig(kind="magic")
-    with pytest.raises(ValueError, match="mass"):
-        fom.ObserverConfig(m=0.0)
+    with pytest.raises(ParameterError, match="'observer'.*magic"):
+        validate(fom.ForceObserverParameters(observer="magic"))
+    with pytest.raises(ParameterError, match="'m_tool'"):
+        validate(fom.ForceObserverParameters(m_tool=0.0))

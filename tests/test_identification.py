@@ -13,6 +13,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from fmus.common import dynamics, kinematics
+from fmus.common.frames import G
 from fmus.common.robot_params import RobotParameters
 from fmus.robot_plant.motion_control_model import MotionControllerParameters
 from fmus.robot_plant.sensor_model import imu_reading
@@ -67,8 +68,8 @@ def test_specific_force_is_the_imu_reading():
     rng = np.random.default_rng(1)
     a, phi = rng.normal(0, 5, (6, 2)), rng.uniform(-2, 2, 6)
     mount = (0.1, -0.2, 0.3)
-    expected = [imu_reading(a[i], phi[i], 0.0, mount, 9.81)[0] for i in range(6)]
-    assert_allclose(ident.specific_force(a, phi, mount, 9.81), expected, atol=1e-12)
+    expected = [imu_reading(a[i], phi[i], 0.0, mount, G)[0] for i in range(6)]
+    assert_allclose(ident.specific_force(a, phi, mount, G), expected, atol=1e-12)
 
 
 def test_rest_state_is_the_static_equilibrium():
@@ -166,7 +167,7 @@ def test_prefiltered_residual_of_white_noise_has_unit_variance():
 def test_accelerometer_calibration_is_eliminated_exactly(clean_experiments):
     """A reading with scale, mounting and bias errors (the Imu's kind): at the true robot the
     residual without calibration is large, with it zero, and the estimated map is the applied one."""
-    from fmus.robot_plant.sensor_model import rot_rpy
+    from fmus.common.frames import rot_rpy
     cal = np.vstack([rot_rpy((0.004, 0.003, -0.003)) * (1.0 + np.array([0.003, -0.004, 0.002])),
                      [0.01, -0.02, 0.03]])                            # [f, 1] @ cal: mount, scale, bias
     exps = [dataclasses.replace(e, acc=np.column_stack([e.acc, np.ones(len(e.acc))]) @ cal)

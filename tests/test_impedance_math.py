@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from fmus.common.parameters import ParameterError, replace, validate
 from fmus.force_observer import impedance_math as imp
 
 
@@ -27,7 +28,7 @@ def test_lqr_matches_analytic_first_order():
 
 @pytest.mark.parametrize("structure,size", [("paper", 2), ("integral", 3)])
 def test_design_stable_from_free_space_to_stiff_contact(structure, size):
-    d = imp.ImpedanceDesign(structure=structure)
+    d = imp.ImpedanceControllerParameters(structure=structure)
     L = imp.design_gains(d)
     assert L.shape == (size,)
     for ke in (0.0, 1000.0, 5000.0, 20000.0):
@@ -35,16 +36,17 @@ def test_design_stable_from_free_space_to_stiff_contact(structure, size):
 
 
 def test_unknown_structure_is_rejected():
-    with pytest.raises(ValueError, match="structure"):
-        imp.ImpedanceDesign(structure="pid")
+    with pytest.raises(ParameterError, match="'structure'.*pid"):
+        validate(imp.ImpedanceControllerParameters(structure="pid"))
 
 
-@pytest.mark.parametrize("tool", [{}, {"tool_m": 12.0, "tool_k": 3e4, "tool_d": 360.0}, {"tool_k": 3e4}])
+@pytest.mark.parametrize("tool", [{}, {"tool_mass": 12.0, "tool_compliance": 1 / 3e4, "tool_damping": 360.0},
+                                  {"tool_compliance": 1 / 3e4}])
 def test_paper_force_gain_puts_the_design_models_equilibrium_on_eq2(tool):
     """Closed paper loop on the design model (rigid, compliant, rigid with a known static tool
     compliance): the equilibrium for a wall at the reference's level satisfies eq. 2 on the tool.
     Solved from the state equations directly, not from force_gain's formula."""
-    d = imp.ImpedanceDesign(structure="paper", **tool)
+    d = imp.ImpedanceControllerParameters(structure="paper", **tool)
     L = imp.design_gains(d)
     c = imp.force_gain(d, L)
     A, B = imp.design_model(d)
@@ -52,11 +54,11 @@ def test_paper_force_gain_puts_the_design_models_equilibrium_on_eq2(tool):
     n = A.shape[0]
     # a constant force F of the surface on the tool: x' = A0 x + B Delta + f F, f the column
     # that k_env multiplies in A (the surface pushes back with k_env times the tool's position)
-    f = (imp.design_model(imp.replace_design(d, k_env=1.0))[0][:-1, :-1] - imp.design_model(
-        imp.replace_design(d, k_env=0.0))[0][:-1, :-1])[:, 0]
+    f = (imp.design_model(replace(d, k_env=1.0))[0][:-1, :-1] - imp.design_model(
+        replace(d, k_env=0.0))[0][:-1, :-1])[:, 0]
     F = 30.0
     # equilibrium of x' = (A0 - B L) x + (f + B c) F with A0 the model without the surface
-    A0 = imp.design_model(imp.replace_design(d, k_env=0.0))[0][:-1, :-1]
+    A0 = imp.design_model(replace(d, k_env=0.0))[0][:-1, :-1]
     x = np.linalg.solve(A0 - np.outer(B, L), -(f + B * c) * F)
     e_tool = x[0] + (x[2] if n == 4 else -F / d.tool_k if d.tool_k > 0 else 0.0)
     assert_allclose(e_tool, -F / d.K_z, rtol=1e-9)
@@ -64,12 +66,12 @@ def test_paper_force_gain_puts_the_design_models_equilibrium_on_eq2(tool):
 
 def test_design_model_equilibrium_is_the_impedance_relation():
     """At an equilibrium of the design model with integral action, z = 0."""
-    d = imp.ImpedanceDesign()
+    d = imp.ImpedanceControllerParameters()
     A, B = imp.design_model(d)
     # zeta' = (K_z + k_env) e + D_z e' : the third row of A
     assert_allclose(A[2], [d.K_z + d.k_env, d.D_z, 0.0])
-    assert_allclose(B[:, 0], [0.0, d.k_r / d.m_r, 0.0])
-    assert_allclose(d.k_r, d.m_r * d.w_r ** 2)
+    assert_allclose(B[:, 0], [0.0, d.k_r / d.m_design, 0.0])
+    assert_allclose(d.k_r, d.m_design * d.w_r ** 2)
 
 
 def test_stationary_contact_formula():
@@ -85,11 +87,11 @@ def test_stationary_contact_formula():
 @pytest.mark.parametrize("use_raw,observer,structure", [(False, "static", "paper"), (False, "lowpass", "paper"),
                                                        (False, "static", "integral"), (True, "static", "integral")])
 def test_closed_loop_steady_state_matches_impedance_relation(use_raw, observer, structure):
-    d = imp.ImpedanceDesign(structure=structure)
+    d = imp.ImpedanceControllerParameters(structure=structure)
     plant = imp.OneAxisPlant()
     xr = imp.smooth_ramp(-0.05, 0.02, 0.1, 1.0)
     # low-pass observer with well-damped gains (1 Hz, zeta 0.7); the paper's settle in ~15 s
-    cfg = imp.fom.ObserverConfig(kind=observer, m=plant.m_t, k11=8.8, k21=39.5)
+    cfg = imp.fom.ForceObserverParameters(observer=observer, m_tool=plant.m_t, k11=8.8, k21=39.5)
     out = imp.simulate_1dof(plant, d, xr, 3.0, obs_cfg=cfg, use_raw=use_raw, F_d=4.0)
     xs, Fs = imp.stationary_contact(d.K_z, plant.k_w, 0.02, plant.x_w, 4.0)
     assert_allclose(out["F"][-1], Fs, rtol=0.01)
@@ -100,7 +102,7 @@ def test_closed_loop_steady_state_matches_impedance_relation(use_raw, observer, 
 def test_integral_action_enforces_impedance_despite_model_errors():
     """A plant unlike the design model (mass, bandwidth, wall): same stationary impedance with
     the integral; the paper's structure (no integral) misses it by the design model's error."""
-    d = imp.ImpedanceDesign(structure="integral")
+    d = imp.ImpedanceControllerParameters(structure="integral")
     plant = imp.OneAxisPlant(m_r=100.0, w_r=2 * np.pi * 4.0, k_w=9000.0, x_w=0.01)
     xr = imp.smooth_ramp(-0.05, 0.03, 0.1, 1.0)
     out = imp.simulate_1dof(plant, d, xr, 3.0, observer="static")
@@ -108,7 +110,7 @@ def test_integral_action_enforces_impedance_despite_model_errors():
     assert_allclose(out["F"][-1], Fs, rtol=0.01)
     # the paper's structure: at rest e = Delta - F / k_r(plant), Delta = -L_0 e + c F, so
     # (1 + L_0) e = (c - 1/k_r) F with F = k_w (x_r + e - x_w): off eq. 2 by the design's k_r error
-    dp = imp.replace_design(d, structure="paper")
+    dp = replace(d, structure="paper")
     L = imp.design_gains(dp)
     g = (imp.force_gain(dp, L) - 1.0 / (plant.m_r * plant.w_r ** 2)) / (1.0 + L[0])
     F_paper = plant.k_w * (0.03 - plant.x_w) / (1.0 - plant.k_w * g)
@@ -122,7 +124,7 @@ def test_paper_structure_with_the_raw_reading_chatters():
     acceleration back (an added mass c m_t k_r, about 4x the robot's, one sample late) and the
     loop chatters at the sampling rate, bounded only by the one-sided wall; the observer's
     estimate does not."""
-    d = imp.ImpedanceDesign(structure="paper")
+    d = imp.ImpedanceControllerParameters(structure="paper")
     plant = imp.OneAxisPlant()
     xr = imp.smooth_ramp(-0.05, 0.02, 0.1, 1.0)
     last = slice(-250, None)
@@ -133,7 +135,7 @@ def test_paper_structure_with_the_raw_reading_chatters():
 
 
 def test_free_space_tracks_reference():
-    d = imp.ImpedanceDesign()
+    d = imp.ImpedanceControllerParameters()
     plant = imp.OneAxisPlant(x_w=1.0)          # wall far away
     xr = imp.smooth_ramp(-0.05, 0.02, 0.1, 1.0)
     out = imp.simulate_1dof(plant, d, xr, 2.5, observer="static")
@@ -158,7 +160,7 @@ def test_anti_windup_stops_integration_at_the_limit():
 
 def test_compliant_tool_keeps_eq1_identity():
     """Mass on spring-damper (the paper's Optidrive): the sensor still reads F + m_t a_tool."""
-    d = imp.ImpedanceDesign(tool_m=12.0, tool_k=3e4, tool_d=360.0)     # tool in the LQR model
+    d = imp.ImpedanceControllerParameters(tool_mass=12.0, tool_compliance=1 / 3e4, tool_damping=360.0)     # tool in the LQR model
     plant = imp.OneAxisPlant(compliant=True, k_c=3e4, d_c=360.0)
     xr = imp.smooth_ramp(-0.05, 0.02, 0.1, 1.5)
     out = imp.simulate_1dof(plant, d, xr, 4.0, observer="static")
@@ -170,7 +172,7 @@ def test_compliant_tool_keeps_eq1_identity():
 
 @pytest.mark.parametrize("structure,size", [("paper", 4), ("integral", 5)])
 def test_compliant_tool_design_is_stable_and_needs_the_flange(structure, size):
-    d = imp.ImpedanceDesign(tool_m=12.0, tool_k=3e4, tool_d=360.0, structure=structure)
+    d = imp.ImpedanceControllerParameters(tool_mass=12.0, tool_compliance=1 / 3e4, tool_damping=360.0, structure=structure)
     assert d.compliant
     L = imp.design_gains(d)
     assert L.shape == (size,)
@@ -188,8 +190,8 @@ def test_compliant_tool_design_is_stable_and_needs_the_flange(structure, size):
 
 def test_compliant_design_model_matches_rigid_limit():
     """A very stiff tool spring: the 5-state model's slow poles approach the rigid model's."""
-    d_rigid = imp.ImpedanceDesign()
-    d_stiff = imp.replace_design(d_rigid, tool_m=12.0, tool_k=1e9, tool_d=1e3)
+    d_rigid = imp.ImpedanceControllerParameters()
+    d_stiff = replace(d_rigid, tool_mass=12.0, tool_compliance=1e-9, tool_damping=1e3)
     A3, _ = imp.design_model(d_rigid)
     A5, _ = imp.design_model(d_stiff)
     slow5 = np.sort_complex(np.linalg.eigvals(A5))

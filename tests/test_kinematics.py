@@ -129,3 +129,19 @@ def test_inverse_kinematics_out_of_reach(target) -> None:
 def test_unknown_point_is_named() -> None:
     with pytest.raises(ValueError, match="unknown point 'wrist'"):
         kinematics.position([0.0, 0.0], P, "wrist")
+
+
+def test_vectorised_kinematics_agree_with_the_scalar_functions() -> None:
+    """tool_position_many, jacobian_many and inverse_kinematics_many (trajectory tables) are the
+    scalar tool_position, jacobian and inverse_kinematics over many poses."""
+    p = RobotParameters()
+    rng = np.random.default_rng(7)
+    q = np.column_stack([rng.uniform(-1.0, 1.0, 50), rng.uniform(-1.2, 1.2, 50)])
+    P = kinematics.tool_position_many(q, p.l1, p.l2)
+    assert_allclose(P, [kinematics.tool_position(qk, p) for qk in q], rtol=0, atol=1e-14)
+    assert_allclose(kinematics.jacobian_many(q, p.l1, p.l2), [kinematics.jacobian(qk, p) for qk in q],
+                    rtol=0, atol=1e-14)
+    q_back, s2 = kinematics.inverse_kinematics_many(P, p.l1, p.l2)
+    assert_allclose(q_back, [kinematics.inverse_kinematics(pk, p) for pk in P], rtol=0, atol=1e-12)
+    assert_allclose(q_back, q, rtol=0, atol=1e-12)          # |q2| < pi/2: the home branch
+    assert np.all(np.abs(s2) <= 1.0)

@@ -47,9 +47,9 @@ def test_ik_reference_reproduces_the_path_through_forward_kinematics(iso_samples
     for k in range(0, t.size, 150):
         assert_allclose(kinematics.tool_position(q[k], robot), p[k], atol=1e-12)
         assert_allclose(kinematics.jacobian(q[k], robot, "tool") @ dq[k], v[k], atol=1e-12)
-    assert_allclose(mcm.forward_kinematics(q, robot.l1, robot.l2), p, atol=1e-12)
+    assert_allclose(kinematics.tool_position_many(q, robot.l1, robot.l2), p, atol=1e-12)
     # the branch of the home pose: the tool at (l2, l1) is q = 0
-    q0, _ = mcm.inverse_kinematics_many(np.array([[robot.l2, robot.l1]]), robot.l1, robot.l2)
+    q0, _ = kinematics.inverse_kinematics_many(np.array([[robot.l2, robot.l1]]), robot.l1, robot.l2)
     assert_allclose(q0[0], 0.0, atol=1e-12)
 
 
@@ -76,7 +76,7 @@ def test_arm_reference_derivatives_are_consistent(iso_samples, robot) -> None:
 
 def test_jacobian_matches_the_shared_kinematics(robot) -> None:
     q = np.array([[0.3, -0.2], [-0.1, 0.5]])
-    jac = mcm.jacobian_many(q, robot.l1, robot.l2)
+    jac = kinematics.jacobian_many(q, robot.l1, robot.l2)
     for k in range(2):
         assert_allclose(jac[k], kinematics.jacobian(q[k], robot, "tool"), atol=1e-12)
 
@@ -96,7 +96,7 @@ def test_table_interpolation_is_consistent(square_model) -> None:
         assert_allclose(row[mcm.COLUMNS["p_ref"]], p[k], atol=1e-9)
         assert_allclose(row[mcm.COLUMNS["v_ref"]], v[k], atol=1e-6)
         q = row[mcm.COLUMNS["q_a_ref"]]
-        assert_allclose(mcm.forward_kinematics(q, m.l1, m.l2), p[k], atol=1e-9)
+        assert_allclose(kinematics.tool_position_many(q, m.l1, m.l2), p[k], atol=1e-9)
     # derivative columns are the derivatives of the tabulated quantities; where the next
     # derivative jumps (the snap, at a ramp's end) a central difference is off by up to half
     # of one grid step's change of the derivative
@@ -155,7 +155,7 @@ def test_cartesian_offset_moves_the_arm_reference(square_model) -> None:
         p_nominal = m.sample(1.1)[mcm.COLUMNS["p_ref"]]
         assert_allclose(ctrl.p_ref, p_nominal + dp, atol=1e-15)
         tol = 1e-9 if np.hypot(*dp) > 1e-4 else 1e-12
-        assert_allclose(mcm.forward_kinematics(ctrl.q_a_ref, m.l1, m.l2), p_nominal + dp, atol=tol)
+        assert_allclose(kinematics.tool_position_many(ctrl.q_a_ref, m.l1, m.l2), p_nominal + dp, atol=tol)
         dq = ctrl.q_a_ref - m.sample(1.1)[mcm.COLUMNS["q_a_ref"]]
         assert_allclose(ctrl.q_m_ref - m.sample(1.1)[mcm.COLUMNS["q_m_ref"]], m.r * dq, rtol=1e-12)
 

@@ -10,6 +10,7 @@ from fmpy import read_model_description
 from numpy.testing import assert_array_equal
 
 from fmus.common import kinematics
+from fmus.common.frames import G
 from fmus.common.parameters import validate
 from fmus.estimators import particle_filter_model as pm
 from fmu_host import Slave
@@ -46,7 +47,7 @@ def test_model_description(fmu: Path) -> None:
         assert v[name].causality == "parameter", name
     assert v["proposal"].type == "String" and v["n_particles"].type == "Integer"
     deps = {o.variable.name: {d.name for d in o.dependencies} for o in md.outputs}
-    meas = {"q_m_meas[1]", "q_m_meas[2]", "acc_s[1]", "acc_s[2]", "acc_s[3]"}
+    meas = {"q_m_meas[1]", "q_m_meas[2]", "acc_s[1]", "acc_s[2]", "acc_s[3]", "t_meas"}
     for name in ("q_a_hat[1]", "ess", "n_reinit", "trace_P_q"):
         assert deps[name] == meas, name
 
@@ -144,9 +145,9 @@ def test_deterministic_for_a_seed(fmu: Path) -> None:
 def test_absurd_measurement_reinitialises_with_a_warning(fmu: Path) -> None:
     s = Slave(fmu, dict(n_particles=200))
     s.init()
-    s.set(q_m_meas=(0.0, 0.0), acc_s=(0.0, 0.0, 9.81))
+    s.set(q_m_meas=(0.0, 0.0), acc_s=(0.0, 0.0, G))
     s.step(T)
-    s.set(acc_s=(1e200, 0.0, 9.81))      # an absurd (finite) reading: every weight underflows
+    s.set(acc_s=(1e200, 0.0, G))      # an absurd (finite) reading: every weight underflows
     assert s.get("n_reinit") == 1.0      # the update at t (not committed yet)
     for name in ("q_a_hat", "dq_a_hat", "ddq_a_hat", "p_tool_hat"):
         assert np.all(np.isfinite(s.get(name, 2))), name
@@ -154,7 +155,7 @@ def test_absurd_measurement_reinitialises_with_a_warning(fmu: Path) -> None:
     warnings = [m for m in s.log if "re-initialised" in m]     # reading, still there, is the one at t + T
     assert len(warnings) == 1 and "underflowed" in warnings[0] and "skipped" in warnings[0], s.log
     assert s.get("n_reinit") == 2.0
-    s.set(acc_s=(0.0, 0.0, 9.81))
+    s.set(acc_s=(0.0, 0.0, G))
     for _ in range(5):
         s.step(T)
     assert len([m for m in s.log if "re-initialised" in m]) == 2
@@ -166,7 +167,7 @@ def test_absurd_measurement_reinitialises_with_a_warning(fmu: Path) -> None:
 def test_nan_input_and_bad_parameter_are_named(fmu: Path) -> None:
     s = Slave(fmu, dict(n_particles=50))
     s.init()
-    s.set(acc_s=(np.nan, 0.0, 9.81))
+    s.set(acc_s=(np.nan, 0.0, G))
     with pytest.raises(Exception):
         s.step(T)
     assert any("acc_s" in line for line in s.log), s.log

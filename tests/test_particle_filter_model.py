@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from fmus.common.kalman import FilterDivergence
 from fmus.common.parameters import ParameterError, validate
+from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators import particle_filter_model as pm
 
@@ -24,13 +26,13 @@ def _motion(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return x, 2 * A * w ** 3 * (3 * s * c - S * s)
 
 
-def signals_from_rest(n: int, p: em.EkfAccelerometerParameters, seed: int = 0):
+def signals_from_rest(n: int, p: am.EkfAccelerometerParameters, seed: int = 0):
     """The motion of the EKF tests' ``_signals`` (same amplitudes, frequencies and noise) but
     starting at rest: ``q = q0 + A (1 - cos w t)^2``, so that velocity, acceleration and jerk
     are zero at t = 0, where the filters' prior ``p(x_0)`` (at rest) has it. Returns the noisy
     motor angles, the noisy accelerometer (x, z), the jerk and the true state (n, 6)."""
     x, u = _motion(np.arange(n) * T)
-    mm = em.MeasurementModel(p.robot(), em.Layout(True, False))
+    mm = am.MeasurementModel(p.robot(), am.Layout(True, False))
     rng = np.random.default_rng(seed)
     qm = np.array([mm.motor_angles(xk) for xk in x]) + rng.normal(0, 1e-3, (n, 2))
     f = np.array([mm.specific_force(xk) for xk in x]) + rng.normal(0, 1e-2, (n, 2))
@@ -170,7 +172,7 @@ def _linear_run(p: pm.ParticleFilterParameters, steps: int):
     pf, kf = pm.ParticleFilterModel(p), em.EkfAccelerometerModel(p)
     rng = np.random.default_rng(2)                  # the same data for every PF seed
     x_true = kf.x.copy()
-    F, Gu, Gw = em.transition_matrices(T, kf.layout)
+    F, Gu, Gw = am.transition_matrices(T, kf.layout)
     for k in range(steps):
         if k:
             u = np.array([5.0, -3.0]) * math.sin(k / 3)
@@ -269,7 +271,7 @@ def test_absurd_measurement_reinitialises_without_nan(proposal: str) -> None:
 def test_nonfinite_prediction_is_a_named_divergence() -> None:
     pf = pm.ParticleFilterModel(pm.ParticleFilterParameters(n_particles=10))
     pf.update(pf.meas.h(pf.x))
-    with pytest.raises(em.FilterDivergence, match="time update"):
+    with pytest.raises(FilterDivergence, match="time update"):
         pf.predict((np.inf, 0.0), T)
 
 
@@ -395,9 +397,9 @@ def _model_signals(n: int, p: pm.ParticleFilterParameters, seed: int):
     """A run of the filter's own model (eqs. 13-15: the jerk reference of :func:`_motion` plus
     jerk noise of variance ``q_jerk``, measurement noise ``R``), so the EKF is near optimal."""
     rng = np.random.default_rng(seed)
-    layout = em.Layout(True, False)
-    mm = em.MeasurementModel(p.robot(), layout)
-    F, Gu, Gw = em.transition_matrices(T, layout)
+    layout = am.Layout(True, False)
+    mm = am.MeasurementModel(p.robot(), layout)
+    F, Gu, Gw = am.transition_matrices(T, layout)
     x0, u = _motion(np.arange(n) * T)
     x = np.empty((n, 6))
     x[0] = x0[0]

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from fmus.estimators import quaternion as qt
-from fmus.robot_plant.sensor_model import rot_rpy, rot_y
+from fmus.common import quaternion as qt
+from fmus.common.frames import rot_rpy, rot_y
 
 RNG = np.random.default_rng(7)
 

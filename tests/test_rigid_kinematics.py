@@ -68,7 +68,7 @@ def test_scalar_kernel_matches_the_numpy_version(compensate) -> None:
 def test_scalar_spring_pieces_match_the_numpy_functions() -> None:
     rng = np.random.default_rng(3)
     p = RobotParameters()
-    k = dynamics._constants(p)
+    k = dynamics.arm_constants(p)
     for _ in range(200):
         q = rng.uniform(-1.5, 1.5, 2)
         assert_allclose(k.gravity(*q), dynamics.gravity_torque(q, p), rtol=1e-15, atol=1e-12)

@@ -7,11 +7,15 @@ The FMU classes are driven in this process through their FMI methods (``set_real
 """
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
+
+from fmus.common.frames import G
+from fmus.estimators import axelsson2012_model as am
 
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators.ekf_accelerometer_fmu import EkfAccelerometer
@@ -179,11 +183,11 @@ def test_sensor_with_the_plants_stamp_is_bit_identical_under_our_master(cls, inp
 
 
 # ---- estimators ----------------------------------------------------------------------------
-def _measurements(n: int, p: em.EkfAccelerometerParameters, seed: int = 3):
+def _measurements(n: int, p: am.EkfAccelerometerParameters, seed: int = 3):
     """Motor angles and accelerometer readings (eq. 15 plus noise) of a smooth motion at the
     sample times k T, k = 0..n (jerk reference zero: the test isolates the measurement timing)."""
     rng = np.random.default_rng(seed)
-    model = em.MeasurementModel(p.robot(), em.Layout(True, False))
+    model = am.MeasurementModel(p.robot(), am.Layout(True, False))
     t = np.arange(n + 1) * T
     q0 = np.array(p.initial_angles())
     w = 2 * math.pi * 1.5
@@ -196,7 +200,7 @@ def _measurements(n: int, p: em.EkfAccelerometerParameters, seed: int = 3):
     return y
 
 
-def _ekf(p: em.EkfAccelerometerParameters, y0, t0: float | None) -> InProcess:
+def _ekf(p: am.EkfAccelerometerParameters, y0, t0: float | None) -> InProcess:
     s = InProcess(EkfAccelerometer, q_a0=tuple(p.q_a0))
     s.set(q_m_meas=y0[0:2], acc_s=(y0[2], 0.0, y0[3]))
     if t0 is not None:
@@ -210,7 +214,7 @@ def test_ekf_fuses_a_late_measurement_at_its_stamp() -> None:
     Gauss-Seidel master) and one step late with their stamps (a Jacobi master): the late run's
     estimate at t + T is the on-time run's estimate at t predicted by T. Without the stamp the
     late measurement would be fused as if taken at t + T (about 0.2 mrad off here)."""
-    p = em.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
+    p = am.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
     n = 60
     y = _measurements(n, p)
     on_time, late = _ekf(p, y[0], 0.0), _ekf(p, y[0], 0.0)
@@ -228,7 +232,7 @@ def test_ekf_fuses_a_late_measurement_at_its_stamp() -> None:
         late.set(q_m_meas=yl[0:2], acc_s=(yl[2], 0.0, yl[3]), t_meas=k * T)
         late.step()
         late_estimates.append(np.concatenate([late.get("q_a_hat", 2), late.get("dq_a_hat", 2)]))
-    F, _, _ = em.transition_matrices(T, ekf.layout)
+    F, _, _ = am.transition_matrices(T, ekf.layout)
     for k in range(1, n):
         expected = F @ posterior[k]              # the estimate at t_k predicted to t_{k+1}
         assert_allclose(late_estimates[k], expected[0:4], rtol=1e-9, atol=1e-12)
@@ -246,7 +250,7 @@ def test_ekf_stamped_on_time_is_bit_identical_to_unstamped(ratio: int) -> None:
     results must not change by a bit when the stamp is wired, also for a filter at 100 Hz fed
     by a 1 kHz sensor (whose stamp, t_k + 1 ms, differs from the filter's t + 10 ms in the last
     bits)."""
-    p = em.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
+    p = am.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
     y = _measurements(30, p)
     a, b = _ekf(p, y[0], 0.0), _ekf(p, y[0], None)
     for k in range(30):
@@ -264,7 +268,7 @@ def test_ekf_stamped_on_time_is_bit_identical_to_unstamped(ratio: int) -> None:
 def test_ekf_does_not_fuse_a_held_sample_twice() -> None:
     """A sensor at 500 Hz, the filter at 1 kHz: the held sample (same stamp) is not fused
     again; between samples the output is the prediction from the last one."""
-    p = em.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
+    p = am.EkfAccelerometerParameters(q_a0=(0.3, -0.2))
     y = _measurements(20, p)
     s = _ekf(p, y[0], 0.0)
     ekf = em.EkfAccelerometerModel(p)
@@ -306,8 +310,6 @@ def test_2009_ekf_fuses_a_late_measurement_at_its_stamp() -> None:
     """EkfMotor (Henriksson et al. 2009; the base shared with EkfComplete and EkfIntegrated):
     one step late with its stamp, the estimate at t + T is the on-time filter's estimate at t
     predicted by T with the torque set with that measurement (the plain model's steps)."""
-    import copy
-
     from fmus.estimators import ekf_flexible_model as fm
     from fmus.estimators.ekf_motor_fmu import EkfMotor
     p = fm.EkfMotorParameters()
@@ -336,3 +338,227 @@ def test_2009_ekf_fuses_a_late_measurement_at_its_stamp() -> None:
         ekf.predict(T)
         ekf.update(q_m[k + 1], None, tau[k + 1])
         assert_allclose(on_time.get("q_a_hat", 2), ekf.x[0:2], rtol=1e-12, atol=1e-15)
+
+
+# ---- the other estimators: the same property through the one adapter base ------------------
+def _imu_pose_signals(t: float) -> dict:
+    """A smooth tool motion as forward kinematics and IMU readings (consistency does not matter:
+    the test compares the filter with itself, fed on time and late)."""
+    w = 2 * math.pi * 1.5
+    return {"p_fk": (1.2 + 0.05 * math.sin(w * t), 0.8 + 0.03 * math.cos(w * t)),
+            "phi_fk": 0.1 * math.sin(w * t),
+            "acc_s": (0.4 * math.sin(w * t), 0.01, G + 0.2 * math.cos(w * t)),
+            "gyro_s": (0.002, 0.1 * w * math.cos(w * t), -0.001)}
+
+
+def _imu_model_args(sig: dict) -> tuple:
+    from fmus.common.frames import planar_pose
+    return (*planar_pose(sig["p_fk"], sig["phi_fk"]), np.array(sig["acc_s"]), np.array(sig["gyro_s"]))
+
+
+def _observer_signals(t: float) -> dict:
+    """Motor angles about the observer's start pose, the torque that holds it and a tool
+    accelerometer at rest, with small oscillations."""
+    from fmus.common import dynamics
+    from fmus.estimators import acceleration_observer_model as om
+    p = om.AccelerationObserverParameters()
+    robot = om.model_robot(p)
+    x0 = dynamics.static_equilibrium(p.initial_angles(), robot)
+    r = np.asarray(robot.gear_ratio, float)
+    s = math.sin(2 * math.pi * 2.0 * t)
+    return {"q_m_meas": tuple(x0[2:4] + r * np.array([0.01, -0.005]) * s),
+            "tau_m": tuple(dynamics.gravity_torque(x0[0:2], robot) / r * (1.0 + 0.1 * s)),
+            "acc_s": (0.3 * s, 0.0, G - 0.2 * s)}
+
+
+def _plain_cf(sig0: dict):
+    from fmus.estimators import complementary_filter_model as cfm
+    m = cfm.ComplementaryFilterModel(cfm.ComplementaryFilterParameters())
+    args = _imu_model_args(sig0)
+    m.reset(args[0], args[1], args[2], args[3])
+    return m
+
+
+def _plain_imu_ekf(sig0: dict):
+    from fmus.estimators import imu_ekf_model as iem
+    m = iem.ImuEkfModel(iem.ImuEkfParameters())
+    args = _imu_model_args(sig0)
+    m.reset(args[0], args[1], args[2], args[3])
+    return m
+
+
+def _plain_observer(sig0: dict):
+    from fmus.estimators import acceleration_observer_model as om
+    return om.AccelerationObserverModel(om.AccelerationObserverParameters())
+
+
+def _cf_outputs(m) -> np.ndarray:
+    return np.concatenate(m.mount.tool_pose(m.p_s, m.q_s))
+
+
+def _imu_ekf_outputs(m) -> np.ndarray:
+    return np.concatenate(m.mount.tool_pose(m.p, m.q))
+
+
+def _observer_outputs(m) -> np.ndarray:
+    return np.concatenate([m.q_a, m.dq_a])
+
+
+def _cf_step(m, sig: dict) -> None:
+    m.step(*_imu_model_args(sig), T)
+
+
+def _observer_step(m, sig: dict) -> None:
+    m.step(np.array(sig["q_m_meas"]), np.array(sig["acc_s"]), np.array(sig["tau_m"]), T)
+
+
+def _fmu_outputs(s: InProcess, kind: str) -> np.ndarray:
+    if kind == "observer":
+        return np.concatenate([s.get("q_a_hat", 2), s.get("dq_a_hat", 2)])
+    return np.concatenate([s.get("p_hat", 3), s.get("q_hat", 4)])
+
+
+def _estimator_cases():
+    from fmus.estimators.acceleration_observer_fmu import AccelerationObserver
+    from fmus.estimators.complementary_filter_fmu import ComplementaryFilter
+    from fmus.estimators.imu_ekf_fmu import ImuEkf
+    return [
+        pytest.param(ComplementaryFilter, _imu_pose_signals, _plain_cf, _cf_step, _cf_outputs, "pose",
+                     id="ComplementaryFilter"),
+        pytest.param(ImuEkf, _imu_pose_signals, _plain_imu_ekf, _cf_step, _imu_ekf_outputs, "pose",
+                     id="ImuEkf"),
+        pytest.param(AccelerationObserver, _observer_signals, _plain_observer, _observer_step,
+                     _observer_outputs, "observer", id="AccelerationObserver"),
+    ]
+
+
+@pytest.mark.parametrize("cls, signals, plain, plain_step, plain_outputs, kind", _estimator_cases())
+def test_filters_without_feedthrough_fuse_a_late_measurement_at_its_stamp(
+        cls, signals, plain, plain_step, plain_outputs, kind) -> None:
+    """ComplementaryFilter, ImuEkf, AccelerationObserver (no direct feedthrough): on time
+    (inputs of t + T with their stamp before doStep(t, T)) the FMU is the plain model stepped
+    sample by sample; one step late with their stamps (a Jacobi master), its output at t + T is
+    the plain model's estimate at t predicted by T (the model's own prediction, last inputs
+    held). Without stamps the late run fuses each sample a step too late and differs."""
+    n = 25
+    sig = [signals(k * T) for k in range(n + 1)]
+    on_time, late, unstamped = InProcess(cls), InProcess(cls), InProcess(cls)
+    for s in (on_time, late, unstamped):
+        s.set(**sig[0])
+    for s in (on_time, late):
+        s.set(t_meas=0.0)
+    for s in (on_time, late, unstamped):
+        s.init()
+    model = plain(sig[0])
+    for k in range(n):
+        on_time.set(**sig[k + 1], t_meas=(k + 1) * T)
+        late.set(**sig[k], t_meas=k * T)
+        unstamped.set(**sig[k])
+        for s in (on_time, late, unstamped):
+            s.step()
+        expected_late = copy.copy(model)        # the estimate at t_k predicted to t_{k+1}
+        expected_late.predict(T)
+        assert_allclose(_fmu_outputs(late, kind), plain_outputs(expected_late), rtol=1e-12, atol=1e-14)
+        plain_step(model, sig[k + 1])
+        assert_allclose(_fmu_outputs(on_time, kind), plain_outputs(model), rtol=1e-12, atol=1e-15)
+    assert np.abs(_fmu_outputs(unstamped, kind) - _fmu_outputs(late, kind)).max() > 1e-7
+
+
+def test_particle_filter_fuses_a_late_measurement_at_its_stamp() -> None:
+    """ParticleFilter (direct feedthrough, as the EKF): one step late with their stamps, the
+    estimate at t + T is the plain filter's estimate at t predicted by T, with the same random
+    draws (the generator state belongs to the estimate); the on-time run is the plain filter."""
+    from fmus.estimators import particle_filter_model as pm
+    from fmus.estimators.particle_filter_fmu import ParticleFilter
+    p = pm.ParticleFilterParameters(q_a0=(0.3, -0.2), n_particles=200)
+    n = 20
+    y = _measurements(n, p)
+    runs = []
+    for _ in range(3):
+        s = InProcess(ParticleFilter, q_a0=p.q_a0, n_particles=p.n_particles)
+        s.set(q_m_meas=y[0][0:2], acc_s=(y[0][2], 0.0, y[0][3]))
+        runs.append(s)
+    on_time, late, unstamped = runs
+    for s in (on_time, late):
+        s.set(t_meas=0.0)
+    for s in runs:
+        s.init()
+    pf = pm.ParticleFilterModel(p)
+    pf.update(y[0])
+    for k in range(n):
+        on_time.set(q_m_meas=y[k + 1][0:2], acc_s=(y[k + 1][2], 0.0, y[k + 1][3]), t_meas=(k + 1) * T)
+        late.set(q_m_meas=y[k][0:2], acc_s=(y[k][2], 0.0, y[k][3]), t_meas=k * T)
+        unstamped.set(q_m_meas=y[k][0:2], acc_s=(y[k][2], 0.0, y[k][3]))
+        for s in runs:
+            s.step()
+        expected_late = copy.copy(pf).predict((0.0, 0.0), T)
+        assert_allclose(late.get("q_a_hat", 2), expected_late[0:2], rtol=1e-12, atol=1e-15)
+        assert_allclose(late.get("dq_a_hat", 2), expected_late[2:4], rtol=1e-12, atol=1e-12)
+        pf.predict((0.0, 0.0), T)
+        x = pf.update(y[k + 1])
+        assert_allclose(on_time.get("q_a_hat", 2), x[0:2], rtol=1e-12, atol=1e-15)
+    assert np.abs(unstamped.get("q_a_hat", 2) - late.get("q_a_hat", 2)).max() > 1e-6
+
+
+def test_particle_filter_predicts_over_periods_without_a_new_sample() -> None:
+    """A sensor at 500 Hz, the particle filter at 1 kHz: the held sample is not fused again, and
+    the next update's prior is two periods ahead: its means are F^2 x + ..., and its noise factor
+    L has L L^T = F Gw Q Gw^T F^T + Gw Q Gw^T (eq. 14 twice)."""
+    from fmus.estimators import ekf_accelerometer_model as em
+    from fmus.estimators import particle_filter_model as pm
+    p = pm.ParticleFilterParameters(q_a0=(0.3, -0.2), n_particles=100)
+    pf = pm.ParticleFilterModel(p)
+    pf.update(_measurements(1, p)[0])
+    x0 = pf.x.copy()
+    pf.predict((0.0, 0.0), T)
+    x2 = pf.predict((0.0, 0.0), T)
+    F, _, Gw = am.transition_matrices(T, pf.layout)
+    assert_allclose(x2, F @ F @ x0, rtol=1e-13, atol=1e-15)
+    GQG = Gw @ pf.Q @ Gw.T
+    assert_allclose(pf.L @ pf.L.T, F @ GQG @ F.T + GQG, rtol=1e-10, atol=1e-18)
+
+
+@pytest.mark.parametrize("cls, signals, plain, plain_step, plain_outputs, kind", _estimator_cases())
+def test_filters_without_feedthrough_stamped_on_time_are_bit_identical(
+        cls, signals, plain, plain_step, plain_outputs, kind) -> None:
+    """Under our master a sensor stamps t + T (input_time), which the unconnected input assumes:
+    ComplementaryFilter, ImuEkf and AccelerationObserver give every output bit for bit the same
+    with the stamp wired as without (the shipped scenarios do not change)."""
+    a, b = InProcess(cls), InProcess(cls)
+    for s in (a, b):
+        s.set(**signals(0.0))
+    a.set(t_meas=0.0)
+    names = [n for n in a.vr if a.s.vars[a.vr[n]].causality.name == "output"]
+    for s in (a, b):
+        s.init()
+    for k in range(20):
+        for s in (a, b):
+            s.set(**signals((k + 1) * T))
+        a.set(t_meas=input_time(k * T, T))
+        a.step()
+        b.step()
+        assert_array_equal([a.get(n) for n in names], [b.get(n) for n in names])
+
+
+def test_particle_filter_stamped_on_time_is_bit_identical_to_unstamped() -> None:
+    """As for the EKF: the ParticleFilter with the sensors' on-time stamps wired gives the same
+    bits as unstamped (same updates, same random draws)."""
+    from fmus.estimators import particle_filter_model as pm
+    from fmus.estimators.particle_filter_fmu import ParticleFilter
+    p = pm.ParticleFilterParameters(q_a0=(0.3, -0.2), n_particles=100)
+    y = _measurements(15, p)
+    a, b = (InProcess(ParticleFilter, q_a0=p.q_a0, n_particles=p.n_particles) for _ in range(2))
+    for s in (a, b):
+        s.set(q_m_meas=y[0][0:2], acc_s=(y[0][2], 0.0, y[0][3]))
+    a.set(t_meas=0.0)
+    for s in (a, b):
+        s.init()
+    for k in range(15):
+        for s in (a, b):
+            s.set(q_m_meas=y[k + 1][0:2], acc_s=(y[k + 1][2], 0.0, y[k + 1][3]), dddq_a_ref=(0.3 * k, -0.1 * k))
+        a.set(t_meas=input_time(k * T, T))
+        a.step()
+        b.step()
+        for name in ("q_a_hat", "dq_a_hat", "ddq_a_hat", "p_tool_hat"):
+            assert_array_equal(a.get(name, 2), b.get(name, 2))
+        assert a.get("trace_P_q") == b.get("trace_P_q") and a.get("ess") == b.get("ess")

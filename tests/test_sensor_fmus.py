@@ -12,7 +12,8 @@ from numpy.testing import assert_allclose, assert_array_equal
 from fmu_host import Slave
 from orchestration.build import build_all, validate_fmu
 
-G = 9.81
+from fmus.common.frames import G
+
 NAMES = ["Encoder", "Imu", "ForceTorqueSensor", "ContactEnvironment"]
 STOP, DT = 0.05, 1e-3
 N_ROWS = int(round(STOP / DT)) + 1
@@ -81,9 +82,9 @@ def test_ideal_readings_at_rest(fmu_dir):
 def test_default_calibration_errors_at_rest(fmu_dir):
     """By default the IMU and the force sensor are mounted slightly misaligned and have
     scale-factor errors: at rest they read (1 + scale) R_mount^T (0, 0, g) (times m_tool)."""
-    from fmus.robot_plant.force_torque_sensor_fmu import ForceTorqueSensorParameters
-    from fmus.robot_plant.imu_fmu import ImuParameters
-    from fmus.robot_plant.sensor_model import rot_rpy
+    from fmus.robot_plant.sensor_model import ForceTorqueSensorParameters
+    from fmus.robot_plant.sensor_model import ImuParameters
+    from fmus.common.frames import rot_rpy
     ip, fp = ImuParameters(), ForceTorqueSensorParameters()
     quiet = dict(acc_noise=0.0, acc_bias_rw=0.0, acc_resolution=0.0, gyro_noise=0.0, gyro_bias_rw=0.0)
     acc = columns(sim(fmu_dir, "Imu", **quiet), "acc_s")

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from fmus.common.frames import G
 from fmus.common.noise import make_rng
 from fmus.robot_plant import sensor_model as sm
 
-G = 9.81
 
 
 # ---- noise helpers -------------------------------------------------------------------------
@@ -164,7 +164,8 @@ def test_force_sensor_at_rest_reads_tool_weight():
 
 # ---- environment ---------------------------------------------------------------------------
 def test_contact_force_zero_outside_spring_inside_never_pulls():
-    wall = sm.Wall(point=(1.0, 0.5), normal=(-1.0, 0.0), stiffness=5000.0, damping=100.0)
+    wall = sm.ContactEnvironmentParameters(wall_point=(1.0, 0.5), wall_normal=(-1.0, 0.0), stiffness=5000.0,
+                                           damping=100.0)
     assert_allclose(sm.contact_force([0.99, 0.5], [1.0, 0.0], wall), 0.0)
     assert_allclose(sm.contact_force([1.002, 7.0], [0.0, 0.3], wall), [-5000.0 * 0.002, 0.0])
     # moving into the wall adds damping
@@ -172,10 +173,11 @@ def test_contact_force_zero_outside_spring_inside_never_pulls():
     # retracting fast: spring-damper would pull; the wall lets go instead
     assert_allclose(sm.contact_force([1.002, 0.0], [-0.5, 0.0], wall), 0.0)
     assert sm.penetration([1.002, 0.0], wall) == pytest.approx(0.002)
-    off = sm.Wall(point=(1.0, 0.5), normal=(-1.0, 0.0), enabled=False)
+    off = sm.ContactEnvironmentParameters(wall_point=(1.0, 0.5), wall_normal=(-1.0, 0.0), enabled=False)
     assert_allclose(sm.contact_force([1.1, 0.0], [0.0, 0.0], off), 0.0)
     # an oblique wall: force along the (normalised) normal
-    tilted = sm.Wall(point=(0.0, 0.0), normal=(0.0, 2.0), stiffness=1000.0, damping=0.0)
+    tilted = sm.ContactEnvironmentParameters(wall_point=(0.0, 0.0), wall_normal=(0.0, 2.0), stiffness=1000.0,
+                                             damping=0.0)
     assert_allclose(sm.contact_force([0.3, -0.01], [0.0, 0.0], tilted), [0.0, 10.0])
 
 

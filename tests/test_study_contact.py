@@ -75,7 +75,7 @@ def test_plots_written(tmp_path):
 
 @pytest.mark.parametrize("structure", imp.STRUCTURES)
 def test_compliant_tool_study_reports_each_case(structure):
-    res = sc.compliant_tool_study(imp.ImpedanceDesign(structure=structure), t_end=2.0, speed=0.05)
+    res = sc.compliant_tool_study(imp.ImpedanceControllerParameters(structure=structure), t_end=2.0, speed=0.05)
     assert set(res) == {f"{c}/{fb}" for c in ("rigid", "compliant", "compliant_designed")
                         for fb in ("observer", "raw")}
     # rigid tool, and compliant tool with the tool in the LQR model: stable, force as predicted;

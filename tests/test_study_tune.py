@@ -106,8 +106,8 @@ def test_a_failing_candidate_costs_the_penalty_and_bad_bounds_are_refused(tmp_pa
 def test_sensor_floors_bound_the_ekf_measurement_noise() -> None:
     """Encoder: sqrt(noise^2 + step^2 / 12) (white noise plus uniform rounding error), and
     lambda5's low bound puts sqrt(lambda5) * r_motor exactly there; a noisier encoder raises it."""
-    from fmus.robot_plant.encoder_fmu import EncoderParameters
-    from fmus.robot_plant.imu_fmu import ImuParameters
+    from fmus.robot_plant.sensor_model import EncoderParameters
+    from fmus.robot_plant.sensor_model import ImuParameters
     p1 = st.load_document(Path(st.__file__).parent / "scenarios" / "henriksson2009_p1.toml")
     enc, imu = EncoderParameters(), ImuParameters()
     floors = st.sensor_floors(p1)

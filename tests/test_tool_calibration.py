@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from fmus.robot_plant.force_torque_sensor_fmu import ForceTorqueSensorParameters, calibration_readings
-from fmus.robot_plant.sensor_model import G, calibrate_tool, force_sensor_reading
+from fmus.common.frames import G
+from fmus.robot_plant.sensor_model import (ForceTorqueSensorParameters, calibrate_tool, calibration_readings,
+                                           force_sensor_reading)
 from orchestration.study_contact import SCENARIO_FILES
 
 POSES = (-0.6, -0.3, 0.0, 0.3, 0.6)      # tool angles (rad) the robot can tilt the tool to

@@ -25,15 +25,17 @@ import math
 
 import numpy as np
 
-from fmus.common import kinematics
 from fmus.common.parameters import as_array
 from fmus.common.robot_params import RobotParameters
 
 
-class _Constants:
-    """The parameters as plain floats, and the inertia constants of the planar arm.
+class ArmConstants:
+    """The parameters as plain floats, and the inertia and gravity constants of the planar arm
+    (eq. 11), the one place they are formed (plant, filters, identification and CRLB read them
+    here; :func:`arm_constants` caches them per parameter set).
 
-    ``M11 = a + 2 b(q2)``, ``M12 = c + b(q2)``, ``M22 = c`` with ``b = -m2 l1 c2 sin q2``.
+    ``M11 = a + 2 b(q2)``, ``M12 = c + b(q2)``, ``M22 = c`` with ``b = -e sin q2``,
+    ``e = m2 l1 c2``; gravity ``G = (-g1 sin q1 - g2 cos(q1 + q2), -g2 cos(q1 + q2))``.
     """
 
     def __init__(self, p: RobotParameters) -> None:
@@ -106,18 +108,18 @@ class _Constants:
         return dq1, dq2, dqm1, dqm2, ddq1, ddq2, ddqm1, ddqm2
 
 
-_CACHE: dict[int, _Constants] = {}
+_CACHE: dict[int, ArmConstants] = {}
 _CACHE_SIZE = 128      # a tuning study makes thousands of parameter sets: keep the cache bounded
 
 
-def _constants(p: RobotParameters) -> _Constants:
+def arm_constants(p: RobotParameters) -> ArmConstants:
     """Constants of ``p``, cached by identity (parameter sets are frozen; an entry keeps its ``p``
     alive, so an id is not reused while cached)."""
     k = _CACHE.get(id(p))
     if k is None:
         if len(_CACHE) >= _CACHE_SIZE:
             _CACHE.clear()
-        k = _CACHE[id(p)] = _Constants(p)
+        k = _CACHE[id(p)] = ArmConstants(p)
     return k
 
 
@@ -128,7 +130,7 @@ def _arr(v) -> np.ndarray:
 
 def mass_matrix(q, p: RobotParameters) -> np.ndarray:
     """Arm inertia matrix ``M(q_a)`` of eq. 11 (shape (..., 2, 2))."""
-    k = _constants(p)
+    k = arm_constants(p)
     b = -k.e * np.sin(_arr(q)[..., 1])
     m12 = k.c + b
     return np.stack([np.stack([k.a + 2 * b, m12], -1), np.stack([m12, np.full_like(b, k.c)], -1)], -2)
@@ -136,7 +138,7 @@ def mass_matrix(q, p: RobotParameters) -> np.ndarray:
 
 def coriolis(q, dq, p: RobotParameters) -> np.ndarray:
     """Coriolis and centrifugal torques ``C(q_a, dq_a) dq_a`` of eq. 11 (Christoffel symbols of M)."""
-    k = _constants(p)
+    k = arm_constants(p)
     bd = -k.e * np.cos(_arr(q)[..., 1])
     dq = _arr(dq)
     dq1, dq2 = dq[..., 0], dq[..., 1]
@@ -145,7 +147,7 @@ def coriolis(q, dq, p: RobotParameters) -> np.ndarray:
 
 def gravity_torque(q, p: RobotParameters) -> np.ndarray:
     """Gravity torques ``G(q_a) = dV/dq_a`` of eq. 11 (``V``: potential energy of the links)."""
-    k = _constants(p)
+    k = arm_constants(p)
     q = _arr(q)
     cp = np.cos(q[..., 0] + q[..., 1])
     return np.stack([-k.g1 * np.sin(q[..., 0]) - k.g2 * cp, -k.g2 * cp], -1)
@@ -159,7 +161,7 @@ def inverse_dynamics_rigid(q, dq, ddq, p: RobotParameters) -> np.ndarray:
 
 def spring_torque(q_a, q_m, p: RobotParameters) -> np.ndarray:
     """Gearbox spring torque ``tau_s(D)``, ``D = q_m / r - q_a`` (arm side, without damping)."""
-    k = _constants(p)
+    k = arm_constants(p)
     D = _arr(q_m) / np.array(k.r) - _arr(q_a)
     delta = np.array(k.delta)
     return np.array(k.k_hi) * D - np.array(k.k_soft) * delta * np.tanh(D / delta)
@@ -167,14 +169,14 @@ def spring_torque(q_a, q_m, p: RobotParameters) -> np.ndarray:
 
 def spring_stiffness(D, p: RobotParameters) -> np.ndarray:
     """``d tau_s / dD`` at the deflection ``D``: ``k_lo`` at zero, ``k_hi`` for ``|D| >> delta``."""
-    k = _constants(p)
+    k = arm_constants(p)
     return np.array(k.k_hi) - np.array(k.k_soft) / np.cosh(_arr(D) / np.array(k.delta)) ** 2
 
 
 def spring_deflection(tau, p: RobotParameters, D0=None) -> np.ndarray:
     """The deflection ``D`` with ``tau_s(D) = tau`` (Newton's method; ``tau_s`` is monotonic),
     from ``D0`` if given (a nearby solution: one or two steps)."""
-    k = _constants(p)
+    k = arm_constants(p)
     tau = _arr(tau)
     k_hi, k_soft, delta = np.array(k.k_hi), np.array(k.k_soft), np.array(k.delta)
     if D0 is not None:
@@ -192,7 +194,7 @@ def spring_deflection(tau, p: RobotParameters, D0=None) -> np.ndarray:
 
 def motor_friction(dq_m, p: RobotParameters) -> np.ndarray:
     """Motor friction ``f_v w + f_c tanh(w / w_c)`` (motor side; smooth Coulomb friction)."""
-    k = _constants(p)
+    k = arm_constants(p)
     w = _arr(dq_m)
     return np.array(k.f_v) * w + np.array(k.f_c) * np.tanh(w / np.array(k.w_c))
 
@@ -200,7 +202,7 @@ def motor_friction(dq_m, p: RobotParameters) -> np.ndarray:
 def derivatives(x, tau_m, f_ext, p: RobotParameters) -> np.ndarray:
     """``x_dot`` of the flexible-joint model (eqs. 10-11) at state ``x``, motor torque ``tau_m``
     (motor side) and external tool force ``f_ext`` (world x, z)."""
-    return np.array(_constants(p).derivatives(tuple(map(float, x)), float(tau_m[0]), float(tau_m[1]),
+    return np.array(arm_constants(p).derivatives(tuple(map(float, x)), float(tau_m[0]), float(tau_m[1]),
                                               float(f_ext[0]), float(f_ext[1])))
 
 
@@ -211,7 +213,7 @@ def arm_acceleration(x, f_ext, p: RobotParameters) -> np.ndarray:
 
 def energy(x, p: RobotParameters) -> float:
     """Total mechanical energy: kinetic (arm and motors), gravity and spring potential."""
-    k = _constants(p)
+    k = arm_constants(p)
     q, qm, dq, dqm = x[0:2], x[2:4], np.asarray(x[4:6], float), x[6:8]
     kinetic = 0.5 * dq @ mass_matrix(q, p) @ dq + 0.5 * sum(k.jm[i] * dqm[i] ** 2 for i in range(2))
     q1, phi = float(q[0]), float(q[0]) + float(q[1])
@@ -264,7 +266,7 @@ class FlexibleRobotModel:
 
     def __init__(self, p: RobotParameters, q_a0, substeps: int = 1) -> None:
         self.p = p
-        self._k = _Constants(p)
+        self._k = ArmConstants(p)
         self._s = tuple(float(v) for v in static_equilibrium(q_a0, p))
         self.substeps = int(substeps)
         self.t = 0.0

@@ -150,3 +150,51 @@ def inverse_kinematics(p_tool, p) -> np.ndarray:
     q2 = math.asin(s2)
     q1 = math.atan2(x, z) - math.atan2(p.l2 * math.cos(q2), p.l1 - p.l2 * s2)
     return np.array([q1, q2])
+
+
+# ---- vectorised over many poses (trajectory tables), links given as floats ------------------
+def tool_position_many(q: np.ndarray, l1: float, l2: float) -> np.ndarray:
+    """Tool position of the planar arm (:func:`tool_position`), vectorised over the leading axes
+    of ``q`` (..., 2), for the links ``l1``, ``l2``.
+
+    ``p = l1 (sin q1, cos q1) + l2 (cos(q1 + q2), -sin(q1 + q2))`` (project convention).
+    """
+    q1, q12 = q[..., 0], q[..., 0] + q[..., 1]
+    return np.stack([l1 * np.sin(q1) + l2 * np.cos(q12), l1 * np.cos(q1) - l2 * np.sin(q12)], axis=-1)
+
+
+def inverse_kinematics_many(p: np.ndarray, l1: float, l2: float) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form IK (:func:`inverse_kinematics`) of many points ``p`` (n, 2), on the branch of
+    the home pose (``|q2| <= pi/2``), for the links ``l1``, ``l2``; no error for unreachable points.
+
+    ``|p|^2 = l1^2 + l2^2 - 2 l1 l2 sin q2`` gives ``q2``; with ``A = l1 - l2 sin q2`` and
+    ``B = l2 cos q2``, ``x = A sin q1 + B cos q1``, ``z = A cos q1 - B sin q1`` give
+    ``q1 = atan2(x, z) - atan2(B, A)``.
+
+    Returns
+    -------
+    q
+        (n, 2) arm angles [rad] (NaN where unreachable).
+    sin_q2
+        (n,) the value of ``sin q2`` before clipping (|.| > 1: out of reach).
+    """
+    x, z = p[:, 0], p[:, 1]
+    s2 = (l1 * l1 + l2 * l2 - (x * x + z * z)) / (2.0 * l1 * l2)
+    with np.errstate(invalid="ignore"):
+        q2 = np.arcsin(s2)
+    a = l1 - l2 * np.sin(q2)
+    b = l2 * np.cos(q2)
+    q1 = np.arctan2(x, z) - np.arctan2(b, a)
+    return np.stack([q1, q2], axis=1), s2
+
+
+def jacobian_many(q: np.ndarray, l1: float, l2: float) -> np.ndarray:
+    """Tool Jacobian ``dp/dq`` (:func:`jacobian` of the tool) of many arm angles ``q`` (n, 2),
+    (n, 2, 2), for the links ``l1``, ``l2``."""
+    q1, q12 = q[:, 0], q[:, 0] + q[:, 1]
+    jac = np.empty((q.shape[0], 2, 2))
+    jac[:, 0, 0] = l1 * np.cos(q1) - l2 * np.sin(q12)
+    jac[:, 0, 1] = -l2 * np.sin(q12)
+    jac[:, 1, 0] = -l1 * np.sin(q1) - l2 * np.cos(q12)
+    jac[:, 1, 1] = -l2 * np.cos(q12)
+    return jac

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fmus.common.frames import G
 from fmus.common.parameters import ParameterError, fields, param
 
-G = 9.81  #: standard gravity [m/s^2]
 
 
 @dataclass(frozen=True)

@@ -23,16 +23,22 @@ def measurement_time(t_meas: float, now: float) -> float:
     return t_meas if t_meas >= 0.0 else now
 
 
+def span(t0: float, t1: float) -> float:
+    """The length of the interval from ``t0`` to ``t1``, rounded as
+    :func:`fmus.common.fmi.nominal_step` rounds the host's step (so that the interval of one
+    communication step has the same bits as the step itself)."""
+    return nominal_step(t1 - t0)
+
+
 def intervals(t0: float, t1: float, step: float) -> tuple[int, float]:
     """The prediction from ``t0`` to ``t1`` as ``n`` equal intervals of about ``step`` (the
     estimator's sample period: its discrete model and noise are per sample), ``(n, length)``.
 
-    The length is rounded as :func:`fmus.common.fmi.nominal_step` rounds the host's step, so
-    one interval of one communication step has the same bits as the step itself.
+    The length is rounded as :func:`span` rounds.
     """
-    span = t1 - t0
-    n = max(1, round(span / step)) if step > 0.0 else 1     # NaN before the first step: 1
-    return n, nominal_step(span / n)
+    length = t1 - t0
+    n = max(1, round(length / step)) if step > 0.0 else 1     # NaN before the first step: 1
+    return n, nominal_step(length / n)
 
 
-__all__ = ["UNSTAMPED", "TIME_TOL", "T_MEAS_DESCRIPTION", "measurement_time", "intervals"]
+__all__ = ["UNSTAMPED", "TIME_TOL", "T_MEAS_DESCRIPTION", "measurement_time", "span", "intervals"]

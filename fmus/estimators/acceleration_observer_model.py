@@ -79,11 +79,8 @@ filter adds no integration error. ``static_gravity_compensation = false`` uses `
 (the paper's rigid kinematics: no stiffness in it, so immune to stiffness errors, but sagging
 under gravity).
 
-Measured (``flexfusion study robustness``, path P1 at 2 kHz, default poles, 2026-11-26): the
-paper's observer 1.74 / 0.82 mm max / mean error over all frequencies (rigid kinematics 2.18 /
-0.55), 0.043 mm mean in 3-30 Hz (rigid 0.181); with the fusion at 1 Hz 0.94 / 0.43 mm and
-0.031 mm. The fusion's static estimate uses the model's stiffness, so with a 50 % stiffness
-error its low-frequency error is that of the wrong gravity compensation (a few mm).
+Measured figures (P1, with and without the fusion, and with a stiffness error):
+docs/henriksson2009_ekf_notes.md.
 """
 from __future__ import annotations
 
@@ -94,6 +91,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from fmus.common import dynamics, kinematics
+from fmus.common.kalman import FilterDivergence
 from fmus.common.parameters import ParameterError, as_array, param, replace
 from fmus.common.robot_params import RobotAtInitialPose, RobotParameters
 
@@ -146,10 +144,6 @@ def model_robot(p: AccelerationObserverParameters) -> RobotParameters:
         return r
     s = float(p.stiffness_scale)
     return replace(r, k_hi=tuple(s * k for k in r.k_hi), k_lo=tuple(s * k for k in r.k_lo))
-
-
-class ObserverDivergence(FloatingPointError):
-    """The observer's state became non-finite."""
 
 
 # ---- the linear part -----------------------------------------------------------------------
@@ -360,7 +354,7 @@ class AccelerationObserverModel:
         self.r = as_array(p.gear_ratio)
         self.q_fused = x0[0:2].copy()
         self._integral = np.zeros(2)
-        self._k = dynamics._constants(self.robot)
+        self._k = dynamics.arm_constants(self.robot)
         self._D = list(dynamics.spring_deflection(dynamics.gravity_torque(x0[0:2], self.robot),
                                                   self.robot))    # warm start of the deflection
         self._T: float | None = None
@@ -411,6 +405,7 @@ class AccelerationObserverModel:
         q1, q2 = float(self.q_fused[0]), float(self.q_fused[1])
         cp = math.cos(q1 + q2)
         G = (-k.g1 * math.sin(q1) - k.g2 * cp, -k.g2 * cp)          # dynamics.gravity_torque
+        self._D = list(self._D)          # a new list: a copy of the observer shares the old one
         for i in range(2):
             D = self._D[i]
             for _ in range(20):
@@ -434,6 +429,16 @@ class AccelerationObserverModel:
         return np.array([ddq[0], float(tau_m[0]) + n[0], float(q_m_meas[0]),
                          ddq[1], float(tau_m[1]) + n[1], float(q_m_meas[1])])
 
+    def predict(self, T: float) -> None:
+        """The estimate ``T`` ahead without new measurements: the observer's model with its last
+        inputs held (the output of an observer whose newest measurement is older than now)."""
+        if self._u_prev is None:
+            return                            # no measurement yet: the start estimate holds
+        self._matrices(float(T))
+        z_new = self.Phi @ self.z + self.G0 @ self._u_prev
+        self.q_fused = self.q_fused + (z_new[[0, 4]] - self.z[[0, 4]])
+        self.z = z_new
+
     def step(self, q_m_meas, acc_s, tau_m, T: float) -> None:
         """Advance from ``t`` to ``t + T``; the measurements are those of ``t + T``.
 
@@ -444,7 +449,7 @@ class AccelerationObserverModel:
 
         Raises
         ------
-        ObserverDivergence
+        FilterDivergence
             If the state becomes non-finite (e.g. non-finite inputs).
         """
         self._matrices(float(T))
@@ -456,7 +461,7 @@ class AccelerationObserverModel:
             u_prev = u if self._u_prev is None else self._u_prev
             z_new = self.Phi @ z + self.G0 @ u_prev + self.G1 @ (u - u_prev)
         if not np.all(np.isfinite(z_new)):
-            raise ObserverDivergence("the acceleration observer diverged: non-finite state "
+            raise FilterDivergence("the acceleration observer diverged: non-finite state "
                                      "(non-finite inputs, or an estimate far from the truth)")
         q_old = z[[0, 4]]
         self.z = z_new
@@ -464,7 +469,7 @@ class AccelerationObserverModel:
         if self.omega_c > 0:
             pred = self.q_fused + (z_new[[0, 4]] - q_old)
             e = self.static_angles(q_m_meas) - pred
-            self._integral += e
+            self._integral = self._integral + e
             self.q_fused = pred + self.alpha * e + self.beta * self._integral
 
     def tool_position(self) -> np.ndarray:
@@ -472,7 +477,7 @@ class AccelerationObserverModel:
         return kinematics.tool_position(self.q_a, self.robot)
 
 
-__all__ = ["AccelerationObserverParameters", "AccelerationObserverModel", "ObserverDivergence",
+__all__ = ["AccelerationObserverParameters", "AccelerationObserverModel",
            "joint_matrices", "characteristic_polynomial", "poles", "ackermann_gain",
            "model_robot", "observer_gains", "closed_loop_matrix", "discretise", "damped_solve",
            "measured_arm_acceleration", "nonlinear_torque"]

@@ -53,10 +53,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fmus.common import quaternion as qt
+from fmus.common.frames import G, RigidMount, rot_rpy
 from fmus.common.parameters import ParameterError, param
-from fmus.common.robot_params import G
-from fmus.estimators import quaternion as qt
-from fmus.robot_plant.sensor_model import rot_rpy
 
 PAPER = "IMU paper (CF vs EKF on an IRB4600), section 4.1"
 
@@ -127,7 +126,7 @@ class ComplementaryFilterModel:
 
     def __init__(self, params: ComplementaryFilterParameters) -> None:
         self.params = params
-        self.mount = qt.RigidMount(params.lever_arm, rot_rpy(params.mount_rpy))
+        self.mount = RigidMount(params.lever_arm, rot_rpy(params.mount_rpy))
         self.g_vec = np.array([0.0, 0.0, -params.g])
         self._dt = None
         self._gains = (0.0, 0.0, 0.0, 0.0)
@@ -175,6 +174,15 @@ class ComplementaryFilterModel:
         self._w_prev = tuple(float(x) for x in gyro_s)
         self._a_prev = self.world_acceleration(self.q_s, acc_s)
 
+    def predict(self, dt: float) -> None:
+        """The estimate ``dt`` ahead without a new sample: the last rate (bias removed) and
+        acceleration held (the output of a filter whose newest sample is older than now)."""
+        w, b = self._w_prev, self.b_gyro
+        self.q_s = qt.propagate(self.q_s, (w[0] - b[0], w[1] - b[1], w[2] - b[2]), dt)
+        a = self._a_prev
+        self.p_s = self.p_s + dt * self.v_s + (0.5 * dt * dt) * a
+        self.v_s = self.v_s + dt * a
+
     def step(self, p_tool_fk, q_tool_fk, acc_s, gyro_s, dt: float) -> None:
         """Advance one sample of length ``dt`` with the new kinematic pose and IMU sample."""
         if self._dt is None or abs(dt - self._dt) > 1e-12 * dt:
@@ -211,10 +219,5 @@ class ComplementaryFilterModel:
         self._a_prev = a
 
 
-def planar_pose(p_xz, phi: float) -> tuple[np.ndarray, np.ndarray]:
-    """3-D pose of a planar tool pose: position ``(x, 0, z)`` and ``Ry(phi)`` as a quaternion."""
-    return np.array([float(p_xz[0]), 0.0, float(p_xz[1])]), qt.from_angle_y(phi)
-
-
 __all__ = ["ComplementaryFilterParameters", "ComplementaryFilterModel", "discrete_gains",
-           "split_response", "planar_pose"]
+           "split_response"]

@@ -6,7 +6,7 @@ communication step, whose length is the sample period ``T`` of eqs. 13-14 (the p
 Timing: the outputs at time ``t`` are the estimate of the state at ``t``. Each measurement
 (``q_m_meas`` and ``acc_s``, sampled together as in the paper) is fused at the time it was taken,
 the optional input ``t_meas`` (the sensors' output of that name), and predicted on to ``t``
-(:mod:`fmus.estimators.stamped_estimator`); the prediction over an interval uses the mean of the
+(:mod:`fmus.common.filter_adapter`); the prediction over an interval uses the mean of the
 jerk reference at its ends (the input at the step and at the last fused measurement), not the
 end value alone, which would lead the model by half the interval. Direct feedthrough from
 ``q_m_meas``, ``acc_s`` and ``t_meas``.
@@ -17,9 +17,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fmus.common.robot_params import G
+from fmus.common.filter_adapter import FilterAdapter
+from fmus.common.frames import G
+from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
-from fmus.estimators.stamped_estimator import StampedEstimator
 
 _TRIL = np.tril_indices(6)     # the arm states' covariance, packed (output P_x)
 
@@ -34,12 +35,11 @@ class Estimate(NamedTuple):
     u: np.ndarray
 
 
-class EkfAccelerometer(StampedEstimator):
+class EkfAccelerometer(FilterAdapter):
     """Arm angles, velocities and accelerations from motor angles and a tool accelerometer (EKF)."""
 
-    parameters_class = em.EkfAccelerometerParameters
+    parameters_class = am.EkfAccelerometerParameters
     description = "EKF of arm angles from motor angles and a tool accelerometer (Axelsson et al. 2012)"
-    divergence = em.FilterDivergence
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -64,7 +64,7 @@ class EkfAccelerometer(StampedEstimator):
                     description="filtered covariance of (q_a, dq_a, ddq_a), lower triangle row by row "
                     "(numpy.tril_indices(6)); SI units (rad, rad/s, rad/s2) of each product")
 
-    def setup(self, params: em.EkfAccelerometerParameters) -> None:
+    def setup(self, params: am.EkfAccelerometerParameters) -> None:
         self.ekf = em.EkfAccelerometerModel(params)
         self._ix, self._iz = params.index_x - 1, params.index_z - 1
         self._u = self.dddq_a_ref.copy()           # the jerk input at the last step

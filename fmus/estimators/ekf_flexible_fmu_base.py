@@ -7,7 +7,7 @@ Euler discretisation (the paper: 2 kHz).
 Timing (as EkfAccelerometer's): the outputs at time ``t`` are the estimate of the state at
 ``t``. Each measurement (``q_m_meas``, ``acc_s``) is fused at the time it was taken, the optional
 input ``t_meas`` (the sensors' output), and predicted on to ``t``
-(:mod:`fmus.estimators.stamped_estimator`); the motor torque ``tau_m`` set with a measurement is
+(:mod:`fmus.common.filter_adapter`); the motor torque ``tau_m`` set with a measurement is
 the input of the prediction that follows it. EKF Integrated's trapezoidal velocity integral uses
 the last prediction period, so it assumes samples one filter period apart.
 """
@@ -15,17 +15,16 @@ from __future__ import annotations
 
 import copy
 
-from fmus.common.robot_params import G
+from fmus.common.filter_adapter import FilterAdapter
+from fmus.common.frames import G
 from fmus.estimators import ekf_flexible_model as em
-from fmus.estimators.stamped_estimator import StampedEstimator
 
 
-class EkfFlexibleSlave(StampedEstimator):
+class EkfFlexibleSlave(FilterAdapter):
     """Base of the three EKF FMUs; a subclass sets ``variant``, ``parameters_class`` and
     ``description``. An estimate is an :class:`~fmus.estimators.ekf_flexible_model.EkfFlexibleModel`
     (copied before it changes)."""
 
-    divergence = em.FilterDivergence
     variant = "motor"
 
     def __init__(self, **kwargs):
@@ -63,11 +62,6 @@ class EkfFlexibleSlave(StampedEstimator):
 
     def setup(self, params) -> None:
         self.start_fusion(em.EkfFlexibleModel(params, self.variant))
-
-    def _predicted(self, est: em.EkfFlexibleModel, T: float) -> em.EkfFlexibleModel:
-        est = copy.copy(est)          # shallow: a prediction replaces arrays, never changes them
-        est.predict(T)
-        return est
 
     def _fused(self, prior: em.EkfFlexibleModel) -> em.EkfFlexibleModel:
         r = prior.filtered(self.q_m_meas, None if self.variant == "motor" else self.acc_s, self.tau_m)

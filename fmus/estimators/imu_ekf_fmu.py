@@ -3,22 +3,23 @@
 The math is in :mod:`fmus.estimators.imu_ekf_model` (3-D, error-state quaternion); this adapter
 maps the planar kinematic pose (world x, z and the angle about +y) to 3-D and back.
 
-Timing: as the ComplementaryFilter, no direct feedthrough: ``do_step(t, T)`` predicts to
-``t + T`` and fuses the inputs present at the call as the measurements at ``t + T`` (on time
-under a Gauss-Seidel master).
+Timing: no direct feedthrough. ``do_step(t, T)`` fuses the inputs present at the call at the
+time they were taken, the optional input ``t_meas`` (the Imu's output; the kinematic pose counts
+as taken with it), and outputs the estimate predicted on to ``t + T``
+(:mod:`fmus.common.filter_adapter`). Unconnected, the inputs count as the measurements at
+``t + T``: on time under a Gauss-Seidel master. The initial inputs start the filter.
 """
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
-from fmus.common.fmi import FlexFusionSlave
-from fmus.common.robot_params import G
-from fmus.estimators import complementary_filter_model as cfm
 from fmus.estimators import imu_ekf_model as iem
-from fmus.estimators import quaternion as qt
+from fmus.estimators.imu_pose_adapter import ImuPoseAdapter
 
 
-class ImuEkf(FlexFusionSlave):
+class ImuEkf(ImuPoseAdapter):
     """Tool pose from forward kinematics and a tool IMU by an error-state EKF with position,
     velocity, acceleration, orientation, angular rate and IMU bias states.
 
@@ -32,51 +33,25 @@ class ImuEkf(FlexFusionSlave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.input("p_fk", 2, unit="m", description="forward-kinematics tool position, world x and z")
-        self.input("phi_fk", unit="rad", description="forward-kinematics tool angle about world y")
-        self.input("acc_s", 3, unit="m/s2", description="IMU specific force, sensor frame",
-                   start=(0.0, 0.0, G))
-        self.input("gyro_s", 3, unit="rad/s", description="IMU angular rate, sensor frame")
-        self.output("p_tool_hat", 2, unit="m", description="estimated tool position, world x and z")
-        self.output("phi_tool_hat", unit="rad", description="estimated tool angle about world y")
-        self.output("p_hat", 3, unit="m", description="estimated tool position, world x, y, z")
-        self.output("q_hat", 4, unit="1", description="estimated tool orientation, unit quaternion "
-                    "(w, x, y, z), tool to world", start=(1.0, 0.0, 0.0, 0.0))
         self.output("b_acc_hat", 3, unit="m/s2", description="accelerometer bias estimate, sensor frame")
         self.output("b_gyro_hat", 3, unit="rad/s", description="gyro bias estimate, sensor frame")
         self.output("std_position", unit="m", description="filter's position standard deviation "
                     "(root of the trace of the position covariance)")
         self.output("nis", unit="1", description="normalised innovation squared of the last update")
 
-    def _pose(self):
-        return cfm.planar_pose(self.p_fk, self.phi_fk)
-
     def setup(self, params: iem.ImuEkfParameters) -> None:
-        self.ekf = iem.ImuEkfModel(params)
-        p, q = self._pose()
-        self.ekf.reset(p, q, self.acc_s, self.gyro_s)
-        self._diverged = ""
-        self._publish()
+        ekf = iem.ImuEkfModel(params)
+        ekf.reset(*self._pose(), self.acc_s, self.gyro_s)
+        self.start_fusion(ekf)
 
-    def _publish(self) -> None:
-        e = self.ekf
-        p, q = e.mount.tool_pose(e.p, e.q)
-        self.p_hat[:] = p
-        self.p_tool_hat[0], self.p_tool_hat[1] = p[0], p[2]
-        self.q_hat[:] = q
-        self.phi_tool_hat = qt.angle_y(q)
+    def _fused(self, prior: iem.ImuEkfModel) -> iem.ImuEkfModel:
+        est = copy.copy(prior)
+        est.update(*self._pose(), self.acc_s, self.gyro_s)
+        return est
+
+    def _show(self, e: iem.ImuEkfModel) -> None:
+        self._show_pose(e.mount, e.p, e.q)
         self.b_acc_hat[:] = e.b_acc
         self.b_gyro_hat[:] = e.b_gyro
         self.std_position = float(np.sqrt(np.trace(e.P[0:3, 0:3])))
         self.nis = e.nis
-
-    def step(self, t: float, dt: float) -> None:
-        if self._diverged:
-            raise iem.FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate")
-        p, q = self._pose()
-        try:
-            self.ekf.step(p, q, self.acc_s, self.gyro_s, dt)
-        except iem.FilterDivergence as exc:
-            self._diverged = f"{exc} (at t = {t + dt:.6g} s)"
-            raise iem.FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate") from None
-        self._publish()

@@ -42,18 +42,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fmus.common import quaternion as qt
+from fmus.common.frames import G, RigidMount, rot_rpy
+from fmus.common.kalman import FilterDivergence, check_estimate
 from fmus.common.parameters import ParameterError, param
-from fmus.common.robot_params import G
-from fmus.estimators import quaternion as qt
-from fmus.robot_plant.sensor_model import rot_rpy
 
 PAPER = "IMU paper (CF vs EKF on an IRB4600), section 4.2"
 N = 21
 P_, V_, A_, TH, W_, BA, BG = (slice(3 * i, 3 * i + 3) for i in range(7))
-
-
-class FilterDivergence(FloatingPointError):
-    """The filter's state or covariance became non-finite or lost positive definiteness."""
 
 
 @dataclass(frozen=True)
@@ -104,7 +100,7 @@ class ImuEkfModel:
 
     def __init__(self, params: ImuEkfParameters) -> None:
         self.params = params
-        self.mount = qt.RigidMount(params.lever_arm, rot_rpy(params.mount_rpy))
+        self.mount = RigidMount(params.lever_arm, rot_rpy(params.mount_rpy))
         self.g_vec = np.array([0.0, 0.0, -params.g])
         p = params
         self.R = np.diag(np.repeat([p.r_position ** 2, p.r_orientation ** 2, p.r_acc ** 2,
@@ -226,15 +222,7 @@ class ImuEkfModel:
         self.w = self.w + dx[W_]
         self.b_acc = self.b_acc + dx[BA]
         self.b_gyro = self.b_gyro + dx[BG]
-        self.check()
-
-    def check(self) -> None:
-        """Raise :class:`FilterDivergence` if the state or covariance is not finite or the
-        covariance has a non-positive diagonal."""
-        if not (math.isfinite(float(self.p.sum() + self.q.sum())) and np.isfinite(self.P).all()):
-            raise FilterDivergence("the state or covariance is not finite")
-        if not np.diag(self.P).min() > 0.0:
-            raise FilterDivergence("the covariance lost positive definiteness (diagonal <= 0)")
+        check_estimate(np.concatenate([self.p, self.q]), self.P, "EKF diverged in the measurement update")
 
     def step(self, p_tool_fk, q_tool_fk, acc_s, gyro_s, dt: float) -> None:
         """Predict over ``dt`` and update with the sample at its end."""
@@ -242,4 +230,4 @@ class ImuEkfModel:
         self.update(p_tool_fk, q_tool_fk, acc_s, gyro_s)
 
 
-__all__ = ["ImuEkfParameters", "ImuEkfModel", "FilterDivergence"]
+__all__ = ["ImuEkfParameters", "ImuEkfModel"]

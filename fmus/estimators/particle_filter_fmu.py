@@ -7,29 +7,42 @@ without which the cloud's angle and velocity spread collapses under the rank-2 (
 noise and the filter drifts (see the model's docstring). The filter runs once per
 communication step, whose length is the sample period ``T`` of eqs. 13-14 (the paper: 100 Hz).
 
-Timing (as the EkfAccelerometer FMU): the outputs at time ``t`` are the filtered estimate from
-the measurements set at ``t`` (direct feedthrough from ``q_m_meas`` and ``acc_s``).
-``do_step(t, T)`` commits the last such update, predicts to ``t + T`` with the mean of the jerk
-reference inputs at ``t`` and ``t + T``
-and fuses the measurement inputs as they are now, as the measurement at ``t + T``. Recomputing
-the update for changed inputs redraws the same random numbers (the RNG advances on commit), so
-a run is reproducible for a given ``seed`` whatever the master's get/set pattern. The period
-``T`` is the host's step rounded to 12 significant digits (the base class's nominal step): hosts
-pass steps that differ in the last bits (fmpy's ``simulate_fmu``: ``(n + 1) h - n h``), which
-changed ``F`` and ``Q`` and so the estimate from the first such step on.
+Timing (as the EkfAccelerometer FMU): the outputs at time ``t`` are the estimate of the state at
+``t``. Each measurement (``q_m_meas`` and ``acc_s``) is fused at the time it was taken, the
+optional input ``t_meas`` (the sensors' output), and predicted on to ``t``
+(:mod:`fmus.common.filter_adapter`); the prediction over an interval uses the mean of the jerk
+reference at its ends, not the end value alone, which would lead the model by half the
+interval. Direct feedthrough from ``q_m_meas``, ``acc_s`` and ``t_meas``. Recomputing the update
+for changed inputs redraws the same random numbers (the generator's state is part of the
+estimate and advances on commit), so a run is reproducible for a given ``seed`` whatever the
+master's get/set pattern. The period ``T`` is the host's step rounded to 12 significant digits
+(the base class's nominal step): hosts pass steps that differ in the last bits (fmpy's
+``simulate_fmu``: ``(n + 1) h - n h``), which changed ``F`` and ``Q`` and so the estimate.
 """
 from __future__ import annotations
+
+import copy
+from typing import NamedTuple
 
 import numpy as np
 from pythonfmu.enums import Fmi2Status
 
-from fmus.common.fmi import FlexFusionSlave
-from fmus.common.robot_params import G
+from fmus.common.filter_adapter import FilterAdapter
+from fmus.common.frames import G
 from fmus.estimators import particle_filter_model as pm
-from fmus.estimators.ekf_accelerometer_model import FilterDivergence
 
 
-class ParticleFilter(FlexFusionSlave):
+class Estimate(NamedTuple):
+    """The filter (a copy: its particles, weights and generator state), its estimate, its last
+    update, and the jerk reference at its time."""
+
+    pf: pm.ParticleFilterModel
+    x: np.ndarray                  #: the estimate: the update's mean (eq. 6), or its prediction
+    last: pm.FilterStep | None
+    u: np.ndarray
+
+
+class ParticleFilter(FilterAdapter):
     """Arm angles, velocities and accelerations from motor angles and a tool accelerometer
     (particle filter, the EKF's model).
 
@@ -50,7 +63,8 @@ class ParticleFilter(FlexFusionSlave):
         self.input("acc_s", 3, unit="m/s2", description="accelerometer specific force, sensor frame",
                    start=(0.0, 0.0, G))
         self.input("dddq_a_ref", 2, unit="rad/s3", description="arm jerk reference (the model's input u)")
-        deps = ("q_m_meas", "acc_s")
+        self.declare_t_meas()
+        deps = ("q_m_meas", "acc_s", "t_meas")
         self.output("q_a_hat", 2, unit="rad", depends_on=deps, description="estimated arm angles (eq. 6)")
         self.output("dq_a_hat", 2, unit="rad/s", depends_on=deps, description="estimated arm angular velocities")
         self.output("ddq_a_hat", 2, unit="rad/s2", depends_on=deps,
@@ -65,56 +79,38 @@ class ParticleFilter(FlexFusionSlave):
                     description="number of re-initialisations of the particle cloud after degeneracy")
 
     def setup(self, params: pm.ParticleFilterParameters) -> None:
-        self.pf = pm.ParticleFilterModel(params)
         self._ix, self._iz = params.index_x - 1, params.index_z - 1
-        self._pending: pm.FilterStep | None = None
-        self._diverged = ""
-        self._u_start = self.dddq_a_ref.copy()     # the jerk input at the last step
-        self.update_outputs()
+        self._u = self.dddq_a_ref.copy()           # the jerk input at the last step
+        pf = pm.ParticleFilterModel(params)
+        self.start_fusion(Estimate(pf, pf.x, None, self._u))
 
-    def _y(self) -> np.ndarray:
-        return self.pf.measurement_vector(self.q_m_meas, (self.acc_s[self._ix], self.acc_s[self._iz]))
+    def _before_step(self) -> None:
+        self._u = self.dddq_a_ref.copy()     # read at the step only: no direct feedthrough
 
-    def update_outputs(self) -> None:
-        if self._diverged:
-            return                                      # hold the last good estimate
-        try:
-            s = self.pf.filtered(self._y())
-        except FilterDivergence as exc:
-            self._diverged = f"{exc} (measurements at t = {self._time:.6g} s)"
-            self._pending = None
-            return
-        self._pending = s
-        self.q_a_hat[:] = s.x[0:2]
-        self.dq_a_hat[:] = s.x[2:4]
-        self.ddq_a_hat[:] = s.x[4:6]
-        self.p_tool_hat[:] = self.pf.tool_position(s.x)
-        self.trace_P_q = float(s.P[0, 0] + s.P[1, 1])
-        self.ess = s.ess
-        self.n_reinit = float(self.pf.n_reinit + bool(s.reinit))
+    def _predicted(self, est: Estimate, T: float) -> Estimate:
+        pf = copy.copy(est.pf)              # shallow: predict and commit replace, never change
+        x = pf.predict(0.5 * (est.u + self._u), T)
+        return Estimate(pf, x, est.last, self._u)
 
-    def step(self, t: float, dt: float) -> None:
-        # Commit the estimate at t as last computed (from the measurements present then), not
-        # from inputs set since: a Gauss-Seidel master sets the measurements of t + dt before
-        # this doStep, and they are fused below, after the prediction to t + dt.
-        if self._pending is None:
-            self.update_outputs()
-        if self._diverged:
-            raise FilterDivergence(f"{self._diverged}; the outputs hold the last good estimate")
-        s, self._pending = self._pending, None
-        self.pf.commit(s)
-        if s.reinit:
+    def _fused(self, prior: Estimate) -> Estimate:
+        y = prior.pf.measurement_vector(self.q_m_meas, (self.acc_s[self._ix], self.acc_s[self._iz]))
+        s = prior.pf.filtered(y)
+        pf = copy.copy(prior.pf)
+        pf.commit(s)
+        return Estimate(pf, pf.x, s, prior.u)
+
+    def _committed(self, est: Estimate, t: float) -> None:
+        if est.last is not None and est.last.reinit:
             self.log(f"{self.instance_name}: particle cloud re-initialised around the last good estimate "
-                     f"with the initial covariance at t = {t:.6g} s: {s.reinit} "
-                     f"(n_reinit = {self.pf.n_reinit})", Fmi2Status.warning)
-        # the jerk over [t, t + dt]: the mean of its values at t and t + dt (the input now, under
-        # our Gauss-Seidel master), not the end value alone, which would lead the model by dt / 2
-        u_end = self.dddq_a_ref.copy()
-        u = 0.5 * (self._u_start + u_end)
-        self._u_start = u_end
-        try:
-            self.pf.predict(u, dt)
-        except FilterDivergence as exc:
-            self._diverged = f"{exc} (at t = {t:.6g} s)"
-            raise
-        self.update_outputs()      # the inputs as the measurement at t + dt (re-fused if they change)
+                     f"with the initial covariance at t = {t:.6g} s: {est.last.reinit} "
+                     f"(n_reinit = {est.pf.n_reinit})", Fmi2Status.warning)
+
+    def _show(self, est: Estimate) -> None:
+        pf, x = est.pf, est.x
+        self.q_a_hat[:] = x[0:2]
+        self.dq_a_hat[:] = x[2:4]
+        self.ddq_a_hat[:] = x[4:6]
+        self.p_tool_hat[:] = pf.tool_position(x)
+        self.trace_P_q = float(pf.P[0, 0] + pf.P[1, 1])
+        self.ess = pf.ess
+        self.n_reinit = float(pf.n_reinit)

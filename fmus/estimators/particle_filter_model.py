@@ -3,11 +3,11 @@ and a tool accelerometer, with the estimation model of the EKF.
 
 Model
 -----
-Exactly the model of :mod:`fmus.estimators.ekf_accelerometer_model` (section 3.2, eqs. 12-19):
+Exactly the model of :mod:`fmus.estimators.axelsson2012_model` (section 3.2, eqs. 12-19):
 the state, the transition matrices ``F, G_u, G_w`` (eq. 14), ``Q`` and ``R`` (eq. 26, the
 EKF's parameters) and the measurement function ``h`` (eq. 15). :class:`BatchMeasurementModel`
 evaluates ``h`` and its Jacobian for all particles at once (checked against the scalar
-:class:`~fmus.estimators.ekf_accelerometer_model.MeasurementModel` in the tests).
+:class:`~fmus.estimators.axelsson2012_model.MeasurementModel` in the tests).
 
 Algorithm (section 2.2, Algorithm 1)
 ------------------------------------
@@ -61,7 +61,7 @@ the initial covariance ``P_0``, and fuses the measurement again from that prior;
 gives no finite weight, the measurement is skipped (the cloud is the re-initialised prior,
 equal weights). Each such event increments :attr:`ParticleFilterModel.n_reinit` (the FMU logs
 a warning). Only if the last good estimate itself cannot be propagated to a finite value does
-the filter raise :class:`~fmus.estimators.ekf_accelerometer_model.FilterDivergence`.
+the filter raise :class:`~fmus.common.kalman.FilterDivergence`.
 
 Limits (measured, see tests/test_particle_filter_model.py and the study below)
 -----------------------------------------------------------------------------
@@ -86,10 +86,11 @@ the bootstrap is at 1.02. Without the regularisation: 11.6 and 94, growing with 
 
 Randomness
 ----------
-One generator, ``make_rng(seed, "particle_filter")``. :meth:`ParticleFilterModel.filtered`
-works on a copy of its state, so recomputing the update for changed inputs (as an FMU does
-when a master sets inputs more than once) draws the same random numbers; :meth:`commit`
-advances it.
+One stream, ``make_rng(seed, "particle_filter")``, whose state is a value of the filter
+(``rng_state``): :meth:`ParticleFilterModel.filtered` draws from a scratch generator set to it,
+so recomputing the update for changed inputs (as an FMU does when a master sets inputs more
+than once) draws the same random numbers, and a copy of the filter shares no generator;
+:meth:`commit` stores the advanced state.
 """
 from __future__ import annotations
 
@@ -100,11 +101,11 @@ import numpy as np
 
 from fmus.common import dynamics, kinematics
 from fmus.common.noise import make_rng
+from fmus.common.kalman import FilterDivergence
 from fmus.common.parameters import param
-from fmus.estimators.ekf_accelerometer_model import (DDQ_, DQ_, Q_, EkfAccelerometerParameters,
-                                                     FilterDivergence, Layout, MeasurementModel,
-                                                     initial_covariance, measurement_noise,
-                                                     process_noise, transition_matrices)
+from fmus.estimators.axelsson2012_model import (DDQ_, DQ_, Q_, EkfAccelerometerParameters, Layout,
+                                                MeasurementModel, initial_covariance, measurement_noise,
+                                                process_noise, transition_matrices)
 
 PAPER = "Axelsson, Karlsson, Norrlöf 2012"
 PROPOSALS = ("prior", "ekf")
@@ -421,7 +422,9 @@ class ParticleFilterModel:
     Per sample: :meth:`update` with ``y_t`` (sampling from the proposal, weighting, eq. 6,
     resampling), then :meth:`predict` with the jerk reference ``u_t`` and the period ``T``
     (prior means of the next update, eqs. 13-14). :meth:`filtered` computes an update without
-    committing it (for an FMU's outputs); :meth:`commit` stores it.
+    committing it (for an FMU's outputs); :meth:`commit` stores it. Several predictions without
+    an update between them (a measurement over several periods) compose: the prior's means move
+    on and its noise factor gains a block per period (eq. 14 applied twice).
     """
 
     def __init__(self, p: ParticleFilterParameters) -> None:
@@ -439,7 +442,9 @@ class ParticleFilterModel:
         self.resample_always = p.resampling == "always"
         self.ess_min = float(p.ess_threshold) * self.N
         self.bandwidth = float(p.bandwidth)
-        self.rng = make_rng(int(p.seed), RNG_STREAM)
+        # the generator's state is a value of the estimate (a copy of the filter shares no
+        # generator); each update draws from the scratch generator set to it
+        self.rng_state = make_rng(int(p.seed), RNG_STREAM).bit_generator.state
         self._work = make_rng(int(p.seed), RNG_STREAM)
         n = self.layout.n
         self.x = np.zeros(n)
@@ -454,6 +459,7 @@ class ParticleFilterModel:
         self.M = np.broadcast_to(self.x, (self.N, n))
         self.L = self.L0
         self.x_prior = self.x.copy()
+        self._predicted = False                      # predicted since the last update
         self._T: float | None = None
 
     # -- eqs. 13-14
@@ -485,12 +491,18 @@ class ParticleFilterModel:
             self.X = np.broadcast_to(self.x, (self.N, self.layout.n))
         with np.errstate(all="ignore"):
             Gu_u = self.Gu @ np.asarray(u, float)
-            x_prior = self.F @ self.x + Gu_u
-            M = self.X @ self.F.T + Gu_u
+            if self._predicted:                    # the prior of an update periods ahead
+                x_prior = self.F @ self.x_prior + Gu_u
+                M = self.M @ self.F.T + Gu_u
+                L = np.hstack([self.F @ self.L, self.Lw])     # L L^T = F L L^T F^T + Gw Q Gw^T
+            else:
+                x_prior = self.F @ self.x + Gu_u
+                M = self.X @ self.F.T + Gu_u
+                L = self.Lw
         if not np.all(np.isfinite(x_prior)):
             raise FilterDivergence("particle filter diverged in the time update: the predicted "
                                    "estimate is not finite")
-        self.M, self.L, self.x_prior = M, self.Lw, x_prior
+        self.M, self.L, self.x_prior, self._predicted = M, L, x_prior, True
         return x_prior
 
     # -- Algorithm 1, steps 2-4, one measurement
@@ -551,7 +563,7 @@ class ParticleFilterModel:
         """
         y = np.asarray(y, float)
         rng = self._work
-        rng.bit_generator.state = self.rng.bit_generator.state
+        rng.bit_generator.state = self.rng_state
         reinit = ""
         with np.errstate(all="ignore"):           # non-finite weights and states are handled
             r = self._sample_and_weight(self.M, self.L, self.logw, y, rng)
@@ -577,7 +589,8 @@ class ParticleFilterModel:
         """Store the update ``s`` (from :meth:`filtered` on the current state); returns ``x_hat``."""
         self.X, self.logw, self.x, self.P, self.ess = s.X, s.logw, s.x, s.P, s.ess
         self.n_reinit += bool(s.reinit)
-        self.rng.bit_generator.state = s.rng_state
+        self.rng_state = s.rng_state
+        self._predicted = False
         return self.x
 
     def update(self, y) -> np.ndarray:

@@ -42,7 +42,7 @@ def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = False) 
     baseline (8 us against 110 us for the same iteration on numpy 2-vectors,
     benchmarks/flagship.py).
     """
-    k = dynamics._constants(robot)
+    k = dynamics.arm_constants(robot)
     m1, m2 = float(q_m[0]) / k.r[0], float(q_m[1]) / k.r[1]
     if not gravity_compensation:
         return m1, m2

@@ -5,64 +5,11 @@ variables, checks each reading and holds the state.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from pythonfmu.enums import Fmi2Status
 
 from fmus.common.fmi import FlexFusionSlave
-from fmus.common.parameters import ParameterError, param
 from fmus.force_observer import force_observer_math as fom
-
-PAPER = "García, Robertsson, Gómez Ortega, Johansson (impedance paper)"
-
-
-@dataclass(frozen=True)
-class ForceObserverParameters:
-    """Parameters of the ForceObserver FMU."""
-
-    observer: str = param("lowpass", "1", "which observer: static (eqs. 8-10), kalman (eqs. 11-19) "
-                          "or lowpass (eqs. 27-35)", choices=fom.OBSERVER_KINDS)
-    m_tool: float = param(12.0, "kg", "tool mass between the force sensor and the tool tip, as the "
-                          "observer knows it: from a tool calibration (fmus.robot_plant.sensor_model."
-                          "calibrate_tool), not the true mass", low=0.0, low_inclusive=False,
-                          source=f"{PAPER}, section III (12 kg grinding tool); the contact scenarios "
-                          "use the calibrated 12.10 kg")
-    k11: float = param(8.8, "Hz", "low-pass observer gain k11 (position innovation -> position), 1/s; "
-                       "with k21 it sets the error dynamics s^2 + k11 s + k21 (eq. 28)", low=0.0,
-                       low_inclusive=False, source=f"1 Hz, damping 0.7 (the paper's section V has 0.38)")
-    k13: float = param(-0.0073, "s", "low-pass observer gain k13 (acceleration innovation -> position), s",
-                       source=f"{PAPER}, section V")
-    k21: float = param(39.5, "1", "low-pass observer gain k21 (position innovation -> velocity), 1/s^2",
-                       low=0.0, low_inclusive=False, source=f"1 Hz, damping 0.7 (the paper's section V has 9.05)")
-    k23: float = param(1.0, "1", "low-pass observer gain k23 (acceleration innovation -> velocity); "
-                       "1 makes the estimate Newton's law (eq. 35)", low=0.0, high=1.0,
-                       source=f"{PAPER}, eq. 35")
-    sigma_f: float = param(20.0, "N", "Kalman observer: std of the unknown force per sample (process noise)",
-                           low=0.0, low_inclusive=False)
-    sigma_x: float = param(1e-4, "m", "Kalman observer: std of the tool position input", low=0.0,
-                           low_inclusive=False)
-    sigma_a: float = param(0.05, "m/s2", "Kalman observer: std of the accelerometer", low=0.0,
-                           low_inclusive=False)
-    f_range: float = param(660.0, "N", "force sensor range: a component at or beyond it is flagged "
-                           "as saturated", low=0.0, low_inclusive=False, source="JR3 wrist sensor class")
-    acc_range: float = param(156.9, "m/s2", "accelerometer range (16 g): at or beyond it is saturated",
-                             low=0.0, low_inclusive=False)
-    index_x: int = param(1, "1", "index (1-based) of the sensor-frame x component in f_s and acc_s",
-                         low=1, high=3)
-    index_z: int = param(3, "1", "index (1-based) of the sensor-frame z component in f_s and acc_s",
-                         low=1, high=3)
-    g: float = param(9.81, "m/s2", "gravity", low=0.0)
-
-    def check(self) -> None:
-        if self.index_x == self.index_z:
-            raise ParameterError(f"parameters 'index_x' and 'index_z' must differ (both {self.index_x})")
-
-    def config(self) -> fom.ObserverConfig:
-        """The math module's configuration."""
-        return fom.ObserverConfig(kind=self.observer, m=self.m_tool, k11=self.k11, k13=self.k13,
-                                  k21=self.k21, k23=self.k23, sigma_f=self.sigma_f,
-                                  sigma_x=self.sigma_x, sigma_a=self.sigma_a)
 
 
 class ForceObserver(FlexFusionSlave):
@@ -78,7 +25,7 @@ class ForceObserver(FlexFusionSlave):
     begins (or its kind changes), holds the last good estimate and freezes the observer state. No NaN ever leaves.
     """
 
-    parameters_class = ForceObserverParameters
+    parameters_class = fom.ForceObserverParameters
     nan_inputs = "pass"
     description = "Contact-force observer: static, Kalman or low-pass (force + acceleration fusion)"
 
@@ -100,8 +47,8 @@ class ForceObserver(FlexFusionSlave):
                     description="reading fault: 0 none, 1 saturated, 2 not finite")
         self.output("n_faults", unit="1", description="number of steps with a faulty reading")
 
-    def setup(self, params: ForceObserverParameters) -> None:
-        self.core = fom.ForceObserverCore(params.config())
+    def setup(self, params: fom.ForceObserverParameters) -> None:
+        self.core = fom.ForceObserverCore(params)
         self._ix, self._iz = params.index_x - 1, params.index_z - 1
         self._last_good = np.zeros(2)
         self._in_fault = 0             # fault code of the episode being flagged

@@ -79,7 +79,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-G = 9.81
+from fmus.common.frames import G
+from fmus.common.parameters import ParameterError, param
+
 OBSERVER_KINDS = ("static", "kalman", "lowpass")
 
 # fault codes of a sensor reading (see :func:`reading_fault`)
@@ -213,27 +215,6 @@ def reading_fault(f_s: np.ndarray, acc_s: np.ndarray, f_range: float, acc_range:
     return FAULT_NONE
 
 
-@dataclass(frozen=True)
-class ObserverConfig:
-    """Settings of :class:`ForceObserverCore` (all SI)."""
-
-    kind: str = "lowpass"
-    m: float = 12.0
-    k11: float = 8.8
-    k13: float = -0.0073
-    k21: float = 39.5
-    k23: float = 1.0
-    sigma_f: float = 20.0
-    sigma_x: float = 1e-4
-    sigma_a: float = 0.05
-
-    def __post_init__(self) -> None:
-        if self.kind not in OBSERVER_KINDS:
-            raise ValueError(f"observer kind {self.kind!r} is not one of {list(OBSERVER_KINDS)}")
-        if not self.m > 0:
-            raise ValueError(f"tool mass m = {self.m} must be > 0")
-
-
 class ForceObserverCore:
     """One of the three observers on both world axes (x, z), sampled with step ``h``.
 
@@ -243,14 +224,14 @@ class ForceObserverCore:
     tool acceleration), ``x`` (world tool position), each shape (2,).
     """
 
-    def __init__(self, cfg: ObserverConfig) -> None:
+    def __init__(self, cfg: ForceObserverParameters) -> None:
         self.cfg = cfg
         self.xi = np.zeros((2, 2))         # per axis: (position, velocity) estimate
         self.initialised = False
         self._h: float | None = None
         self._Phi = self._Gam = None
         self._K: np.ndarray | None = None
-        m = cfg.m
+        m = cfg.m_tool
         mats = model_matrices(m)
         self.C, self.D_u = mats["C"], mats["D_u"]
         # measurement-noise weighted left inverse of D_F (eqs. 17-19)
@@ -261,12 +242,12 @@ class ForceObserverCore:
         if self._h == h:
             return
         cfg = self.cfg
-        if cfg.kind == "lowpass":
+        if cfg.observer == "lowpass":
             self._Phi, self._Gam = zoh(self.A_o, self.B_o, h)
-        elif cfg.kind == "kalman":
+        elif cfg.observer == "kalman":
             self._Phi = np.array([[1.0, h], [0.0, 1.0]])
-            self._Gam = np.array([h * h / 2.0, h]) / cfg.m
-            self._K = kalman_gain(cfg.m, h, cfg.sigma_f, cfg.sigma_x, cfg.sigma_a)
+            self._Gam = np.array([h * h / 2.0, h]) / cfg.m_tool
+            self._K = kalman_gain(cfg.m_tool, h, cfg.sigma_f, cfg.sigma_x, cfg.sigma_a)
         self._h = h
 
     def reset(self, x: np.ndarray, v: np.ndarray | None = None) -> None:
@@ -285,29 +266,29 @@ class ForceObserverCore:
         if not self.initialised:
             self.xi[:, 0] = x
             self.xi[:, 1] = 0.0
-        if cfg.kind == "static":
-            return static_force(u, a, cfg.m)
-        if cfg.kind == "kalman":
+        if cfg.observer == "static":
+            return static_force(u, a, cfg.m_tool)
+        if cfg.observer == "kalman":
             # eq. 19: F^ = D_F^+ (y - C xi^ - D_u u) with y = (x, a), per axis
-            innov = np.stack([x - self.xi[:, 0], a - u / cfg.m], axis=1)   # (axes, 2)
+            innov = np.stack([x - self.xi[:, 0], a - u / cfg.m_tool], axis=1)   # (axes, 2)
             return innov @ self.D_F_pinv[0]
         # low-pass structure, eqs. 30/33: F^ = k23 (u - m a) - m k21 (x - x^)
-        return cfg.k23 * (u - cfg.m * a) - cfg.m * cfg.k21 * (x - self.xi[:, 0])
+        return cfg.k23 * (u - cfg.m_tool * a) - cfg.m_tool * cfg.k21 * (x - self.xi[:, 0])
 
     def advance(self, u: np.ndarray, a: np.ndarray, x: np.ndarray, h: float) -> None:
         """Move the observer state over one step ``h`` with the inputs held."""
         cfg = self.cfg
         if not self.initialised:
             self.reset(x)
-        if cfg.kind == "static":
+        if cfg.observer == "static":
             return
         self._discretise(h)
-        if cfg.kind == "lowpass":
+        if cfg.observer == "lowpass":
             # per axis: xi+ = Phi xi + Gam (u, a, x)
             self.xi = self.xi @ self._Phi.T + np.column_stack((u, a, x)) @ self._Gam.T
             return
         # Kalman predictor (eq. 13 discretised): xi+ = Phi xi + Gam u + K (y - C xi - D_u u)
-        innov = np.stack([x - self.xi[:, 0], a - u / cfg.m], axis=0)      # (2, axes)
+        innov = np.stack([x - self.xi[:, 0], a - u / cfg.m_tool], axis=0)      # (2, axes)
         self.xi = (self._Phi @ self.xi.T + np.outer(self._Gam, u) + self._K @ innov).T
 
     def velocity(self) -> np.ndarray:
@@ -319,7 +300,52 @@ class ForceObserverCore:
         return self.xi[:, 0].copy()
 
 
-__all__ = ["G", "OBSERVER_KINDS", "FAULT_NONE", "FAULT_SATURATED", "FAULT_NOT_FINITE", "rotation",
+PAPER = "García, Robertsson, Gómez Ortega, Johansson (impedance paper)"
+
+
+@dataclass(frozen=True)
+class ForceObserverParameters:
+    """Parameters of the ForceObserver FMU."""
+
+    observer: str = param("lowpass", "1", "which observer: static (eqs. 8-10), kalman (eqs. 11-19) "
+                          "or lowpass (eqs. 27-35)", choices=OBSERVER_KINDS)
+    m_tool: float = param(12.0, "kg", "tool mass between the force sensor and the tool tip, as the "
+                          "observer knows it: from a tool calibration (fmus.robot_plant.sensor_model."
+                          "calibrate_tool), not the true mass", low=0.0, low_inclusive=False,
+                          source=f"{PAPER}, section III (12 kg grinding tool); the contact scenarios "
+                          "use the calibrated 12.10 kg")
+    k11: float = param(8.8, "Hz", "low-pass observer gain k11 (position innovation -> position), 1/s; "
+                       "with k21 it sets the error dynamics s^2 + k11 s + k21 (eq. 28)", low=0.0,
+                       low_inclusive=False, source=f"1 Hz, damping 0.7 (the paper's section V has 0.38)")
+    k13: float = param(-0.0073, "s", "low-pass observer gain k13 (acceleration innovation -> position), s",
+                       source=f"{PAPER}, section V")
+    k21: float = param(39.5, "1", "low-pass observer gain k21 (position innovation -> velocity), 1/s^2",
+                       low=0.0, low_inclusive=False, source=f"1 Hz, damping 0.7 (the paper's section V has 9.05)")
+    k23: float = param(1.0, "1", "low-pass observer gain k23 (acceleration innovation -> velocity); "
+                       "1 makes the estimate Newton's law (eq. 35)", low=0.0, high=1.0,
+                       source=f"{PAPER}, eq. 35")
+    sigma_f: float = param(20.0, "N", "Kalman observer: std of the unknown force per sample (process noise)",
+                           low=0.0, low_inclusive=False)
+    sigma_x: float = param(1e-4, "m", "Kalman observer: std of the tool position input", low=0.0,
+                           low_inclusive=False)
+    sigma_a: float = param(0.05, "m/s2", "Kalman observer: std of the accelerometer", low=0.0,
+                           low_inclusive=False)
+    f_range: float = param(660.0, "N", "force sensor range: a component at or beyond it is flagged "
+                           "as saturated", low=0.0, low_inclusive=False, source="JR3 wrist sensor class")
+    acc_range: float = param(156.9, "m/s2", "accelerometer range (16 g): at or beyond it is saturated",
+                             low=0.0, low_inclusive=False)
+    index_x: int = param(1, "1", "index (1-based) of the sensor-frame x component in f_s and acc_s",
+                         low=1, high=3)
+    index_z: int = param(3, "1", "index (1-based) of the sensor-frame z component in f_s and acc_s",
+                         low=1, high=3)
+    g: float = param(G, "m/s2", "gravity", low=0.0)
+
+    def check(self) -> None:
+        if self.index_x == self.index_z:
+            raise ParameterError(f"parameters 'index_x' and 'index_z' must differ (both {self.index_x})")
+
+
+__all__ = ["OBSERVER_KINDS", "FAULT_NONE", "FAULT_SATURATED", "FAULT_NOT_FINITE", "rotation",
            "world_readings", "lever_arm_acceleration", "static_force", "model_matrices", "force_left_inverse", "kalman_gain",
-           "lowpass_matrices", "zoh", "lowpass_error_tf", "reading_fault", "ObserverConfig",
-           "ForceObserverCore"]
+           "lowpass_matrices", "zoh", "lowpass_error_tf", "reading_fault",
+           "ForceObserverCore", "ForceObserverParameters"]

@@ -4,71 +4,12 @@ The math is in :mod:`fmus.force_observer.impedance_math`.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from pythonfmu.enums import Fmi2Status
 
 from fmus.common.fmi import FlexFusionSlave
-from fmus.common.parameters import ParameterError, param
+from fmus.common.parameters import ParameterError
 from fmus.force_observer import impedance_math as imp
-
-PAPER = "García, Robertsson, Gómez Ortega, Johansson (impedance paper)"
-
-
-@dataclass(frozen=True)
-class ImpedanceControllerParameters:
-    """Parameters of the ImpedanceController FMU."""
-
-    structure: str = param("paper", "1", "controller structure: paper (eqs. 39-41: LQR state "
-                           "feedback on (e, de/dt) plus the force gain c, no integral) or integral "
-                           "(our extension: the integral of the impedance variable as a third state, "
-                           "which makes the stationary contact satisfy eq. 2 by construction)",
-                           choices=imp.STRUCTURES, source=f"{PAPER}, eqs. 39-41")
-    K_z: float = param(2000.0, "N/m", "target stiffness along the normal (eq. 2)", low=0.0,
-                       low_inclusive=False, source=f"{PAPER}, eq. 2")
-    D_z: float = param(350.0, "N.s/m", "target damping along the normal (eq. 2)", low=0.0,
-                       source=f"{PAPER}, eq. 2")
-    normal: tuple = param((1.0, 0.0), "1", "contact normal, world x and z: the direction in which "
-                          "the tool pushes into the surface (normalised)")
-    m_design: float = param(150.0, "kg", "design model: effective robot mass along the normal",
-                            low=0.0, low_inclusive=False)
-    f_design: float = param(3.0, "Hz", "design model: bandwidth of the robot's position loop",
-                            low=0.0, low_inclusive=False)
-    zeta_design: float = param(0.7, "1", "design model: damping ratio of the robot's position loop",
-                               low=0.0, low_inclusive=False)
-    k_env: float = param(5000.0, "N/m", "design model: surface stiffness", low=0.0,
-                         source=f"{PAPER}, section III (5 N/mm screen)")
-    q_e: float = param(1e5, "1", "LQR weight on the position error e (1/m^2)", low=0.0)
-    q_de: float = param(1e2, "1", "LQR weight on de/dt ((s/m)^2)", low=0.0)
-    tool_compliance: float = param(0.0, "m/N", "design model: compliance of the tool mount as the "
-                                   "designer knows it; 0: a rigid tool", low=0.0,
-                                   source=f"{PAPER}, eq. 38 (Optidrive stiffness, identified)")
-    tool_mass: float = param(0.0, "kg", "design model: tool mass on the compliant mount; > 0 (with "
-                             "tool_compliance > 0) puts the tool in the LQR model (eq. 39: flange and "
-                             "deflection states, the deflection from f_mount); 0: only the static "
-                             "deflection enters the force gain", low=0.0, source=f"{PAPER}, eqs. 38-39")
-    tool_damping: float = param(0.0, "N.s/m", "design model: damping of the tool mount", low=0.0,
-                                source=f"{PAPER}, eq. 38")
-    q_int: float = param(1.0, "1", "LQR weight on the integral of the impedance variable (1/(N.s)^2)",
-                         low=0.0)
-    r: float = param(4e4, "1", "LQR weight on the reference offset (1/m^2)", low=0.0, low_inclusive=False)
-    tau_v: float = param(0.01, "s", "time constant of the filtered derivative of e", low=0.0)
-    delta_max: float = param(0.05, "m", "largest reference offset along the normal", low=0.0,
-                             low_inclusive=False)
-
-    def check(self) -> None:
-        if np.hypot(*self.normal) < 1e-9:
-            raise ParameterError(f"parameter 'normal' = {self.normal} must not be the zero vector")
-
-    def design(self) -> imp.ImpedanceDesign:
-        """The math module's design settings."""
-        return imp.ImpedanceDesign(K_z=self.K_z, D_z=self.D_z, m_r=self.m_design,
-                                   w_r=2 * np.pi * self.f_design, zeta_r=self.zeta_design,
-                                   k_env=self.k_env, q_e=self.q_e, q_de=self.q_de,
-                                   q_int=self.q_int, r=self.r, structure=self.structure,
-                                   tool_k=1.0 / self.tool_compliance if self.tool_compliance > 0 else 0.0,
-                                   tool_m=self.tool_mass, tool_d=self.tool_damping)
 
 
 class ImpedanceController(FlexFusionSlave):
@@ -85,7 +26,7 @@ class ImpedanceController(FlexFusionSlave):
     sets ``fault`` and logs a warning when the episode begins. No NaN ever leaves.
     """
 
-    parameters_class = ImpedanceControllerParameters
+    parameters_class = imp.ImpedanceControllerParameters
     nan_inputs = "pass"
     description = "LQR impedance controller along a contact normal (reference offset output)"
 
@@ -116,8 +57,8 @@ class ImpedanceController(FlexFusionSlave):
         self.output("force_gain", unit="m/N", description="the paper structure's force gain c (eq. 40); "
                     "0 for the integral structure")
 
-    def setup(self, params: ImpedanceControllerParameters) -> None:
-        d = params.design()
+    def setup(self, params: imp.ImpedanceControllerParameters) -> None:
+        d = params
         L = imp.design_gains(d)
         poles = imp.closed_loop_poles(d, L, d.k_env)
         if not np.all(np.real(poles) < 0):

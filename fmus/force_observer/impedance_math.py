@@ -35,7 +35,7 @@ true surface stiffness. With a wall of stiffness ``k_w`` at ``x_w`` the stationa
 (for ``x_s > x_w``; else no contact and ``x_s = x_r``): a stiff target (large ``K_z``) puts
 ``x_s`` near ``x_r``, a stiff environment near ``x_w``, as the paper notes (Fig. 4).
 
-Two structures (``ImpedanceDesign.structure``):
+Two structures (``ImpedanceControllerParameters.structure``):
 
 * ``"paper"`` (the paper's, eqs. 39-41): ``u = -L X + c F^ + l_r x_r`` -- a state feedback
   ``L`` from an LQR on the model of the position-controlled robot (and tool) with diagonal
@@ -59,10 +59,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
+from fmus.common.parameters import ParameterError, param
 from fmus.force_observer import force_observer_math as fom
 
 
-#: The controller structures of :class:`ImpedanceDesign` (module doc).
+#: The controller structures of :class:`ImpedanceControllerParameters` (module doc).
 STRUCTURES = ("paper", "integral")
 
 
@@ -76,72 +77,18 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     return np.linalg.solve(R, B.T @ P)
 
 
-@dataclass(frozen=True)
-class ImpedanceDesign:
-    """Target impedance, design model and LQR weights (SI units)."""
-
-    K_z: float = 2000.0        # target stiffness (N/m), eq. 2
-    D_z: float = 350.0         # target damping (N.s/m), eq. 2
-    m_r: float = 150.0         # effective robot mass along n (kg)
-    w_r: float = 2 * np.pi * 3.0   # position-loop bandwidth (rad/s)
-    zeta_r: float = 0.7        # position-loop damping ratio
-    k_env: float = 5000.0      # design surface stiffness (N/m)
-    q_e: float = 1e5           # LQR weight on e (1/m^2)
-    q_de: float = 1e2          # LQR weight on e' ((s/m)^2)
-    q_dl: float = 1e5          # LQR weight on the tool deflection dl (compliant design; 1/m^2)
-    q_ddl: float = 1e2         # LQR weight on dl' ((s/m)^2); the paper's eq. 41 weighs the tool
-                               # states as the robot's (K_t = K_r = 10, D_t = D_r = 1)
-    q_int: float = 1.0         # LQR weight on zeta (1/(N.s)^2)
-    r: float = 4e4             # LQR weight on Delta (1/m^2)
-    tool_m: float = 0.0        # compliant tool (paper Fig. 3, eq. 39): tool mass (kg); 0 = rigid
-    tool_k: float = 0.0        # compliant tool spring (N/m); 0 = rigid tool
-    tool_d: float = 0.0        # compliant tool damper (N.s/m)
-    structure: str = "paper"   # "paper" (eqs. 39-41: no integral, force gain c) or "integral"
-
-    def __post_init__(self) -> None:
-        if self.structure not in STRUCTURES:
-            raise ValueError(f"impedance design: structure = {self.structure!r}, not one of {STRUCTURES}")
-        for name in ("K_z", "m_r", "w_r", "zeta_r", "r"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"impedance design: {name} = {getattr(self, name)} must be > 0")
-        for name in ("D_z", "k_env", "q_e", "q_de", "q_dl", "q_ddl", "q_int", "tool_m", "tool_k", "tool_d"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"impedance design: {name} = {getattr(self, name)} must be >= 0")
-
-    @property
-    def compliant(self) -> bool:
-        """Whether the design model has the compliant tool (5 states) or a rigid one (3)."""
-        return self.tool_k > 0.0 and self.tool_m > 0.0
-
-    @property
-    def k_r(self) -> float:
-        """Position-loop stiffness ``m_r w_r^2`` (N/m)."""
-        return self.m_r * self.w_r ** 2
-
-    @property
-    def d_r(self) -> float:
-        """Position-loop damping ``2 zeta_r w_r m_r`` (N.s/m)."""
-        return 2.0 * self.zeta_r * self.w_r * self.m_r
-
-
-def replace_design(d: ImpedanceDesign, **changes) -> ImpedanceDesign:
-    """A copy of ``d`` with some fields changed (validated)."""
-    import dataclasses
-    return dataclasses.replace(d, **changes)
-
-
-def design_model(d: ImpedanceDesign, k_env: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def design_model(d: ImpedanceControllerParameters, k_env: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(A, B)`` of the design model and input ``Delta``.
 
     Rigid tool: states ``(e, e', zeta)``. Compliant tool (``d.compliant``; the paper's robot +
     Optidrive model, eq. 39): states ``(e_f, e_f', dl, dl', zeta)`` with ``e_f`` the flange
     (force sensor) position error and ``dl = x_tool - x_flange`` the tool deflection; the
-    robot mass ``m_r`` then includes the tool, the flange carries ``m_r - tool_m``.
+    robot mass ``m_design`` then includes the tool, the flange carries ``m_design - tool_mass``.
     """
     ke = d.k_env if k_env is None else k_env
     if d.compliant:
-        kr, dr, kc, dc, mt = d.k_r, d.d_r, d.tool_k, d.tool_d, d.tool_m
-        mf = d.m_r - mt
+        kr, dr, kc, dc, mt = d.k_r, d.d_r, d.tool_k, d.tool_damping, d.tool_mass
+        mf = d.m_design - mt
         A = np.zeros((5, 5))
         B = np.zeros((5, 1))
         A[0, 1] = A[2, 3] = 1.0
@@ -152,13 +99,13 @@ def design_model(d: ImpedanceDesign, k_env: float | None = None) -> tuple[np.nda
         A[4] = [ke + d.K_z, d.D_z, ke + d.K_z, d.D_z, 0.0]
         return A, B
     A = np.array([[0.0, 1.0, 0.0],
-                  [-(d.k_r + ke) / d.m_r, -d.d_r / d.m_r, 0.0],
+                  [-(d.k_r + ke) / d.m_design, -d.d_r / d.m_design, 0.0],
                   [d.K_z + ke, d.D_z, 0.0]])
-    B = np.array([[0.0], [d.k_r / d.m_r], [0.0]])
+    B = np.array([[0.0], [d.k_r / d.m_design], [0.0]])
     return A, B
 
 
-def design_gains(d: ImpedanceDesign) -> np.ndarray:
+def design_gains(d: ImpedanceControllerParameters) -> np.ndarray:
     """LQR gain ``L`` for ``Delta = -L s`` (eqs. 40-41): on ``(e, e', zeta)`` (3) for a rigid
     tool, ``(e_f, e_f', dl, dl', zeta)`` (5) for the compliant one (eq. 41's diagonal form:
     weights on the robot's and the tool's position and velocity states); the ``"paper"``
@@ -170,7 +117,7 @@ def design_gains(d: ImpedanceDesign) -> np.ndarray:
     return lqr_gain(A, B, np.diag(q), np.array([[d.r]]))[0]
 
 
-def force_gain(d: ImpedanceDesign, L: np.ndarray) -> float:
+def force_gain(d: ImpedanceControllerParameters, L: np.ndarray) -> float:
     """The paper's force gain ``c`` (eq. 40) for ``Delta = -L s + c (F - F_d)``: the one that
     makes the design model's static contact the target impedance (eq. 2) on the tool.
 
@@ -190,7 +137,7 @@ def force_gain(d: ImpedanceDesign, L: np.ndarray) -> float:
     return float(c)
 
 
-def closed_loop_poles(d: ImpedanceDesign, L: np.ndarray, k_env: float) -> np.ndarray:
+def closed_loop_poles(d: ImpedanceControllerParameters, L: np.ndarray, k_env: float) -> np.ndarray:
     """Poles of the design model with gain ``L`` on a surface of stiffness ``k_env``; for the
     ``"paper"`` structure the force term ``c F = c k_env e_tool`` (in contact) is closed too."""
     A, B = design_model(d, k_env)
@@ -341,9 +288,9 @@ def _wall(x: float, v: float, p: OneAxisPlant) -> float:
     return max(0.0, p.k_w * (x - p.x_w) + p.d_w * v)
 
 
-def simulate_1dof(plant: OneAxisPlant, design: ImpedanceDesign, x_ref, t_end: float, *,
+def simulate_1dof(plant: OneAxisPlant, design: ImpedanceControllerParameters, x_ref, t_end: float, *,
                   h: float = 0.004, substeps: int = 16, observer: str = "static",
-                  obs_cfg: fom.ObserverConfig | None = None, use_raw: bool = False,
+                  obs_cfg: fom.ForceObserverParameters | None = None, use_raw: bool = False,
                   x0: float = -0.05, F_d: float = 0.0, noise_f: float = 0.0, noise_a: float = 0.0,
                   seed: int = 0, tau_v: float = 0.01, controller=None) -> dict[str, np.ndarray]:
     """Close the impedance loop on :class:`OneAxisPlant`.
@@ -358,7 +305,7 @@ def simulate_1dof(plant: OneAxisPlant, design: ImpedanceDesign, x_ref, t_end: fl
     rng = np.random.default_rng(seed)
     L = design_gains(design)
     law = ImpedanceLaw(L, design.K_z, design.D_z, tau_v=tau_v, force_gain=force_gain(design, L))
-    cfg = obs_cfg or fom.ObserverConfig(kind=observer, m=plant.m_t)
+    cfg = obs_cfg or fom.ForceObserverParameters(observer=observer, m_tool=plant.m_t)
     obs = fom.ForceObserverCore(cfg)
     k_r = plant.m_r * plant.w_r ** 2
     d_r = 2 * plant.zeta_r * plant.w_r * plant.m_r
@@ -439,6 +386,84 @@ def smooth_ramp(x0: float, x1: float, t0: float, t1: float):
     return f
 
 
-__all__ = ["lqr_gain", "ImpedanceDesign", "replace_design", "design_model", "design_gains", "force_gain",
+PAPER = "García, Robertsson, Gómez Ortega, Johansson (impedance paper)"
+
+
+@dataclass(frozen=True)
+class ImpedanceControllerParameters:
+    """Parameters of the ImpedanceController FMU."""
+
+    structure: str = param("paper", "1", "controller structure: paper (eqs. 39-41: LQR state "
+                           "feedback on (e, de/dt) plus the force gain c, no integral) or integral "
+                           "(our extension: the integral of the impedance variable as a third state, "
+                           "which makes the stationary contact satisfy eq. 2 by construction)",
+                           choices=STRUCTURES, source=f"{PAPER}, eqs. 39-41")
+    K_z: float = param(2000.0, "N/m", "target stiffness along the normal (eq. 2)", low=0.0,
+                       low_inclusive=False, source=f"{PAPER}, eq. 2")
+    D_z: float = param(350.0, "N.s/m", "target damping along the normal (eq. 2)", low=0.0,
+                       source=f"{PAPER}, eq. 2")
+    normal: tuple = param((1.0, 0.0), "1", "contact normal, world x and z: the direction in which "
+                          "the tool pushes into the surface (normalised)")
+    m_design: float = param(150.0, "kg", "design model: effective robot mass along the normal",
+                            low=0.0, low_inclusive=False)
+    f_design: float = param(3.0, "Hz", "design model: bandwidth of the robot's position loop",
+                            low=0.0, low_inclusive=False)
+    zeta_design: float = param(0.7, "1", "design model: damping ratio of the robot's position loop",
+                               low=0.0, low_inclusive=False)
+    k_env: float = param(5000.0, "N/m", "design model: surface stiffness", low=0.0,
+                         source=f"{PAPER}, section III (5 N/mm screen)")
+    q_e: float = param(1e5, "1", "LQR weight on the position error e (1/m^2)", low=0.0)
+    q_de: float = param(1e2, "1", "LQR weight on de/dt ((s/m)^2)", low=0.0)
+    tool_compliance: float = param(0.0, "m/N", "design model: compliance of the tool mount as the "
+                                   "designer knows it; 0: a rigid tool", low=0.0,
+                                   source=f"{PAPER}, eq. 38 (Optidrive stiffness, identified)")
+    tool_mass: float = param(0.0, "kg", "design model: tool mass on the compliant mount; > 0 (with "
+                             "tool_compliance > 0) puts the tool in the LQR model (eq. 39: flange and "
+                             "deflection states, the deflection from f_mount); 0: only the static "
+                             "deflection enters the force gain", low=0.0, source=f"{PAPER}, eqs. 38-39")
+    tool_damping: float = param(0.0, "N.s/m", "design model: damping of the tool mount", low=0.0,
+                                source=f"{PAPER}, eq. 38")
+    q_dl: float = param(1e5, "1", "LQR weight on the tool deflection dl (compliant design model; 1/m^2)",
+                        low=0.0)
+    q_ddl: float = param(1e2, "1", "LQR weight on d(dl)/dt (compliant design model; (s/m)^2)", low=0.0,
+                         source=f"{PAPER}, eq. 41 weighs the tool states as the robot's")
+    q_int: float = param(1.0, "1", "LQR weight on the integral of the impedance variable (1/(N.s)^2)",
+                         low=0.0)
+    r: float = param(4e4, "1", "LQR weight on the reference offset (1/m^2)", low=0.0, low_inclusive=False)
+    tau_v: float = param(0.01, "s", "time constant of the filtered derivative of e", low=0.0)
+    delta_max: float = param(0.05, "m", "largest reference offset along the normal", low=0.0,
+                             low_inclusive=False)
+
+    def check(self) -> None:
+        if np.hypot(*self.normal) < 1e-9:
+            raise ParameterError(f"parameter 'normal' = {self.normal} must not be the zero vector")
+
+    @property
+    def w_r(self) -> float:
+        """Position-loop bandwidth of the design model (rad/s)."""
+        return 2 * np.pi * self.f_design
+
+    @property
+    def tool_k(self) -> float:
+        """Stiffness of the tool mount (N/m) the designer knows; 0 for a rigid tool."""
+        return 1.0 / self.tool_compliance if self.tool_compliance > 0 else 0.0
+
+    @property
+    def compliant(self) -> bool:
+        """Whether the design model has the compliant tool (5 states) or a rigid one (3)."""
+        return self.tool_k > 0.0 and self.tool_mass > 0.0
+
+    @property
+    def k_r(self) -> float:
+        """Position-loop stiffness ``m_design w_r^2`` (N/m)."""
+        return self.m_design * self.w_r ** 2
+
+    @property
+    def d_r(self) -> float:
+        """Position-loop damping ``2 zeta_design w_r m_design`` (N.s/m)."""
+        return 2.0 * self.zeta_design * self.w_r * self.m_design
+
+
+__all__ = ["lqr_gain", "design_model", "design_gains", "force_gain",
            "closed_loop_poles", "STRUCTURES",
-           "stationary_contact", "ImpedanceLaw", "OneAxisPlant", "simulate_1dof", "smooth_ramp"]
+           "stationary_contact", "ImpedanceLaw", "OneAxisPlant", "simulate_1dof", "smooth_ramp", "ImpedanceControllerParameters"]

@@ -2,36 +2,9 @@
 :mod:`fmus.robot_plant.sensor_model`)."""
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 from fmus.common.fmi import FlexFusionSlave
-from fmus.common.parameters import param
-from fmus.robot_plant.sensor_model import T_TRUTH_DESCRIPTION, UNSTAMPED, SensorChannels, input_time
-
-RESOLVER = "16-bit resolver-to-digital conversion per motor revolution (e.g. AD2S1210 at 16 bit)"
-
-
-@dataclass(frozen=True)
-class EncoderParameters:
-    """Parameters of the Encoder FMU (both joints share them except bias and scale)."""
-
-    resolution: float = param(2.0 * math.pi / 2 ** 16, "rad", "quantisation step on the motor side "
-                              "(2 pi / 2^16 = 9.6e-5 rad; 0 = off)", low=0.0, source=RESOLVER)
-    noise: float = param(2e-5, "rad", "white noise std per sample (about 0.2 LSB)", low=0.0,
-                         source="assumed resolver electrical noise, below one count")
-    bias: tuple = param((0.0, 0.0), "rad", "constant offset per joint (calibrated: 0)")
-    bias_rw: float = param(0.0, "rad/s0.5", "bias random-walk intensity per sqrt(s)", low=0.0)
-    scale: tuple = param((0.0, 0.0), "1", "scale-factor error per joint (reading = (1+scale) q)",
-                         low=-0.5, high=0.5)
-    cutoff: float = param(0.0, "Hz", "anti-aliasing low-pass cut-off (0 = off; an encoder has none)",
-                          low=0.0)
-    filter_order: int = param(2, "1", "anti-aliasing filter order (1 or 2, Butterworth)", low=1, high=2)
-    sample_rate: float = param(0.0, "Hz", "sample rate with sample-and-hold (0 = every communication "
-                               "step; the papers sample at 2 kHz). Its period must be an integer "
-                               "multiple of the communication step", low=0.0,
-                               source="2009 and 2012 papers: 2 kHz")
-    seed: int = param(1, "1", "seed of the noise streams", low=0)
+from fmus.robot_plant.sensor_model import (EncoderParameters, SensorChannels, T_TRUTH_DESCRIPTION,
+                                           UNSTAMPED, input_time)
 
 
 class Encoder(FlexFusionSlave):

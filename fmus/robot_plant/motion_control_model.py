@@ -49,7 +49,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fmus.common import dynamics
+from fmus.common import dynamics, kinematics
 from fmus.common.parameters import ParameterError, as_array, param
 from fmus.common.robot_params import RobotParameters
 from fmus.robot_plant.trajectory import PATHS, Trajectory, make_path
@@ -63,39 +63,6 @@ SIN_Q2_MAX = 0.98       #: |sin q2| limit: keeps 11 deg away from the stretched/
 DEFAULT_KP = (5.3, 3.9)
 DEFAULT_KD = (0.42, 0.31)
 DEFAULT_TI = (0.16, 0.16)
-
-
-def forward_kinematics(q: np.ndarray, l1: float, l2: float) -> np.ndarray:
-    """Tool position of the planar arm, vectorised over the leading axes of ``q`` (..., 2).
-
-    ``p = l1 (sin q1, cos q1) + l2 (cos(q1 + q2), -sin(q1 + q2))`` (project convention).
-    """
-    q1, q12 = q[..., 0], q[..., 0] + q[..., 1]
-    return np.stack([l1 * np.sin(q1) + l2 * np.cos(q12), l1 * np.cos(q1) - l2 * np.sin(q12)], axis=-1)
-
-
-def inverse_kinematics_many(p: np.ndarray, l1: float, l2: float) -> tuple[np.ndarray, np.ndarray]:
-    """Closed-form IK of the planar arm on the branch of the home pose (``|q2| <= pi/2``).
-
-    ``|p|^2 = l1^2 + l2^2 - 2 l1 l2 sin q2`` gives ``q2``; with ``A = l1 - l2 sin q2`` and
-    ``B = l2 cos q2``, ``x = A sin q1 + B cos q1``, ``z = A cos q1 - B sin q1`` give
-    ``q1 = atan2(x, z) - atan2(B, A)``.
-
-    Returns
-    -------
-    q
-        (n, 2) arm angles [rad] (NaN where unreachable).
-    sin_q2
-        (n,) the value of ``sin q2`` before clipping (|.| > 1: out of reach).
-    """
-    x, z = p[:, 0], p[:, 1]
-    s2 = (l1 * l1 + l2 * l2 - (x * x + z * z)) / (2.0 * l1 * l2)
-    with np.errstate(invalid="ignore"):
-        q2 = np.arcsin(s2)
-    a = l1 - l2 * np.sin(q2)
-    b = l2 * np.cos(q2)
-    q1 = np.arctan2(x, z) - np.arctan2(b, a)
-    return np.stack([q1, q2], axis=1), s2
 
 
 def arm_reference(p: np.ndarray, v: np.ndarray, a: np.ndarray, j: np.ndarray, l1: float, l2: float
@@ -125,7 +92,7 @@ def arm_reference(p: np.ndarray, v: np.ndarray, a: np.ndarray, j: np.ndarray, l1
     q, dq, ddq, dddq
         (n, 2) each [rad, rad/s, rad/s^2, rad/s^3].
     """
-    q, _ = inverse_kinematics_many(p, l1, l2)
+    q, _ = kinematics.inverse_kinematics_many(p, l1, l2)
     th1, th12 = q[:, 0], q[:, 0] + q[:, 1]
     s1, c1, s12, c12 = np.sin(th1), np.cos(th1), np.sin(th12), np.cos(th12)
     u = np.stack([s1, c1], 1)
@@ -151,18 +118,6 @@ def arm_reference(p: np.ndarray, v: np.ndarray, a: np.ndarray, j: np.ndarray, l1
         return np.stack([th[:, 0], th[:, 1] - th[:, 0]], 1)
 
     return q, to_q(dth), to_q(ddth), to_q(dddth)
-
-
-def jacobian_many(q: np.ndarray, l1: float, l2: float) -> np.ndarray:
-    """Tool Jacobian dp/dq, (n, 2, 2), vectorised."""
-    q1, q12 = q[:, 0], q[:, 0] + q[:, 1]
-    jac = np.empty((q.shape[0], 2, 2))
-    jac[:, 0, 0] = l1 * np.cos(q1) - l2 * np.sin(q12)
-    jac[:, 0, 1] = -l2 * np.sin(q12)
-    jac[:, 1, 0] = -l1 * np.sin(q1) - l2 * np.cos(q12)
-    jac[:, 1, 1] = -l2 * np.cos(q12)
-    return jac
-
 
 
 # ---- the controller ---------------------------------------------------------------------------
@@ -287,7 +242,7 @@ class MotionControlModel:
     # ---- setup ---------------------------------------------------------------------------------
     def _reach_problem(self, p: np.ndarray) -> np.ndarray:
         """Boolean mask of points out of reach (with the singularity margin)."""
-        _, s2 = inverse_kinematics_many(np.atleast_2d(p), self.l1, self.l2)
+        _, s2 = kinematics.inverse_kinematics_many(np.atleast_2d(p), self.l1, self.l2)
         return ~(np.abs(s2) <= SIN_Q2_MAX)
 
     def _reach_text(self) -> str:
@@ -340,7 +295,7 @@ class MotionControlModel:
         dqm = r * (dq + ddefl)
         ddqm = r * (ddq + dddefl)
         tau_ff = view.jm * ddqm + view.motor_friction(dqm) + (view.spring(defl) + view.d * ddefl) / r
-        jinv = np.linalg.inv(jacobian_many(q, self.l1, self.l2)).reshape(-1, 4)
+        jinv = np.linalg.inv(kinematics.jacobian_many(q, self.l1, self.l2)).reshape(-1, 4)
         table = np.empty((t.shape[0], _NCOL))
         for sl, val in ((_P, p), (_V, v), (_A, a), (_Q, q), (_DQ, dq), (_DDQ, ddq), (_DDDQ, dddq),
                         (_QM, qm), (_DQM, dqm), (_TFF, tau_ff), (_TARM, tau_arm), (_JINV, jinv)):

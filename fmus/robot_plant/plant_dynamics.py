@@ -49,7 +49,7 @@ with the generalised forces ``Q_j = g g_j sin psi_j + L_j (f_x cos psi_j - f_z s
 on body ``j``): the gearbox torque ``tau_s(D) + d D_dot`` of eq. 11, or ``-(k_b b + d_b b_dot)``
 at a bending joint. The motors follow eq. 10 with the applied torque of item 2.
 
-The hot path is plain-float Python like :class:`fmus.common.dynamics._Constants`: for the
+The hot path is plain-float Python like :class:`fmus.common.dynamics.ArmConstants`: for the
 four-body chain written out (an LDL^T solve of the 4x4 system), in loops for a chain of rigid
 links (``link_bending = false``).
 """
@@ -109,7 +109,7 @@ class PlantChain:
     def __init__(self, p) -> None:
         self.p = p
         self.robot = p.robot()
-        self.k = dynamics._Constants(self.robot)    # gearbox spring, motor and friction constants
+        self.k = dynamics.ArmConstants(self.robot)    # gearbox spring, motor and friction constants
         g = float(p.g)
         bodies, kinds, offsets = [], [], []         # kinds: ("gear", axis) or ("bend", k_b, d_b)
         for i in range(2):
@@ -236,7 +236,7 @@ class PlantChain:
         return S, C, W, _solve_spd(M, b), tj
 
     def derivatives(self, s, tau1: float, tau2: float, fx: float, fz: float) -> tuple:
-        """``x_dot`` as a tuple of floats (the same call as ``dynamics._Constants.derivatives``)."""
+        """``x_dot`` as a tuple of floats (the same call as ``dynamics.ArmConstants.derivatives``)."""
         n, k = self.n, self.k
         _, _, _, A, tj = self.arm(s, fx, fz)
         qm1, qm2, dqm1, dqm2 = s[n], s[n + 1], s[2 * n + 2], s[2 * n + 3]

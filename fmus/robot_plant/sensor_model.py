@@ -17,10 +17,10 @@ from typing import Sequence
 
 import numpy as np
 
+from fmus.common.frames import G, sensor_rotation
 from fmus.common.noise import make_rng, random_walk_increment, white_noise
+from fmus.common.parameters import ParameterError, param
 from fmus.common.sample_time import UNSTAMPED, measurement_time
-
-G = 9.81
 
 
 # ---------------------------------------------------------------------------------------------
@@ -290,27 +290,6 @@ class SensorChannels:
 # ---------------------------------------------------------------------------------------------
 # Rotations and ideal readings
 # ---------------------------------------------------------------------------------------------
-def rot_y(phi: float) -> np.ndarray:
-    """``Ry(phi)``: tool frame to world (rotation about +y)."""
-    c, s = math.cos(phi), math.sin(phi)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rot_rpy(rpy: Sequence[float]) -> np.ndarray:
-    """Mounting rotation from roll, pitch, yaw (``Rz(yaw) @ Ry(pitch) @ Rx(roll)``), sensor to tool."""
-    r, p, y = (float(v) for v in rpy)
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
-    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
-    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-    return rz @ ry @ rx
-
-
-def sensor_rotation(phi: float, mount_rpy: Sequence[float]) -> np.ndarray:
-    """``R_s = Ry(phi) @ R_mount``: sensor frame to world."""
-    return rot_y(phi) @ rot_rpy(mount_rpy)
-
-
 def _xz(v: Sequence[float]) -> np.ndarray:
     return np.array([float(v[0]), 0.0, float(v[1])])
 
@@ -389,26 +368,17 @@ def calibrate_tool(phis: Sequence[float], readings: np.ndarray, g: float = G
 # ---------------------------------------------------------------------------------------------
 # Environment
 # ---------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Wall:
-    """A one-sided spring-damper wall: plane through ``point`` with unit ``normal`` (x, z)
-    pointing out of the wall into free space."""
-
-    point: tuple[float, float] = (1.30, 0.0)
-    normal: tuple[float, float] = (-1.0, 0.0)
-    stiffness: float = 5000.0
-    damping: float = 50.0
-    enabled: bool = True
-
-
-def penetration(p_tool: Sequence[float], wall: Wall) -> float:
-    """Depth of the tool inside the wall along the normal (m); negative outside."""
-    n = np.asarray(wall.normal, dtype=float)
+def penetration(p_tool: Sequence[float], wall: ContactEnvironmentParameters) -> float:
+    """Depth of the tool inside the wall (plane through ``wall_point`` with the normal
+    ``wall_normal`` pointing out of the wall into free space) along the normal (m); negative
+    outside."""
+    n = np.asarray(wall.wall_normal, dtype=float)
     n = n / np.linalg.norm(n)
-    return float(-(np.asarray(p_tool, dtype=float) - np.asarray(wall.point, dtype=float)) @ n)
+    return float(-(np.asarray(p_tool, dtype=float) - np.asarray(wall.wall_point, dtype=float)) @ n)
 
 
-def contact_force(p_tool: Sequence[float], v_tool: Sequence[float], wall: Wall) -> np.ndarray:
+def contact_force(p_tool: Sequence[float], v_tool: Sequence[float],
+                  wall: ContactEnvironmentParameters) -> np.ndarray:
     """Force of the wall ON the tool, world x and z (N).
 
     ``f = n max(0, k d - c v.n)`` when the penetration ``d > 0`` (a Kelvin-Voigt contact,
@@ -420,7 +390,7 @@ def contact_force(p_tool: Sequence[float], v_tool: Sequence[float], wall: Wall) 
     d = penetration(p_tool, wall)
     if d <= 0.0:
         return np.zeros(2)
-    n = np.asarray(wall.normal, dtype=float)
+    n = np.asarray(wall.wall_normal, dtype=float)
     n = n / np.linalg.norm(n)
     push = wall.stiffness * d - wall.damping * float(np.asarray(v_tool, dtype=float) @ n)
     return max(push, 0.0) * n
@@ -444,7 +414,174 @@ def hammer_force(t: float, times: Sequence[float], force_xz: Sequence[float], du
     return f
 
 
+RESOLVER = "16-bit resolver-to-digital conversion per motor revolution (e.g. AD2S1210 at 16 bit)"
+
+
+@dataclass(frozen=True)
+class EncoderParameters:
+    """Parameters of the Encoder FMU (both joints share them except bias and scale)."""
+
+    resolution: float = param(2.0 * math.pi / 2 ** 16, "rad", "quantisation step on the motor side "
+                              "(2 pi / 2^16 = 9.6e-5 rad; 0 = off)", low=0.0, source=RESOLVER)
+    noise: float = param(2e-5, "rad", "white noise std per sample (about 0.2 LSB)", low=0.0,
+                         source="assumed resolver electrical noise, below one count")
+    bias: tuple = param((0.0, 0.0), "rad", "constant offset per joint (calibrated: 0)")
+    bias_rw: float = param(0.0, "rad/s0.5", "bias random-walk intensity per sqrt(s)", low=0.0)
+    scale: tuple = param((0.0, 0.0), "1", "scale-factor error per joint (reading = (1+scale) q)",
+                         low=-0.5, high=0.5)
+    cutoff: float = param(0.0, "Hz", "anti-aliasing low-pass cut-off (0 = off; an encoder has none)",
+                          low=0.0)
+    filter_order: int = param(2, "1", "anti-aliasing filter order (1 or 2, Butterworth)", low=1, high=2)
+    sample_rate: float = param(0.0, "Hz", "sample rate with sample-and-hold (0 = every communication "
+                               "step; the papers sample at 2 kHz). Its period must be an integer "
+                               "multiple of the communication step", low=0.0,
+                               source="2009 and 2012 papers: 2 kHz")
+    seed: int = param(1, "1", "seed of the noise streams", low=0)
+
+
+MEMS = ("16-bit MEMS IMU class (e.g. Bosch BMI160 / TDK ICM-20948 data sheets: +-16 g, "
+        "+-2000 deg/s, 16-bit output)")
+CALIBRATION = ("assumed, no user calibration: within the sensitivity tolerances of MEMS data sheets "
+               "(BMI160 / ICM-20948 class: about 0.5-1.5 %)")
+MOUNTING = "assumed: mounting tolerance of a bracket on the tool, about 0.1-0.3 deg"
+ACC_RANGE = 16.0 * G
+GYRO_RANGE = math.radians(2000.0)
+
+
+@dataclass(frozen=True)
+class ImuParameters:
+    """Parameters of the Imu FMU."""
+
+    mount_rpy: tuple = param((0.004, 0.003, -0.003), "rad", "mounting roll, pitch, yaw of the sensor "
+                             "on the tool (R_mount = Rz(yaw) Ry(pitch) Rx(roll), sensor to tool); the "
+                             "default is a misalignment the filters do not know (0 = ideal)",
+                             low=-math.pi, high=math.pi, source=MOUNTING)
+    acc_noise: float = param(0.02, "m/s2", "accelerometer white noise std per sample", low=0.0,
+                             source="about 150 ug/sqrt(Hz) over a 200 Hz bandwidth (MEMS class)")
+    acc_bias: tuple = param((0.0, 0.0, 0.0), "m/s2", "accelerometer constant bias per axis "
+                            "(after calibration: 0)", low=-ACC_RANGE, high=ACC_RANGE,
+                            source="2012 paper: offset calibrated (Axelsson and Norrlof 2012)")
+    acc_bias_rw: float = param(1e-3, "m/s2/s0.5", "accelerometer bias random-walk intensity per sqrt(s)",
+                               low=0.0, source="assumed: a few mm/s2 drift over 10 s (MEMS class)")
+    acc_scale: tuple = param((0.003, -0.004, 0.002), "1", "accelerometer scale-factor error per axis "
+                             "(0 = ideal)", low=-0.5, high=0.5, source=CALIBRATION)
+    acc_resolution: float = param(2.0 * ACC_RANGE / 2 ** 16, "m/s2", "accelerometer quantisation step "
+                                  "(16 bit over +-16 g; 0 = off)", low=0.0, source=MEMS)
+    acc_range: float = param(ACC_RANGE, "m/s2", "accelerometer range (16 g): readings saturate at it",
+                             low=0.0, low_inclusive=False, source=MEMS)
+    acc_cutoff: float = param(200.0, "Hz", "accelerometer anti-aliasing low-pass cut-off (0 = off); "
+                              "must be below the Nyquist frequency of the communication step", low=0.0,
+                              source="MEMS digital low-pass about ODR/4; the 2012 paper low-pass filters "
+                              "the accelerometer")
+    gyro_noise: float = param(0.005, "rad/s", "gyro white noise std per sample", low=0.0,
+                              source="about 0.015 deg/s/sqrt(Hz) over 400 Hz (MEMS class)")
+    gyro_bias: tuple = param((0.0, 0.0, 0.0), "rad/s", "gyro constant bias per axis (calibrated: 0)",
+                             low=-GYRO_RANGE, high=GYRO_RANGE)
+    gyro_bias_rw: float = param(1e-4, "rad/s/s0.5", "gyro bias random-walk intensity per sqrt(s)",
+                                low=0.0, source="assumed, MEMS class")
+    gyro_scale: tuple = param((-0.004, 0.005, 0.003), "1", "gyro scale-factor error per axis (0 = ideal)",
+                              low=-0.5, high=0.5, source=CALIBRATION)
+    gyro_resolution: float = param(2.0 * GYRO_RANGE / 2 ** 16, "rad/s", "gyro quantisation step "
+                                   "(16 bit over +-2000 deg/s; 0 = off)", low=0.0, source=MEMS)
+    gyro_range: float = param(GYRO_RANGE, "rad/s", "gyro range (2000 deg/s)", low=0.0,
+                              low_inclusive=False, source=MEMS)
+    gyro_cutoff: float = param(200.0, "Hz", "gyro anti-aliasing low-pass cut-off (0 = off)", low=0.0,
+                               source=MEMS)
+    filter_order: int = param(2, "1", "anti-aliasing filter order (1 or 2, Butterworth)", low=1, high=2)
+    sample_rate: float = param(0.0, "Hz", "sample rate with sample-and-hold (0 = every communication "
+                               "step; the papers sample at 2 kHz). Its period must be an integer "
+                               "multiple of the communication step", low=0.0,
+                               source="2009 and 2012 papers: 2 kHz")
+    g: float = param(G, "m/s2", "gravity", low=0.0)
+    seed: int = param(2, "1", "seed of the noise streams", low=0)
+
+
+PAPER = "García, Robertsson, Gómez Ortega, Johansson (impedance paper)"
+JR3 = "JR3 6-DOF wrist sensor class (the impedance paper's sensor): +-660 N, 16-bit output"
+
+
+@dataclass(frozen=True)
+class ForceTorqueSensorParameters:
+    """Parameters of the ForceTorqueSensor FMU."""
+
+    m_tool: float = param(12.0, "kg", "tool mass between the sensor and the tool tip", low=0.0,
+                          low_inclusive=False, source=f"{PAPER}, section III (12 kg grinding tool)")
+    mount_rpy: tuple = param((0.002, 0.003, -0.002), "rad", "mounting roll, pitch, yaw of the sensor "
+                             "on the tool (R_mount = Rz(yaw) Ry(pitch) Rx(roll), sensor to tool); the "
+                             "default is a mounting error nobody compensates (0 = ideal)",
+                             low=-math.pi, high=math.pi,
+                             source="assumed: flange and adapter-plate tolerances of about 0.1-0.2 deg")
+    noise: float = param(0.5, "N", "white noise std per sample", low=0.0,
+                         source="assumed, strain-gauge sensor of this range (about 0.1 % of range)")
+    bias: tuple = param((0.0, 0.0, 0.0), "N", "constant offset per axis (after taring: 0)",
+                        low=-660.0, high=660.0)
+    bias_rw: float = param(0.01, "N/s0.5", "bias random-walk intensity per sqrt(s) (thermal drift)",
+                           low=0.0, source="assumed: about 0.1 N drift over 100 s")
+    scale: tuple = param((0.008, -0.005, 0.01), "1", "scale-factor error per axis (0 = ideal)",
+                         low=-0.5, high=0.5, source="assumed within the calibration accuracy of "
+                         "strain-gauge F/T sensors, about 1 % (JR3 / ATI data sheets)")
+    resolution: float = param(2.0 * 660.0 / 2 ** 16, "N", "quantisation step (16 bit over +-660 N; "
+                              "0 = off)", low=0.0, source=JR3)
+    f_range: float = param(660.0, "N", "measuring range: readings saturate at it and set 'saturated'",
+                           low=0.0, low_inclusive=False, source=JR3)
+    cutoff: float = param(0.0, "Hz", "anti-aliasing low-pass cut-off (0 = off); must be below the "
+                          "Nyquist frequency of the communication step", low=0.0)
+    filter_order: int = param(2, "1", "anti-aliasing filter order (1 or 2, Butterworth)", low=1, high=2)
+    sample_rate: float = param(0.0, "Hz", "sample rate with sample-and-hold (0 = every communication "
+                               "step). Its period must be an integer multiple of the communication step",
+                               low=0.0)
+    g: float = param(G, "m/s2", "gravity", low=0.0)
+    seed: int = param(3, "1", "seed of the noise streams", low=0)
+
+
+def sensor_channels(p: ForceTorqueSensorParameters) -> SensorChannels:
+    """The sensor's imperfections (noise, bias, scale, quantisation, range, rate, filter)."""
+    return SensorChannels(
+        3, seed=p.seed, stream="force_sensor", noise=p.noise, bias=p.bias, bias_rw=p.bias_rw,
+        scale=p.scale, resolution=p.resolution, range=p.f_range, sample_rate=p.sample_rate,
+        cutoff=p.cutoff, filter_order=p.filter_order)
+
+
+def calibration_readings(p: ForceTorqueSensorParameters, phis: Sequence[float], n_samples: int = 500,
+                         dt: float = 1e-3) -> np.ndarray:
+    """Mean readings of this sensor at rest, free of contact, ``n_samples`` samples of ``dt`` in
+    each tool angle of ``phis``: the data of :func:`fmus.robot_plant.sensor_model.calibrate_tool`.
+    Returns (len(phis), 3)."""
+    channels = sensor_channels(p)
+    out = []
+    for phi in phis:
+        ideal = force_sensor_reading((0.0, 0.0), (0.0, 0.0), float(phi), p.m_tool, p.mount_rpy, p.g)
+        out.append(np.mean([channels.step(ideal, dt) for _ in range(n_samples)], axis=0))
+    return np.array(out)
+
+
+@dataclass(frozen=True)
+class ContactEnvironmentParameters:
+    """Parameters of the ContactEnvironment FMU."""
+
+    enabled: bool = param(True, "1", "whether the wall exists (false: only the hammer pulses act)")
+    wall_point: tuple = param((1.30, 0.0), "m", "a point of the wall plane, world x and z",
+                              source="the contact study's wall at x = 1.30 m")
+    wall_normal: tuple = param((-1.0, 0.0), "1", "normal of the wall plane, world x and z, pointing out "
+                               "of the wall into free space (normalised; must not be zero)",
+                               low=-1.0, high=1.0)
+    stiffness: float = param(5000.0, "N/m", "wall stiffness (5 N/mm)", low=0.0, low_inclusive=False,
+                             source=f"{PAPER}, environment of 5 N/mm")
+    damping: float = param(50.0, "N.s/m", "wall damping (acts only while in contact, never pulls)",
+                           low=0.0, source="assumed: damping ratio about 0.1 with the 12 kg tool")
+    hammer_times: tuple = param((0.0, 0.0, 0.0, 0.0), "s", "start times of up to four hammer "
+                                "strikes (0 = unused)", low=0.0,
+                                source="2009 paper, section IV: rubber-hammer strikes on the tool")
+    hammer_force: tuple = param((300.0, 0.0), "N", "peak hammer force ON the tool, world x and z",
+                                low=-1e4, high=1e4, source="assumed: a rubber-hammer blow of a few 100 N")
+    hammer_duration: float = param(0.005, "s", "duration of a half-sine hammer pulse", low=0.0,
+                                   low_inclusive=False, source="assumed: rubber hammer, a few ms")
+
+    def check(self) -> None:
+        if math.hypot(*self.wall_normal) < 1e-9:
+            raise ParameterError(f"parameter 'wall_normal' = {self.wall_normal} must not be zero")
+
+
 __all__ = ["UNSTAMPED", "T_TRUTH_DESCRIPTION", "input_time", "SensorChannels", "butterworth_coefficients",
-           "butterworth_magnitude", "quantise", "rot_y", "rot_rpy", "sensor_rotation", "imu_reading",
-           "force_sensor_reading", "calibrate_tool", "Wall", "penetration", "contact_force", "hammer_force",
-           "G"]
+           "butterworth_magnitude", "quantise", "imu_reading",
+           "force_sensor_reading", "calibrate_tool", "penetration", "contact_force", "hammer_force", "EncoderParameters", "ImuParameters", "ForceTorqueSensorParameters", "sensor_channels", "calibration_readings", "ContactEnvironmentParameters"]

@@ -2,31 +2,9 @@
 :mod:`fmus.robot_plant.tracker_model`)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from fmus.common.fmi import FlexFusionSlave
-from fmus.common.parameters import param
 from fmus.robot_plant.sensor_model import T_TRUTH_DESCRIPTION, UNSTAMPED, input_time
-from fmus.robot_plant.tracker_model import TrackerModel
-
-LEICA = ("Axelsson et al. 2012, section 5.1 and Henriksson et al. 2009, section IV: Leica laser "
-         "tracker, 1 kHz, accuracy 0.01 mm per metre of range")
-
-
-@dataclass(frozen=True)
-class TrackerParameters:
-    """Parameters of the Tracker FMU."""
-
-    noise: float = param(2e-5, "m", "white measurement noise std per axis and sample (0 = off)",
-                         low=0.0, source=f"{LEICA}: 0.02 mm at the robot's 1.5-2 m range (the IMU "
-                         "paper's LTD840: about 0.1 mm)")
-    sample_rate: float = param(1000.0, "Hz", "sample rate; the output holds the newest sample",
-                               low=0.0, low_inclusive=False, source=LEICA)
-    skew: float = param(1e-3, "s", "how far the tracker's clock lags the controller's: a sample "
-                        "stamped t_meas is the position at t_meas - skew (0 = synchronised)",
-                        low=0.0, high=1.0, source="Axelsson et al. 2012, section 5.1: the tracker is "
-                        "not synchronised with the robot's signals; assumed one 1 kHz sample")
-    seed: int = param(4, "1", "seed of the noise stream", low=0)
+from fmus.robot_plant.tracker_model import TrackerModel, TrackerParameters
 
 
 class Tracker(FlexFusionSlave):

@@ -1,16 +1,17 @@
-"""The FMU base of the filters that fuse each measurement at the time it was taken.
+"""The FMU adapter base of every estimator: each measurement fused at the time it was taken, the
+update held pending until the next step, the last good estimate held after a divergence.
 
 The sensors publish ``t_meas``, the time their held sample was taken; a filter takes it as an
 optional input of the same name (:mod:`fmus.common.sample_time`). Design: the filter's state
 stays anchored at the last fused measurement. For a measurement stamped ``t_meas``, newer than
-that, the filter predicts from the anchor to ``t_meas``, updates, and outputs the prediction from
-there to the current time. A measurement that arrives late (a Jacobi master such as libcosim
-hands it over one or two steps after it was taken) is so fused exactly as if it had come on
-time, with no history to keep or re-filter: each sensor's stamps only grow, so nothing ever
-arrives out of sequence. A held sample (the stamp of the last fused one: a sensor slower than the
-filter) is not fused again, and one stamped after the current time waits for the step that
-reaches it. A prediction over several filter periods runs period by period (the filters' models
-and noise are per sample).
+that, the filter advances from the anchor to ``t_meas`` with it (predict, then update), and
+outputs the prediction from there to the current time. A measurement that arrives late (a
+Jacobi master such as libcosim hands it over one or two steps after it was taken) is so fused
+exactly as if it had come on time, with no history to keep or re-filter: each sensor's stamps
+only grow, so nothing ever arrives out of sequence. A held sample (the stamp of the last fused
+one: a sensor slower than the filter) is not fused again, and one stamped after the current time
+waits for the step that reaches it. A prediction over several filter periods runs period by
+period (the filters' models and noise are per sample).
 
 The update for the newest measurement stays pending until the next step: inputs set between
 steps (time ``t``) replace one another, and ``do_step(t, T)`` commits the last one computed before
@@ -18,60 +19,88 @@ it, so that the measurements a Gauss-Seidel master (ours) sets before ``do_step(
 producers' values of ``t + T``, are fused after the prediction to ``t + T``. With ``t_meas``
 unconnected the inputs are the measurement at the current time, which gives exactly that; the
 sensors' stamps under our master say the same, so wiring them changes no result.
+
+A filter with direct feedthrough (``feedthrough = True``: the Kalman and particle filters of
+the 2012 and 2009 papers) fuses the inputs as soon as they are set, and its outputs at ``t`` are
+the estimate with the measurement of ``t``. One without (the complementary filter, the IMU EKF,
+the acceleration observer) fuses only in ``do_step``: its initial inputs start the filter
+(``setup``), and are not fused again.
 """
 from __future__ import annotations
 
+import copy
 import math
 from typing import Any
 
 from fmus.common.fmi import FlexFusionSlave
+from fmus.common.kalman import FilterDivergence
 from fmus.common.sample_time import (T_MEAS_DESCRIPTION, TIME_TOL, UNSTAMPED, intervals,
-                                         measurement_time)
+                                     measurement_time)
 
 
-class StampedEstimator(FlexFusionSlave):
-    """Base of a filter FMU with sample-time fusion (module docstring).
+class FilterAdapter(FlexFusionSlave):
+    """Base of an estimator FMU (module docstring).
 
     A subclass declares its inputs and outputs (with :meth:`declare_t_meas`), calls
     :meth:`start_fusion` with the initial estimate at the end of its ``setup`` and implements:
 
     ``_predicted(est, T)``
-        the estimate ``est`` predicted over ``T`` (a new value: estimates are never changed);
+        the estimate ``est`` predicted over ``T`` without a measurement (a new value: estimates
+        are never changed); by default a shallow copy of ``est`` after its ``predict(T)``, for a
+        model object that replaces its arrays rather than changing them;
     ``_fused(prior)``
-        the measurement update of ``prior`` with the measurement inputs (a new value);
+        the measurement update of ``prior`` with the measurement inputs (a new value), or,
+        instead, ``_advanced(est, T)``: ``est`` carried over ``T`` to the measurement inputs'
+        time and updated with them (a filter whose prediction uses the measurement, e.g. an
+        IMU's rates); ``T`` is 0 for the initial inputs of a filter with feedthrough;
     ``_show(est)``
         set the outputs from an estimate;
     ``_before_step()`` (optional)
-        read the inputs a step uses besides the measurements (e.g. the model's input).
+        read the inputs a step uses besides the measurements (e.g. the model's input);
+    ``_committed(est, t)`` (optional)
+        act on an update that became final (e.g. log a re-initialisation).
 
     ``divergence`` is the filter's exception for a non-finite or indefinite estimate: it ends the
     step with an FMI error naming the cause, as does every later step; the outputs keep the last
     good estimate (never NaN) and stay readable.
     """
 
-    divergence: type[Exception] = FloatingPointError
+    divergence: type[Exception] = FilterDivergence
+    feedthrough = True
 
     def declare_t_meas(self) -> None:
         self.input("t_meas", unit="s", start=UNSTAMPED, description=T_MEAS_DESCRIPTION)
 
     def start_fusion(self, initial: Any) -> None:
-        """Begin at the start time with the estimate ``initial`` and fuse the initial inputs."""
+        """Begin at the start time with the estimate ``initial``; fuse the initial inputs (with
+        feedthrough) or count them as the measurement ``initial`` started from (without)."""
         self._est, self._t_state = initial, self._time   # the committed estimate and its time
-        self._t_fused = -math.inf          # the stamp of the last committed measurement
+        self._t_fused = -math.inf if self.feedthrough else self._time   # the stamp last committed
         self._pending: tuple | None = None  # (t_meas, estimate) fused, not committed
         self._diverged = ""
-        self._refresh(self._time)
+        if self.feedthrough:
+            self._refresh(self._time)
+        else:
+            self._show(initial)
 
     def _predicted(self, est: Any, T: float) -> Any:
-        raise NotImplementedError
+        est = copy.copy(est)
+        est.predict(T)
+        return est
 
     def _fused(self, prior: Any) -> Any:
         raise NotImplementedError
+
+    def _advanced(self, est: Any, t0: float, t1: float) -> Any:
+        return self._fused(self._predicted_to(est, t0, t1))
 
     def _show(self, est: Any) -> None:
         raise NotImplementedError
 
     def _before_step(self) -> None:
+        pass
+
+    def _committed(self, est: Any, t: float) -> None:
         pass
 
     def _predicted_to(self, est: Any, t0: float, t1: float) -> Any:
@@ -85,6 +114,7 @@ class StampedEstimator(FlexFusionSlave):
     def _commit(self) -> None:
         (self._t_state, self._est), self._pending = self._pending, None
         self._t_fused = self._t_state
+        self._committed(self._est, self._t_state)
 
     def _refresh(self, now: float) -> None:
         """Fuse the measurement inputs at their time (pending until the next step) and set the
@@ -97,8 +127,7 @@ class StampedEstimator(FlexFusionSlave):
                 if self._pending is not None and t_m > self._pending[0] + TIME_TOL:
                     self._commit()                      # a newer sample: the pending one is final
                 if t_m > self._t_fused + TIME_TOL:      # not fused yet
-                    prior = self._predicted_to(self._est, self._t_state, t_m)
-                    self._pending = (t_m, self._fused(prior))
+                    self._pending = (t_m, self._advanced(self._est, self._t_state, t_m))
             t, est = self._pending if self._pending is not None else (self._t_state, self._est)
             self._show(self._predicted_to(est, t, now))
         except self.divergence as exc:
@@ -106,10 +135,11 @@ class StampedEstimator(FlexFusionSlave):
             self._pending = None
 
     def update_outputs(self) -> None:
-        self._refresh(self._time)
+        if self.feedthrough:
+            self._refresh(self._time)
 
     def step(self, t: float, dt: float) -> None:
-        if self._pending is None and not self._diverged:
+        if self._pending is None and not self._diverged and self.feedthrough:
             self._refresh(t)
         if self._diverged:
             raise self.divergence(f"{self._diverged}; the outputs hold the last good estimate")
@@ -121,4 +151,4 @@ class StampedEstimator(FlexFusionSlave):
             raise self.divergence(self._diverged)
 
 
-__all__ = ["StampedEstimator"]
+__all__ = ["FilterAdapter"]

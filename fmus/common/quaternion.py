@@ -152,24 +152,6 @@ def from_matrix(m: np.ndarray) -> np.ndarray:
     return normalise(q)
 
 
-class RigidMount:
-    """A sensor rigidly mounted on the tool: its point at ``lever_arm`` (tool frame) and its frame
-    rotated by ``mount_matrix`` (sensor to tool) from the tool's."""
-
-    def __init__(self, lever_arm: Sequence[float], mount_matrix: np.ndarray) -> None:
-        self.lever = np.array(lever_arm, dtype=float)
-        self.q_mount = from_matrix(mount_matrix)
-
-    def sensor_pose(self, p_tool, q_tool) -> tuple[np.ndarray, np.ndarray]:
-        """The sensor point and frame (world) of a tool pose."""
-        return (np.asarray(p_tool, float) + rotate(q_tool, self.lever), multiply(q_tool, self.q_mount))
-
-    def tool_pose(self, p_sensor, q_sensor) -> tuple[np.ndarray, np.ndarray]:
-        """The tool point and orientation (tool to world) of a sensor pose."""
-        q_tool = normalise(multiply(q_sensor, conjugate(self.q_mount)))
-        return np.asarray(p_sensor, float) - rotate(q_tool, self.lever), q_tool
-
-
 def skew(v: Sequence[float]) -> np.ndarray:
     """``[v]×``, the matrix of the cross product ``v × (.)``."""
     x, y, z = float(v[0]), float(v[1]), float(v[2])

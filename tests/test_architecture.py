@@ -1,0 +1,63 @@
+"""The import rules of ARCHITECTURE.md, read from the source with ast (every import, also those
+inside functions): the FMU wings import only fmus.common and themselves (estimators never the
+plant), fmus never imports orchestration or the tests, and fmus uses only the third-party
+packages every FMU ships in its requirements (and pythonfmu)."""
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+import pytest
+
+from orchestration.build import FMU_REQUIREMENTS
+
+ROOT = Path(__file__).resolve().parent.parent
+WINGS = ("robot_plant", "estimators", "force_observer")
+THIRD_PARTY = {r.split(">")[0].split("=")[0].split("<")[0].strip() for r in FMU_REQUIREMENTS} | {"pythonfmu"}
+
+
+def imports(path: Path) -> list[tuple[int, str]]:
+    """``(line, module)`` of every absolute import in ``path``."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.append((node.lineno, node.module))
+    return out
+
+
+def allowed(part: str, module: str) -> bool:
+    top = module.split(".")[0]
+    if top == "fmus":
+        group = module.split(".")[1] if "." in module else ""
+        return group == "common" or (part != "common" and group == part)
+    return top in sys.stdlib_module_names or top in THIRD_PARTY
+
+
+@pytest.mark.parametrize("part", ("common",) + WINGS)
+def test_fmus_import_rules(part: str) -> None:
+    bad = [f"{path.relative_to(ROOT)}:{line}: {module}"
+           for path in sorted((ROOT / "fmus" / part).rglob("*.py"))
+           for line, module in imports(path) if not allowed(part, module)]
+    assert not bad, "imports against ARCHITECTURE.md:\n" + "\n".join(bad)
+
+
+def test_orchestration_never_imports_test_code() -> None:
+    tests = {p.stem for p in (ROOT / "tests").glob("*.py")} | {"tests"}
+    bad = [f"{path.relative_to(ROOT)}:{line}: {module}"
+           for path in sorted((ROOT / "orchestration").rglob("*.py"))
+           for line, module in imports(path) if module.split(".")[0] in tests]
+    assert not bad, "\n".join(bad)
+
+
+def test_the_rules_catch_a_violation() -> None:
+    """The checker itself: an estimator importing the plant or orchestration is refused, a
+    shared piece or its own wing is fine."""
+    assert not allowed("estimators", "fmus.robot_plant.sensor_model")
+    assert not allowed("common", "fmus.estimators.kalman")
+    assert not allowed("robot_plant", "orchestration.master")
+    assert not allowed("force_observer", "matplotlib.pyplot")
+    assert allowed("estimators", "fmus.common.frames") and allowed("estimators", "fmus.estimators.axelsson2012_model")
+    assert allowed("common", "scipy.linalg") and allowed("common", "math")

@@ -1,7 +1,7 @@
 """The import rules of ARCHITECTURE.md, read from the source with ast (every import, also those
 inside functions): the FMU wings import only fmus.common and themselves (estimators never the
 plant), fmus never imports orchestration or the tests, and fmus uses only the third-party
-packages every FMU ships in its requirements (and pythonfmu)."""
+packages every FMU ships in its requirements or optional requirements (and pythonfmu)."""
 from __future__ import annotations
 
 import ast
@@ -10,11 +10,12 @@ from pathlib import Path
 
 import pytest
 
-from orchestration.build import FMU_REQUIREMENTS
+from orchestration.build import FMU_OPTIONAL_REQUIREMENTS, FMU_REQUIREMENTS
 
 ROOT = Path(__file__).resolve().parent.parent
 WINGS = ("robot_plant", "estimators", "force_observer")
-THIRD_PARTY = {r.split(">")[0].split("=")[0].split("<")[0].strip() for r in FMU_REQUIREMENTS} | {"pythonfmu"}
+THIRD_PARTY = {r.split(">")[0].split("=")[0].split("<")[0].strip()
+               for r in FMU_REQUIREMENTS + FMU_OPTIONAL_REQUIREMENTS} | {"pythonfmu"}
 
 
 def imports(path: Path) -> list[tuple[int, str]]:

@@ -39,6 +39,8 @@ Cube 0.81 mm 0.93 mm 0.79 mm"""
 
 
 def test_paper_values_in_the_code_are_the_papers_table1():
+    """The study's copy of Table 1 is the transcript above (PAPER_TABLE1_TEXT, checked by hand
+    against the paper's Table 1 on 2026-11-30)."""
     head, *rows = PAPER_TABLE1_TEXT.splitlines()
     columns = {"CF": "cf_paper", "EKF": "ekf", "FK": "fk"}
     names = head.split()[1:]
@@ -94,6 +96,7 @@ def test_short_study_run(fmu_dir, tmp_path, monkeypatch):
         assert (tmp_path / name).exists(), name
     saved = json.loads((tmp_path / "metrics.json").read_text())
     assert set(saved) >= {"table1", "paper_table1", "labels", "findings", "wall_time", "figures"}
+    assert saved["paper_table1"] == study_imu.PAPER_TABLE1
     assert saved["wall_time"]["workers"] == 2 and saved["wall_time"]["total_s"] > 0
     assert len(saved["findings"]) == 6
     # the scenario's own metrics are the study's numbers

@@ -145,6 +145,14 @@ def test_short_robustness_table(fmus, tmp_path) -> None:
     assert "(0.221)" in md and "Model errors" in md and "Findings" in md
 
 
+def test_runs_shorter_than_the_left_out_start_are_one_error(tmp_path, capsys) -> None:
+    from orchestration import cli
+    assert cli.main(["study", "robustness", "--stop-time", "0.3", "--out", str(tmp_path),
+                     "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--stop-time 0.3 s" in err[0]
+
+
 #: Reduced size of the slow test: the first 3 s of P1 and P2 (the full paths are 8 and 6.5 s),
 #: with P1's hammer strike (1.5-1.7 s) and the start of each path's motion.
 REDUCED_STOP_TIME = 3.0

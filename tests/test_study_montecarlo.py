@@ -102,6 +102,7 @@ def test_study_json_schema(small):
         assert set(f) == {"claim", "ours", "reproduced", "why"} and f["reproduced"] in ("yes", "no")
     w = saved["wall_time_s"]
     assert w["jobs"] == 3 + 2 * 2 and w["total"] >= w["runs_and_sweep"] > 0
+    assert saved["executor"] == {"workers": 1, "scheduler": None}
     assert "not a lower bound" in saved["crlb_note"]
 
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 import tomllib
 from concurrent.futures import Executor
@@ -225,6 +226,9 @@ def robustness(tuned: Sequence[str | Path] = (), *, executor: Executor | None = 
     return the table: ``{"cases": {key: {"label", "columns": {label: stats}, "wall_time"}},
     "paper": PAPER_TABLE, "findings": findings(...), "wall_time", "workers" (as given, for the
     record), "series": {key: arrays for the figures}}``."""
+    if stop_time is not None and stop_time <= after:
+        raise StudyError(f"--stop-time {stop_time:g} s leaves nothing after the first {after:g} s "
+                         "the errors leave out")
     jobs = case_jobs(tuned, stop_time, cases, scenario_dir)
     t0 = time.perf_counter()
     if executor is None:
@@ -503,12 +507,13 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out)
     with open_executor(args.workers, args.scheduler) as ex:
         table = robustness(args.tuned or (), executor=ex, stop_time=args.stop_time,
-                           progress=not args.no_progress, workers=args.workers)
+                           progress=not args.no_progress,
+                           workers=args.workers or (os.cpu_count() if args.scheduler is None else None))
     files = write(table, out)
     print(markdown(table))
     print(f"robustness study: {len(table['cases'])} cases in {table['wall_time']:.1f} s "
-          f"({args.workers or 'default'} workers); "
-          f"wrote {', '.join(f.name for f in files)} to {out}")
+          + (f"({table['workers']} workers); " if table["workers"] else f"(scheduler {args.scheduler}); ")
+          + f"wrote {', '.join(f.name for f in files)} to {out}")
     return 0
 
 

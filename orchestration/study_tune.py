@@ -61,6 +61,13 @@ DEFAULT_BOUNDS: dict[str, dict[str, tuple[float, float]]] = {
     },
     **{ekf: {f"lambda{i}": (1e-4, 1e4) for i in range(1, 6)}
        for ekf in ("EkfComplete", "EkfMotor", "EkfIntegrated")},
+    # the IMU paper's filters: the CF's position split (cut-off, damping) and its own orientation
+    # split (our extension; the paper's single split is cutoff_orientation = 0, not tuned); the
+    # IMU EKF's process noise and forward-kinematics noise (the IMU's noise is its data sheet's)
+    "ComplementaryFilter": {"cutoff": (0.2, 30.0), "damping": (0.3, 3.0),
+                            "cutoff_orientation": (0.005, 30.0)},
+    "ImuEkf": {"sigma_jerk": (1.0, 1e5), "sigma_alpha": (0.1, 1e4), "r_position": (1e-6, 1e-2),
+               "r_orientation": (1e-6, 1e-1)},
 }
 
 METRICS = ("rmse", "bandpass_mean", "bandpass_max")
@@ -536,6 +543,9 @@ def main(args: argparse.Namespace) -> int:
                        overrides=overrides, metric=args.metric, seeds=seeds, holdout_seeds=holdout)
             comment = (f"tuned by: flexfusion study tune {args.scenario} --estimator {component} "
                        f"--metric {res.metric} --maxiter {args.maxiter} --popsize {args.popsize}"
+                       + (f" --seed {args.seed}" if args.seed else "")
+                       + "".join(f" --param {t}" for t in args.param or ())
+                       + "".join(f" --set {t}" for t in args.set or ())
                        + (f" --stop-time {args.stop_time}" if args.stop_time is not None else "")
                        + (f" --seeds {args.seeds}" if seeds else "")
                        + (f" --holdout-seeds {args.holdout_seeds}" if holdout else "")

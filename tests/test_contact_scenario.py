@@ -94,6 +94,9 @@ PAPER_TEXT = {
 
 
 def test_paper_values_in_the_code_are_the_papers():
+    """PAPER_VALUES against the transcript PAPER_TEXT (checked by hand against the paper's
+    sections III and V and eq. 41 on 2026-11-30; the paper's OCR reads "K, = 10 K, = IO",
+    "ka = 1" and "1 23" where the printed values are K_r = K_t = 10, k23 = 1 and 1.23)."""
     import re
     text = " ".join(PAPER_TEXT.values())
     p = sc.PAPER_VALUES

@@ -39,6 +39,8 @@ Cube 0.81 mm 0.93 mm 0.79 mm"""
 
 
 def test_paper_values_in_the_code_are_the_papers_table1():
+    """The study's copy of Table 1 is the transcript above (PAPER_TABLE1_TEXT, checked by hand
+    against the paper's Table 1 on 2026-11-30)."""
     head, *rows = PAPER_TABLE1_TEXT.splitlines()
     columns = {"CF": "cf_paper", "EKF": "ekf", "FK": "fk"}
     names = head.split()[1:]
@@ -94,6 +96,7 @@ def test_short_study_run(fmu_dir, tmp_path, monkeypatch):
         assert (tmp_path / name).exists(), name
     saved = json.loads((tmp_path / "metrics.json").read_text())
     assert set(saved) >= {"table1", "paper_table1", "labels", "findings", "wall_time", "figures"}
+    assert saved["paper_table1"] == study_imu.PAPER_TABLE1
     assert saved["wall_time"]["workers"] == 2 and saved["wall_time"]["total_s"] > 0
     assert len(saved["findings"]) == 6
     # the scenario's own metrics are the study's numbers
@@ -105,13 +108,47 @@ def test_tuning_goes_through_the_shared_tuner(fmu_dir, tmp_path, monkeypatch):
     scenarios read, the values inside the bounds."""
     monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
     res = study_imu.tune_filters(tmp_path, maxiter=1, popsize=1, workers=2, progress=False,
-                                 stop_time=0.8, only=["cf_same"])
+                                 stop_time=0.8, only=["cf_same"], holdout_seeds=(3,))
     p = res["cf_same"]["params"]
+    assert set(p) == set(study_imu.CF_SAME_BOUNDS) == {"cutoff", "damping"}
     for name, (lo, hi) in study_imu.CF_SAME_BOUNDS.items():
         assert lo <= p[name] <= hi
+    assert res["seeds"] == [2] and res["holdout_seeds"] == [3]
+    assert 0 < res["cf_same"]["holdout_rmse"] < 0.01
     import tomllib
     doc = tomllib.loads((tmp_path / "imu2019_tuned.toml").read_text())
     assert doc["components"]["cf_same"]["parameters"] == pytest.approx(p)
+
+
+def test_cli_tunes_several_estimators_in_one_call(fmu_dir, tmp_path, monkeypatch, capsys):
+    """`flexfusion study tune` with the CF and the IMU EKF in one call, at a tiny budget (one
+    generation of the smallest population, 0.8 s runs): each estimator gets its FMU type's
+    default bounds, its own include file naming the exact command, and its JSON with the
+    training and held-out costs."""
+    import tomllib
+
+    from orchestration import cli, study_tune
+    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
+    code = cli.main(["study", "tune", str(study_imu.PATHS["iso"]), "--estimator", "cf",
+                     "--estimator", "ekf", "--out", str(tmp_path), "--maxiter", "1", "--popsize", "1",
+                     "--stop-time", "0.8", "--seeds", "2", "--holdout-seeds", "3", "--workers", "2",
+                     "--no-progress"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    for comp, kind in (("cf", "ComplementaryFilter"), ("ekf", "ImuEkf")):
+        res = json.loads((tmp_path / f"tune_{comp}.json").read_text())
+        bounds = study_tune.DEFAULT_BOUNDS[kind]
+        assert set(res["params"]) == set(bounds)
+        for name, value in res["params"].items():
+            assert bounds[name][0] <= value <= bounds[name][1], (comp, name)
+        assert res["seeds"] == [2] and res["holdout_seeds"] == [3] and res["failed"] == 0
+        assert res["n_evals"] == len(res["history"]) == 2 * 5       # scipy's smallest population: 5
+        assert 0 < res["cost"] < 0.01 and 0 < res["holdout_cost"] < 0.01
+        assert res["cost"] == pytest.approx(min(h["cost"] for h in res["history"]))
+        text = (tmp_path / f"tuned_{comp}.toml").read_text()
+        assert f"--estimator {comp} " in text and "--seeds 2 --holdout-seeds 3" in text
+        assert tomllib.loads(text)["components"][comp]["parameters"] == pytest.approx(res["params"])
+        assert f"{comp}: cost" in printed
 
 
 @pytest.mark.slow

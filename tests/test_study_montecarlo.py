@@ -37,7 +37,9 @@ TABLE1_TEXT = {"accelerometer": {"position": 1.25e-5, "velocity": 7.57e-5, "acce
 
 def test_paper_values_are_the_papers_text():
     """The numbers the study compares with are the paper's: Table 1 and its caption (500 runs),
-    eq. 26, Fig. 4's caption (20 runs)."""
+    eq. 26, Fig. 4's caption (20 runs). TABLE1_TEXT and the eq. 26 values here were checked by
+    hand against the paper's text (Table 1, eq. 26, the captions of Figs. 3 and 4) on
+    2026-11-30."""
     assert study_montecarlo.PAPER_TABLE1 == TABLE1_TEXT
     assert study_montecarlo.PAPER_TABLE1_RUNS == 500 and study_montecarlo.PAPER_FIG4_RUNS == 20
     assert (study_montecarlo.PAPER_Q_JERK, study_montecarlo.PAPER_R_MOTOR, study_montecarlo.PAPER_R_ACC) \
@@ -101,6 +103,7 @@ def test_study_json_schema(small):
         assert set(f) == {"claim", "ours", "reproduced", "why"} and f["reproduced"] in ("yes", "no")
     w = saved["wall_time_s"]
     assert w["jobs"] == 3 + 2 * 2 and w["total"] >= w["runs_and_sweep"] > 0
+    assert saved["executor"] == {"workers": 1, "scheduler": None}
     assert "not a lower bound" in saved["crlb_note"]
 
 

@@ -183,6 +183,19 @@ def _find_cycle(nodes: list[str], edges: set[tuple[str, str]], rank: dict[str, i
         path.append(n)
 
 
+def wiring(scenario: Scenario) -> dict[str, list[tuple[str, str, str]]]:
+    """Each component's connected inputs as ``(input scalar, producer, producer scalar)``, in the
+    order they are set. With :func:`plan`'s order and the rule of :func:`simulate` (a component
+    of ratio ``k`` steps at the base steps ``j`` with ``j % k == 0``, ``doStep(j h, k h)``, its
+    inputs set from the freshest outputs first), this is the schedule; the batched study engine
+    (:mod:`orchestration.batched`) takes it from here too."""
+    inputs: dict[str, list[tuple[str, str, str]]] = {n: [] for n in scenario.components}
+    for c in scenario.connections:
+        for s, d in c.pairs:
+            inputs[c.dst].append((d, c.src, s))
+    return inputs
+
+
 # ---------------------------------------------------------------------------------------------
 # instances
 # ---------------------------------------------------------------------------------------------
@@ -348,10 +361,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
     values[:] = 0.0
     record_idx = np.array([offsets[tuple(col.split(".", 1))] for col in scenario.record_columns()],
                           dtype=np.intp)
-    inputs: dict[str, list[tuple[str, str, str]]] = {n: [] for n in comps}   # (dst var, src comp, src var)
-    for c in scenario.connections:
-        for s, d in c.pairs:
-            inputs[c.dst].append((d, c.src, s))
+    inputs = wiring(scenario)
 
     instances: list[_Instance] = []
     slots: list[_Slot] = []
@@ -620,4 +630,4 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     return result
 
 
-__all__ = ["RunError", "CouplingWarning", "Plan", "plan", "find_algebraic_loop", "simulate", "run"]
+__all__ = ["RunError", "CouplingWarning", "Plan", "plan", "wiring", "find_algebraic_loop", "simulate", "run"]

@@ -27,6 +27,7 @@ from __future__ import annotations
 import importlib
 import time as _time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -34,7 +35,7 @@ import numpy as np
 from fmus.common.fmi import _nominal_step
 
 from .master import RunError, plan, wiring
-from .scenario import Component, Scenario, load_scenario
+from .scenario import Component, Scenario, load_scenario, scenario_document
 
 
 class BatchError(RuntimeError):
@@ -156,32 +157,40 @@ class _Batched(_Kernel):
         probe = _Instance(comps[0], stop_time)
         self.params = probe.parameters()
         self.seeds = [int(c.parameters.get("seed", 0)) for c in comps]
-        self.value = {n: np.array([probe.start(n)]) for n, v in comps[0].variables.items()
-                      if v.causality == "input"}
+        names = [n for n, v in comps[0].variables.items() if v.causality == "input"]
+        self.row = {n: i for i, n in enumerate(names)}
+        self.values = np.array([[probe.start(n)] for n in names])      # (inputs, b or 1)
+        self._connected = [self.row[n] for n in inputs]
+        self._out = [(n.partition("[")[0], int(n.partition("[")[2][:-1]) - 1 if "[" in n else None)
+                     for n in outputs]
 
     def set_inputs(self, values: np.ndarray) -> None:
-        for name, v in zip(self.input_names, values):
-            self.value[name] = v
+        if values.shape[1] != self.values.shape[1]:
+            keep = self.values
+            self.values = np.empty((keep.shape[0], values.shape[1]))
+            self.values[:] = keep
+        self.values[self._connected] = values
 
     def vector(self, name: str, size: int) -> np.ndarray:
         """An input vector ``name[1..size]`` as ``(b or 1, size)``."""
-        cols = [self.value[f"{name}[{i + 1}]"] for i in range(size)]
-        return np.stack(np.broadcast_arrays(*cols), axis=1)
+        i = self.row[f"{name}[1]"]
+        return self.values[i:i + size].T
+
+    def scalar(self, name: str) -> np.ndarray:
+        return self.values[self.row[name]]
 
     def time_input(self, name: str) -> float:
         """A time stamp input: one value for all runs."""
-        v = self.value[name]
-        if np.any(v != v[0]):
+        v = self.values[self.row[name]]
+        if v.shape[0] > 1 and np.any(v != v[0]):
             raise BatchError(f"input '{name}' differs between runs; the batched kernels share time stamps")
         return float(v[0])
 
     def pack(self, groups: dict[str, np.ndarray]) -> np.ndarray:
-        """The requested output scalars from ``(b, size)`` arrays per variable."""
-        out = np.empty((len(self.output_names), self.runs))
-        for k, name in enumerate(self.output_names):
-            var, _, idx = name.partition("[")
-            col = groups[var]
-            out[k] = np.broadcast_to(col[:, int(idx[:-1]) - 1] if idx else np.ravel(col), (self.runs,))
+        """The requested output scalars from ``(b or 1, size)`` arrays per variable."""
+        out = np.empty((len(self._out), self.runs))
+        for k, (var, i) in enumerate(self._out):
+            out[k] = groups[var][:, 0 if i is None else i]
         return out
 
 
@@ -200,7 +209,7 @@ class _Encoder(_Batched):
         self.q = self.model.step(self.vector("q_m", 2), t, dt, self.time_input("t_truth"))
 
     def outputs(self) -> np.ndarray:
-        return self.pack({"q_m_meas": self.q, "t_meas": np.array([self.model.t_meas])})
+        return self.pack({"q_m_meas": self.q, "t_meas": np.array([[self.model.t_meas]])})
 
 
 class _Imu(_Batched):
@@ -209,10 +218,11 @@ class _Imu(_Batched):
     def __init__(self, comps, inputs, outputs, stop_time) -> None:
         super().__init__(comps, inputs, outputs, stop_time)
         from fmus.robot_plant.sensor_batched import BatchedImu
-        self.model = BatchedImu(self.params, self.seeds)
+        # the gyro has its own noise streams: without a reader it need not run
+        self.model = BatchedImu(self.params, self.seeds, gyro=any(n.startswith("gyro_s") for n in outputs))
 
     def _inputs(self) -> tuple:
-        return (self.vector("a_sensor", 2), self.value["phi_tool"], self.value["omega_tool"])
+        return (self.vector("a_sensor", 2), self.scalar("phi_tool"), self.scalar("omega_tool"))
 
     def exit_init(self, t0: float) -> None:
         self.acc, self.gyro = self.model.initial(*self._inputs(), t0, self.time_input("t_truth"))
@@ -221,7 +231,7 @@ class _Imu(_Batched):
         self.acc, self.gyro = self.model.step(*self._inputs(), t, dt, self.time_input("t_truth"))
 
     def outputs(self) -> np.ndarray:
-        return self.pack({"acc_s": self.acc, "gyro_s": self.gyro, "t_meas": np.array([self.model.t_meas])})
+        return self.pack({"acc_s": self.acc, "gyro_s": self.gyro, "t_meas": np.array([[self.model.t_meas]])})
 
 
 class _EkfAccelerometer(_Batched):
@@ -328,6 +338,21 @@ class BatchResult:
         return self.values[var]
 
 
+def _load_runs(scenario: str, runs: Sequence[Sequence[str]]) -> list[Scenario]:
+    """The scenario of each run; the file is read once per set of overrides besides the seed."""
+    docs: dict[tuple[str, ...], dict] = {}
+    out = []
+    for overrides in runs:
+        seed = tuple(o for o in overrides if o.replace(" ", "").startswith("scenario.seed="))
+        rest = tuple(o for o in overrides if o not in seed)
+        if rest not in docs:
+            docs[rest] = scenario_document(scenario, rest)
+        sc = load_scenario(docs[rest], seed)
+        sc.path = Path(scenario)
+        out.append(sc)
+    return out
+
+
 def _per_run(scenarios: Sequence[Scenario], inputs: dict[str, list[tuple[str, str, str]]]) -> set[str]:
     """Components that differ between runs: their parameters, or a producer's (transitively)."""
     sc0 = scenarios[0]
@@ -379,7 +404,7 @@ def simulate_runs(scenario: str | Scenario, runs: Sequence[Sequence[str]], recor
     if isinstance(scenario, Scenario):
         scenarios = [scenario]
     else:
-        scenarios = [load_scenario(scenario, tuple(o)) for o in runs]
+        scenarios = _load_runs(scenario, runs)
     if not scenarios:
         raise BatchError("no runs")
     _check_structure(scenarios)
@@ -426,12 +451,15 @@ def simulate_runs(scenario: str | Scenario, runs: Sequence[Sequence[str]], recor
     sources = {n: [(src, index[src][s]) for _, src, s in ins[n]] for n in sc.components}
     width = {n: (R if n in varying else 1) for n in sc.components}
 
+    # each component's inputs: (inputs, 1) when all producers are shared, else (inputs, runs)
+    buffers = {n: np.zeros((len(sources[n]), max([width[src] for src, _ in sources[n]], default=1)))
+               for n in sc.components}
+
     def gather(n: str) -> np.ndarray:
-        cols = [out[src][i] for src, i in sources[n]]
-        if not cols:
-            return np.zeros((0, 1))
-        b = max(c.shape[0] for c in cols)
-        return np.stack([np.broadcast_to(c, (b,)) for c in cols])
+        buf = buffers[n]
+        for r, (src, i) in enumerate(sources[n]):
+            buf[r] = out[src][i]
+        return buf
 
     n_steps = sc.n_steps
     masks: dict[str, np.ndarray] = {}

@@ -46,6 +46,14 @@ class RunStreams:
         return buf[self._next - 1]
 
 
+class _Zeros:
+    def __init__(self, runs: int) -> None:
+        self.runs = runs
+
+    def standard_normal(self, n: int) -> np.ndarray:
+        return np.zeros((self.runs, n))
+
+
 class RunSensorChannels(SensorChannels):
     """:class:`SensorChannels` for ``len(seeds)`` runs: inputs, outputs and states are
     ``(runs, n)`` arrays, and run ``r`` draws from the streams of ``seeds[r]``."""
@@ -54,7 +62,9 @@ class RunSensorChannels(SensorChannels):
         super().__init__(n, seed=0, stream=stream, **kwargs)
         runs = len(seeds)
         self._rng_noise = RunStreams(seeds, f"{stream}/noise")
-        self._rng_rw = RunStreams(seeds, f"{stream}/bias_rw")
+        # without a random walk its increments are zeros whatever is drawn: draw none
+        self._rng_rw = (RunStreams(seeds, f"{stream}/bias_rw") if np.any(self.bias_rw)
+                        else _Zeros(runs))
         self.walk = np.zeros((runs, n))
         self.output = np.zeros((runs, n))
         self.saturated = np.zeros((runs, n), dtype=bool)
@@ -93,11 +103,13 @@ class BatchedImu:
     """The Imu FMU (``imu_fmu.py``) for many seeds. The true kinematics (``a_sensor``,
     ``phi_tool``, ``omega_tool``) are the same in every run when the noise does not enter the
     closed loop (one row): then the ideal reading is computed once by the FMU's own
-    :func:`imu_reading`; else run by run."""
+    :func:`imu_reading`; else run by run. ``gyro = False``: the gyro (its own noise streams)
+    is not simulated and its reading is None."""
 
-    def __init__(self, p, seeds: Sequence[int]) -> None:
+    def __init__(self, p, seeds: Sequence[int], gyro: bool = True) -> None:
         self.p = p
         self.runs = len(seeds)
+        self.with_gyro = gyro
         self.acc = RunSensorChannels(
             3, seeds, stream="imu/acc", noise=p.acc_noise, bias=p.acc_bias, bias_rw=p.acc_bias_rw,
             scale=p.acc_scale, resolution=p.acc_resolution, range=p.acc_range, sample_rate=p.sample_rate,
@@ -120,13 +132,13 @@ class BatchedImu:
         t = input_time(t0, 0.0, t_truth)
         shape = (self.runs, 3)
         return (np.broadcast_to(self.acc.initial(acc, t), shape).copy(),
-                np.broadcast_to(self.gyro.initial(gyro, t), shape).copy())
+                np.broadcast_to(self.gyro.initial(gyro, t), shape).copy() if self.with_gyro else None)
 
     def step(self, a_sensor, phi, omega, t: float, dt: float, t_truth: float = UNSTAMPED
              ) -> tuple[np.ndarray, np.ndarray]:
         acc, gyro = self._ideal(a_sensor, phi, omega)
         t_in = input_time(t, dt, t_truth)
-        return self.acc.step(acc, dt, t_in), self.gyro.step(gyro, dt, t_in)
+        return self.acc.step(acc, dt, t_in), self.gyro.step(gyro, dt, t_in) if self.with_gyro else None
 
     @property
     def t_meas(self) -> float:

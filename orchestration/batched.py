@@ -164,6 +164,17 @@ class _Batched(_Kernel):
         self._out = [(n.partition("[")[0], int(n.partition("[")[2][:-1]) - 1 if "[" in n else None)
                      for n in outputs]
 
+    def run_parameters(self, comps, stop_time) -> list:
+        """Each run's validated parameter set (one FMU class instance per distinct set)."""
+        made: dict[tuple, Any] = {}
+        out = []
+        for c in comps:
+            key = tuple(sorted(c.parameters.items()))
+            if key not in made:
+                made[key] = _Instance(c, stop_time).parameters()
+            out.append(made[key])
+        return out
+
     def set_inputs(self, values: np.ndarray) -> None:
         if values.shape[1] != self.values.shape[1]:
             keep = self.values
@@ -235,11 +246,13 @@ class _Imu(_Batched):
 
 
 class _EkfAccelerometer(_Batched):
+    per_run_parameters = ("q_jerk",)
+
     def __init__(self, comps, inputs, outputs, stop_time) -> None:
         super().__init__(comps, inputs, outputs, stop_time)
         from fmus.estimators.ekf_accelerometer_batched import BatchedEkfAccelerometer
         self.name = comps[0].name
-        self.model = BatchedEkfAccelerometer(self.params, _nominal_step(comps[0].step))
+        self.model = BatchedEkfAccelerometer(self.run_parameters(comps, stop_time), _nominal_step(comps[0].step))
         self.wanted = sorted({n.partition("[")[0] for n in outputs})
 
     def _set(self) -> None:
@@ -267,8 +280,7 @@ class _EkfAccelerometer(_Batched):
         self._guard(lambda: self.model.step(t, dt), t)
 
     def outputs(self) -> np.ndarray:
-        out = self.model.outputs
-        return self.pack({k: out[k] for k in self.wanted})
+        return self.pack(self.model.outputs(self.wanted))
 
 
 #: The vectorised kernels, by model identifier.

@@ -12,8 +12,9 @@ commit / predict / update order and the same sample-time rule.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -142,12 +143,30 @@ class Estimate(NamedTuple):
 
 class BatchedEkfModel:
     """:class:`~fmus.estimators.ekf_accelerometer_model.EkfAccelerometerModel`'s ``filtered``
-    and ``predicted`` (eq. 3) for many runs of one parameter set."""
+    and ``predicted`` (eq. 3) for many runs of one parameter set, or of parameter sets that
+    differ only in the jerk noise ``q_jerk`` (``p`` one per run): each run's ``G_w Q G_w^T``
+    is its own single filter's."""
 
-    def __init__(self, p: em.EkfAccelerometerParameters) -> None:
-        self.single = em.EkfAccelerometerModel(p)
+    def __init__(self, p: em.EkfAccelerometerParameters | Sequence[em.EkfAccelerometerParameters]) -> None:
+        per_run = [p] if isinstance(p, em.EkfAccelerometerParameters) else list(p)
+        first = per_run[0]
+        if any(dataclasses.replace(q, q_jerk=first.q_jerk) != first for q in per_run):
+            raise ValueError("the runs of one batched EKF may differ in q_jerk only")
+        self.singles = {q.q_jerk: em.EkfAccelerometerModel(q) for q in per_run}
+        self.single = self.singles[first.q_jerk]
+        self._q_jerk = [q.q_jerk for q in per_run] if len(self.singles) > 1 else None
         self.layout = self.single.layout
         self.meas = BatchedMeasurement(self.single.meas)
+        self._T: float | None = None
+
+    def _matrices(self, T: float) -> None:
+        if self._T != T:
+            for s in self.singles.values():
+                s._matrices(T)
+            self.F, self.Gu = self.single.F, self.single.Gu
+            self.GQG = (self.single.GQG if self._q_jerk is None
+                        else np.stack([self.singles[q].GQG for q in self._q_jerk]))
+            self._T = T
 
     def filtered(self, y: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Eq. 3b (Joseph form), as ``EkfAccelerometerModel.filtered``."""
@@ -169,11 +188,10 @@ class BatchedEkfModel:
 
     def predicted(self, u: np.ndarray, T: float, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Eqs. 3a, 13, as ``EkfAccelerometerModel.predicted``."""
-        s = self.single
-        s._matrices(float(T))
+        self._matrices(float(T))
         with np.errstate(all="ignore"):
-            x = (s.F @ x[:, :, None])[:, :, 0] + (s.Gu @ np.asarray(u, float)[:, :, None])[:, :, 0]
-            P = s.F @ P @ s.F.T + s.GQG
+            x = (self.F @ x[:, :, None])[:, :, 0] + (self.Gu @ np.asarray(u, float)[:, :, None])[:, :, 0]
+            P = self.F @ P @ self.F.T + self.GQG
             P = 0.5 * (P + _T(P))
         _check(x, P, "time update")
         return x, P
@@ -217,16 +235,18 @@ def tool_position(q: np.ndarray, p) -> np.ndarray:
 
 class BatchedEkfAccelerometer:
     """The EkfAccelerometer FMU (``ekf_accelerometer_fmu.py`` on ``stamped_estimator.py``)
-    for many runs of one parameter set: the measurement inputs are ``(runs, ...)`` arrays, the
+    for many runs of one parameter set (or sets differing in ``q_jerk``, one per run:
+    :class:`BatchedEkfModel`): the measurement inputs are ``(runs, ...)`` arrays, the
     times (``t``, ``t_meas``) are shared. Call :meth:`initial` where the FMU leaves
     Initialization Mode, :meth:`refresh` where an input changed without a step (the FMU's
     output update) and :meth:`step` per communication step; :attr:`outputs` are then the
     FMU's outputs. A diverged run raises :class:`~.ekf_accelerometer_model.FilterDivergence`
     naming it (the FMU ends its step with an error there)."""
 
-    def __init__(self, p: em.EkfAccelerometerParameters, step: float) -> None:
-        self.p = p
+    def __init__(self, p: em.EkfAccelerometerParameters | Sequence[em.EkfAccelerometerParameters],
+                 step: float) -> None:
         self.ekf = BatchedEkfModel(p)
+        p = self.ekf.single.p
         self._ix, self._iz = p.index_x - 1, p.index_z - 1
         self._step = step
 
@@ -262,15 +282,15 @@ class BatchedEkfAccelerometer:
     def _show(self, est: Estimate) -> None:
         self.shown = est
 
-    @property
-    def outputs(self) -> dict[str, np.ndarray]:
-        """The FMU's outputs, ``(runs, size)`` each (computed on demand)."""
+    def outputs(self, names: Sequence[str]) -> dict[str, np.ndarray]:
+        """The FMU's outputs ``names`` (whole variables), ``(runs, size)`` each."""
         x, P = self.shown.x, self.shown.P
-        return {"q_a_hat": x[:, 0:2], "dq_a_hat": x[:, 2:4], "ddq_a_hat": x[:, 4:6],
-                "p_tool_hat": tool_position(x[:, 0:2], self.ekf.single.meas.p),
-                "trace_P_q": (P[:, 0, 0] + P[:, 1, 1])[:, None],
-                "innovation_norm": self.shown.innovation_norm[:, None],
-                "P_x": P[:, _TRIL[0], _TRIL[1]]}
+        make = {"q_a_hat": lambda: x[:, 0:2], "dq_a_hat": lambda: x[:, 2:4], "ddq_a_hat": lambda: x[:, 4:6],
+                "p_tool_hat": lambda: tool_position(x[:, 0:2], self.ekf.single.meas.p),
+                "trace_P_q": lambda: (P[:, 0, 0] + P[:, 1, 1])[:, None],
+                "innovation_norm": lambda: self.shown.innovation_norm[:, None],
+                "P_x": lambda: P[:, _TRIL[0], _TRIL[1]]}
+        return {n: make[n]() for n in names}
 
     # -- the base (stamped_estimator.StampedEstimator), without the FMI parts
     def _predicted_to(self, est: Estimate, t0: float, t1: float) -> Estimate:

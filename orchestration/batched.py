@@ -350,7 +350,7 @@ class BatchResult:
         return self.values[var]
 
 
-def _load_runs(scenario: str, runs: Sequence[Sequence[str]]) -> list[Scenario]:
+def _load_runs(scenario: str | dict, runs: Sequence[Sequence[str]]) -> list[Scenario]:
     """The scenario of each run; the file is read once per set of overrides besides the seed."""
     docs: dict[tuple[str, ...], dict] = {}
     out = []
@@ -360,7 +360,8 @@ def _load_runs(scenario: str, runs: Sequence[Sequence[str]]) -> list[Scenario]:
         if rest not in docs:
             docs[rest] = scenario_document(scenario, rest)
         sc = load_scenario(docs[rest], seed)
-        sc.path = Path(scenario)
+        if not isinstance(scenario, dict):
+            sc.path = Path(scenario)
         out.append(sc)
     return out
 
@@ -392,13 +393,14 @@ def _check_structure(scenarios: Sequence[Scenario]) -> None:
                              "than run 0: its runs cannot be batched")
 
 
-def simulate_runs(scenario: str | Scenario, runs: Sequence[Sequence[str]], record: dict[str, Any]) -> BatchResult:
+def simulate_runs(scenario: str | Path | dict | Scenario, runs: Sequence[Sequence[str]], record: dict[str, Any]) -> BatchResult:
     """Simulate the runs of a scenario together.
 
     Parameters
     ----------
     scenario
-        A scenario file (each run loads it with its overrides) or, for one run, a Scenario.
+        A scenario file or parsed document (each run loads it with its overrides) or, for one
+        run, a loaded Scenario.
     runs
         The overrides of each run (``scenario.seed=N``, ``comp.param=value`` ...).
     record
@@ -416,7 +418,7 @@ def simulate_runs(scenario: str | Scenario, runs: Sequence[Sequence[str]], recor
     if isinstance(scenario, Scenario):
         scenarios = [scenario]
     else:
-        scenarios = _load_runs(scenario, runs)
+        scenarios = _load_runs(scenario if isinstance(scenario, dict) else str(scenario), runs)
     if not scenarios:
         raise BatchError("no runs")
     _check_structure(scenarios)

@@ -343,6 +343,7 @@ class BatchResult:
     shared: list[str]               # components simulated once
     batched: list[str]              # components on a vectorised kernel
     looped: list[str]               # per-run components run instance by instance
+    runs: int
     wall_time: float
     groups: dict[str, int] = field(default_factory=dict)   # kernel groups per batched component
 
@@ -393,8 +394,10 @@ def _check_structure(scenarios: Sequence[Scenario]) -> None:
                              "than run 0: its runs cannot be batched")
 
 
-def simulate_runs(scenario: str | Path | dict | Scenario, runs: Sequence[Sequence[str]], record: dict[str, Any]) -> BatchResult:
-    """Simulate the runs of a scenario together.
+class BatchedRuns:
+    """The runs of a scenario prepared to be simulated together (:meth:`run`); preparing
+    loads every run's scenario and decides which components are shared, batched or looped, so
+    a scenario the engine cannot run is refused before anything is simulated.
 
     Parameters
     ----------
@@ -406,129 +409,151 @@ def simulate_runs(scenario: str | Path | dict | Scenario, runs: Sequence[Sequenc
     record
         ``"comp.var"`` -> the base-step indices to record (row ``j``: time ``j h``), or None
         for every row.
+    no_loop
+        Model identifiers that must not run instance by instance (a per-run component of one
+        of them without a kernel is a :class:`BatchError`).
 
     Raises
     ------
     BatchError
         Runs of different structure, or a component the engine cannot simulate.
     RunError
-        A component failed (a diverged filter), naming it and the time.
+        (:meth:`run`) A component failed (a diverged filter), naming it and the time.
     """
-    t_wall = _time.perf_counter()
-    if isinstance(scenario, Scenario):
-        scenarios = [scenario]
-    else:
-        scenarios = _load_runs(scenario if isinstance(scenario, dict) else str(scenario), runs)
-    if not scenarios:
-        raise BatchError("no runs")
-    _check_structure(scenarios)
-    sc = scenarios[0]
-    R = len(scenarios)
-    p = plan(sc)
-    ins = wiring(sc)
-    varying = _per_run(scenarios, ins)
 
-    # which outputs each component hands on: connected first, then the recorded ones
-    needed: dict[str, list[str]] = {n: [] for n in sc.components}
-    for n, lst in ins.items():
-        for _, src, s in lst:
-            if s not in needed[src]:
-                needed[src].append(s)
-    wanted: dict[str, list[str]] = {}
-    for var in record:
-        cname, v = var.split(".", 1)
-        if cname not in sc.components:
-            raise BatchError(f"unknown component '{cname}' in '{var}'")
-        wanted[var] = sc.components[cname].group(v)
-        if not wanted[var]:
-            raise BatchError(f"component '{cname}' has no variable '{v}'")
-        needed[cname] += [s for s in wanted[var] if s not in needed[cname]]
-
-    kernels: dict[str, _Kernel] = {}
-    shared, batched, looped = [], [], []
-    for n in p.order:
-        in_names = [d for d, _, _ in ins[n]]
-        comp = sc.components[n]
-        if n not in varying:
-            kernels[n] = _Slaves([comp], in_names, needed[n], sc.stop_time)
-            shared.append(n)
-        elif comp.model_identifier in KERNELS:
-            kernels[n] = _Groups(KERNELS[comp.model_identifier], [s.components[n] for s in scenarios],
-                                 in_names, needed[n], sc.stop_time)
-            batched.append(n)
+    def __init__(self, scenario: str | Path | dict | Scenario, runs: Sequence[Sequence[str]],
+                 record: dict[str, Any], no_loop: Sequence[str] = ()) -> None:
+        t_wall = _time.perf_counter()
+        if isinstance(scenario, Scenario):
+            scenarios = [scenario]
         else:
-            kernels[n] = _Slaves([s.components[n] for s in scenarios], in_names, needed[n], sc.stop_time)
-            looped.append(n)
+            scenarios = _load_runs(scenario if isinstance(scenario, dict) else str(scenario), runs)
+        if not scenarios:
+            raise BatchError("no runs")
+        _check_structure(scenarios)
+        sc = scenarios[0]
+        R = len(scenarios)
+        p = plan(sc)
+        ins = wiring(sc)
+        varying = _per_run(scenarios, ins)
 
-    out: dict[str, np.ndarray] = {n: np.zeros((len(needed[n]), 1)) for n in sc.components}
-    index = {n: {s: i for i, s in enumerate(needed[n])} for n in sc.components}
-    sources = {n: [(src, index[src][s]) for _, src, s in ins[n]] for n in sc.components}
-    width = {n: (R if n in varying else 1) for n in sc.components}
+        # which outputs each component hands on: connected first, then the recorded ones
+        needed: dict[str, list[str]] = {n: [] for n in sc.components}
+        for n, lst in ins.items():
+            for _, src, s in lst:
+                if s not in needed[src]:
+                    needed[src].append(s)
+        wanted: dict[str, list[str]] = {}
+        for var in record:
+            cname, v = var.split(".", 1)
+            if cname not in sc.components:
+                raise BatchError(f"unknown component '{cname}' in '{var}'")
+            wanted[var] = sc.components[cname].group(v)
+            if not wanted[var]:
+                raise BatchError(f"component '{cname}' has no variable '{v}'")
+            needed[cname] += [s for s in wanted[var] if s not in needed[cname]]
 
-    # each component's inputs: (inputs, 1) when all producers are shared, else (inputs, runs)
-    buffers = {n: np.zeros((len(sources[n]), max([width[src] for src, _ in sources[n]], default=1)))
-               for n in sc.components}
+        kernels: dict[str, _Kernel] = {}
+        shared, batched, looped = [], [], []
+        for n in p.order:
+            in_names = [d for d, _, _ in ins[n]]
+            comp = sc.components[n]
+            if n not in varying:
+                kernels[n] = _Slaves([comp], in_names, needed[n], sc.stop_time)
+                shared.append(n)
+            elif comp.model_identifier in KERNELS:
+                kernels[n] = _Groups(KERNELS[comp.model_identifier], [s.components[n] for s in scenarios],
+                                     in_names, needed[n], sc.stop_time)
+                batched.append(n)
+            elif comp.model_identifier in no_loop:
+                raise BatchError(f"component '{n}' ({comp.model_identifier}) differs between runs and has no "
+                                 "batched kernel")
+            else:
+                kernels[n] = _Slaves([s.components[n] for s in scenarios], in_names, needed[n], sc.stop_time)
+                looped.append(n)
+        self._state = (t_wall, sc, R, p, ins, varying, needed, wanted, kernels, shared, batched, looped,
+                       dict(record))
+        self.shared, self.batched, self.looped = shared, batched, looped
 
-    def gather(n: str) -> np.ndarray:
-        buf = buffers[n]
-        for r, (src, i) in enumerate(sources[n]):
-            buf[r] = out[src][i]
-        return buf
+    def run(self) -> BatchResult:
+        """Simulate the runs."""
+        (t_wall, sc, R, p, ins, varying, needed, wanted, kernels, shared, batched, looped,
+         record) = self._state
+        out: dict[str, np.ndarray] = {n: np.zeros((len(needed[n]), 1)) for n in sc.components}
+        index = {n: {s: i for i, s in enumerate(needed[n])} for n in sc.components}
+        sources = {n: [(src, index[src][s]) for _, src, s in ins[n]] for n in sc.components}
+        width = {n: (R if n in varying else 1) for n in sc.components}
 
-    n_steps = sc.n_steps
-    masks: dict[str, np.ndarray] = {}
-    for var, rows in record.items():
-        m = np.zeros(n_steps + 1, dtype=bool)
-        m[np.arange(n_steps + 1) if rows is None else np.asarray(rows, dtype=int)] = True
-        masks[var] = m
-    taken: dict[str, list[np.ndarray]] = {var: [] for var in record}
-    rec_idx = {var: (var.split(".", 1)[0], [index[var.split(".", 1)[0]][s] for s in wanted[var]])
-               for var in record}
+        # each component's inputs: (inputs, 1) when all producers are shared, else (inputs, runs)
+        buffers = {n: np.zeros((len(sources[n]), max([width[src] for src, _ in sources[n]], default=1)))
+                   for n in sc.components}
 
-    def keep(j: int) -> None:
-        for var, (cname, idx) in rec_idx.items():
-            if masks[var][j]:
-                taken[var].append(out[cname][idx].T.copy())      # (b, size)
+        def gather(n: str) -> np.ndarray:
+            buf = buffers[n]
+            for r, (src, i) in enumerate(sources[n]):
+                buf[r] = out[src][i]
+            return buf
 
-    # ---- initialisation in dependency order (master.simulate)
-    for n in p.order:
-        k = kernels[n]
-        k.set_inputs(gather(n))
-        k.exit_init(0.0)
-        if needed[n]:
-            out[n] = k.outputs()
-    if p.broken:
+        n_steps = sc.n_steps
+        masks: dict[str, np.ndarray] = {}
+        for var, rows in record.items():
+            m = np.zeros(n_steps + 1, dtype=bool)
+            m[np.arange(n_steps + 1) if rows is None else np.asarray(rows, dtype=int)] = True
+            masks[var] = m
+        taken: dict[str, list[np.ndarray]] = {var: [] for var in record}
+        rec_idx = {var: (var.split(".", 1)[0], [index[var.split(".", 1)[0]][s] for s in wanted[var]])
+                   for var in record}
+
+        def keep(j: int) -> None:
+            for var, (cname, idx) in rec_idx.items():
+                if masks[var][j]:
+                    taken[var].append(out[cname][idx].T.copy())      # (b, size)
+
+        # ---- initialisation in dependency order (master.simulate)
         for n in p.order:
             k = kernels[n]
-            if ins[n]:
-                k.set_inputs(gather(n))
-                k.refresh(0.0)
+            k.set_inputs(gather(n))
+            k.exit_init(0.0)
             if needed[n]:
                 out[n] = k.outputs()
-    keep(0)
+        if p.broken:
+            for n in p.order:
+                k = kernels[n]
+                if ins[n]:
+                    k.set_inputs(gather(n))
+                    k.refresh(0.0)
+                if needed[n]:
+                    out[n] = k.outputs()
+        keep(0)
 
-    # ---- stepping
-    h = sc.base_step
-    slots = [(n, kernels[n], sc.components[n].ratio, sc.components[n].step, bool(needed[n])) for n in p.order]
-    for j in range(n_steps):
-        t = j * h
-        for n, k, ratio, dt, read in slots:
-            if j % ratio:
-                continue
-            if sources[n]:
-                k.set_inputs(gather(n))
-            k.do_step(t, dt)
-            if read:
-                out[n] = k.outputs()
-        keep(j + 1)
+        # ---- stepping
+        h = sc.base_step
+        slots = [(n, kernels[n], sc.components[n].ratio, sc.components[n].step, bool(needed[n])) for n in p.order]
+        for j in range(n_steps):
+            t = j * h
+            for n, k, ratio, dt, read in slots:
+                if j % ratio:
+                    continue
+                if sources[n]:
+                    k.set_inputs(gather(n))
+                k.do_step(t, dt)
+                if read:
+                    out[n] = k.outputs()
+            keep(j + 1)
 
-    values = {var: np.stack(rows, axis=1) if rows else np.zeros((width[rec_idx[var][0]], 0, len(wanted[var])))
-              for var, rows in taken.items()}
-    return BatchResult(time=np.round(np.arange(n_steps + 1) * h, 12), values=values,
-                       rows={var: np.flatnonzero(m) for var, m in masks.items()},
-                       shared=shared, batched=batched, looped=looped,
-                       wall_time=_time.perf_counter() - t_wall,
-                       groups={n: len(kernels[n].groups) for n in batched})
+        values = {var: np.stack(rows, axis=1) if rows else np.zeros((width[rec_idx[var][0]], 0, len(wanted[var])))
+                  for var, rows in taken.items()}
+        return BatchResult(time=np.round(np.arange(n_steps + 1) * h, 12), values=values,
+                           rows={var: np.flatnonzero(m) for var, m in masks.items()},
+                           shared=shared, batched=batched, looped=looped, runs=R,
+                           wall_time=_time.perf_counter() - t_wall,
+                           groups={n: len(kernels[n].groups) for n in batched})
 
 
-__all__ = ["BatchError", "BatchResult", "KERNELS", "simulate_runs", "fmu_class"]
+def simulate_runs(scenario: str | Path | dict | Scenario, runs: Sequence[Sequence[str]], record: dict[str, Any],
+                  no_loop: Sequence[str] = ()) -> BatchResult:
+    """Simulate the runs of a scenario together: ``BatchedRuns(...).run()``."""
+    return BatchedRuns(scenario, runs, record, no_loop).run()
+
+
+__all__ = ["BatchError", "BatchResult", "BatchedRuns", "KERNELS", "simulate_runs", "fmu_class"]

@@ -183,32 +183,45 @@ def _errors(t: np.ndarray, idx: np.ndarray, every_row, at_idx, filters: Sequence
 def run_batched(scenario: str, jobs: Sequence[Sequence[str]], filters: Sequence[FilterInfo], plant: str,
                 ratio: int) -> tuple[list[dict[str, np.ndarray]], Any]:
     """The runs ``jobs`` (each run's overrides) together on the batched engine
-    (:func:`orchestration.batched.simulate_runs`): per run what :func:`run_one` returns (its
-    ``wall_time`` the engine's wall time shared out over the runs), and the engine's result.
+    (:mod:`orchestration.batched`): per run what :func:`run_one` returns (its ``wall_time``
+    the engine's wall time shared out over the runs), and the engine's result.
 
     Raises
     ------
     BatchError
         The engine cannot run these (the caller falls back to the FMUs).
     """
-    from .batched import simulate_runs
+    return _batched_results(_batched_runs(scenario, jobs, filters, plant, ratio), filters, plant)
+
+
+def _batched_runs(scenario: str, jobs: Sequence[Sequence[str]], filters: Sequence[FilterInfo], plant: str,
+                  ratio: int) -> Any:
+    """The runs prepared on the batched engine (raises BatchError before simulating anything)."""
+    from .batched import BatchedRuns
     from .scenario import load_scenario
-    n_rows = load_scenario(scenario, tuple(jobs[0])).n_steps + 1
-    idx = np.arange(1, n_rows, ratio)
+    idx = np.arange(1, load_scenario(scenario, tuple(jobs[0])).n_steps + 1, ratio)
     record: dict[str, Any] = {v: None for v in _plant_variables(plant)}
     for f in filters:
         record.update({f"{f.name}.{_ESTIMATES[g]}": idx for g in GROUPS})
         if f.has_covariance:
             record[f"{f.name}.P_x"] = idx
-    res = simulate_runs(scenario, jobs, record)
-    values, t = res.values, res.time
+    # the particle filter has no kernel: one instance per run in one process would be slower
+    # than the FMUs on the executor's workers
+    return BatchedRuns(scenario, jobs, record, no_loop=("ParticleFilter",))
+
+
+def _batched_results(prepared: Any, filters: Sequence[FilterInfo], plant: str
+                     ) -> tuple[list[dict[str, np.ndarray]], Any]:
+    res = prepared.run()
+    values = res.values
+    idx = res.rows[f"{filters[0].name}.{_ESTIMATES[GROUPS[0]]}"]
     out = []
-    for r in range(len(jobs)):
+    for r in range(res.runs):
         def row(var: str, r: int = r) -> np.ndarray:
             v = values[var]
             return v[r if v.shape[0] > 1 else 0]
-        run = _errors(t, idx, row, row, filters, plant)
-        run["wall_time"] = res.wall_time / len(jobs)
+        run = _errors(res.time, idx, row, row, filters, plant)
+        run["wall_time"] = res.wall_time / res.runs
         out.append(run)
     return out, res
 
@@ -258,21 +271,21 @@ def _run_jobs(engine: str, jobs: list[tuple], seeds: list[int], check_seeds: int
 
     if engine == "batched":
         path, _, filters, plant, ratio = jobs[0]
+        try:
+            prepared = _batched_runs(path, [j[1] for j in jobs], filters, plant, ratio)
+        except BatchError as exc:
+            reason = f"the batched engine cannot run this study ({exc}): every run goes through the FMUs"
+            print(f"montecarlo: {reason}", file=sys.stderr)
+            info, results = _run_jobs("fmu", jobs, seeds, 0, workers, scheduler, progress, desc)
+            return dict(info, fallback=reason), results
         picks = sorted({int(round(i)) for i in np.linspace(0, len(seeds) - 1, min(check_seeds, len(seeds)))})
         with study.open_executor(workers, scheduler) as ex:
             # the checks run on the executor while the batched engine runs here
             checks = {seeds[i]: ex.submit(run_one, *jobs[i]) for i in picks}
             try:
-                results, res = run_batched(path, [j[1] for j in jobs], filters, plant, ratio)
+                results, res = _batched_results(prepared, filters, plant)
             except RunError as exc:
                 raise study.StudyError(f"batched engine: {exc}") from None
-            except BatchError as exc:
-                for fut in checks.values():
-                    fut.cancel()
-                reason = f"the batched engine cannot run this study ({exc}): every run goes through the FMUs"
-                print(f"montecarlo: {reason}", file=sys.stderr)
-                info, results = _run_jobs("fmu", jobs, seeds, 0, workers, scheduler, progress, desc)
-                return dict(info, fallback=reason), results
             worst = 0.0
             for i in picks:
                 try:

@@ -143,3 +143,14 @@ def test_100_runs_batched_equal_the_fmu_study(tmp_path):
         for key, value in entry.items():
             if isinstance(value, float):
                 assert_allclose(fast["summary"][name][key], value, rtol=1e-12, err_msg=f"{name} {key}")
+
+
+@needs_fmus
+def test_particle_filter_stays_on_the_fmus():
+    """The particle filter has no kernel: the study's engine refuses it before simulating (the
+    study then runs every run through the FMUs)."""
+    pf = SCENARIO.with_name("axelsson2012_pf.toml")
+    sc, filters, plant = study_montecarlo._scenario_parts(str(pf), SHORT)
+    with pytest.raises(batched.BatchError, match="'pf_alg1' .ParticleFilter. differs between runs and has no"):
+        study_montecarlo._batched_runs(str(pf), [SHORT + [f"scenario.seed={s}"] for s in (1, 2)], filters,
+                                       plant, filters[0].ratio)

@@ -177,12 +177,15 @@ class BatchedEkfModel:
             S = H @ P @ _T(H) + R
             Sc = _cholesky(S, "the measurement update: the innovation covariance is not positive definite")
             PHt = P @ _T(H)
-            K = _T(np.linalg.solve(_T(Sc), np.linalg.solve(Sc, _T(PHt))))
+            # Sc^-1 (H P | nu) in one call: the gain's columns come out as in the single filter,
+            # the normalised innovation z to round-off
+            W = np.linalg.solve(Sc, np.concatenate([_T(PHt), nu[:, :, None]], axis=2))
+            K = _T(np.linalg.solve(_T(Sc), W[:, :, :n]))
+            z = W[:, :, n]
             xf = x + (K @ nu[:, :, None])[:, :, 0]
             IKH = np.eye(n) - K @ H
             Pf = IKH @ P @ _T(IKH) + K @ R @ _T(K)
             Pf = 0.5 * (Pf + _T(Pf))
-            z = np.linalg.solve(Sc, nu[:, :, None])[:, :, 0]
         _check(xf, Pf, "measurement update")
         return xf, Pf, np.sqrt(np.einsum("ri,ri->r", z, z))
 

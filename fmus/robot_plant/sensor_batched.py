@@ -17,7 +17,7 @@ import numpy as np
 
 from fmus.common.noise import make_rng
 from fmus.common.sample_time import UNSTAMPED
-from fmus.robot_plant.sensor_model import SensorChannels, imu_reading, input_time
+from fmus.robot_plant.sensor_model import SensorChannels, imu_reading, input_time, quantise
 
 
 class RunStreams:
@@ -69,6 +69,15 @@ class RunSensorChannels(SensorChannels):
         self.output = np.zeros((runs, n))
         self.saturated = np.zeros((runs, n), dtype=bool)
         self._z = np.zeros((max(self.filter_order, 1), runs, n))
+        self._lim = self._limit()
+
+    def _finish(self, y: np.ndarray) -> np.ndarray:
+        """:meth:`SensorChannels._finish` (quantisation, saturation) with its limit computed
+        once and no quantisation pass at zero resolution (the same numbers, per step cheaper)."""
+        if np.any(self.resolution > 0.0):
+            y = quantise(y, self.resolution)
+        self.saturated = np.abs(y) >= self._lim
+        return np.clip(y, -self._lim, self._lim)
 
 
 def _column(x: np.ndarray, runs: int) -> np.ndarray:

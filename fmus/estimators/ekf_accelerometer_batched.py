@@ -4,11 +4,13 @@ covariances ``(runs, n, n)``, for the batched study engine (:mod:`orchestration.
 The model is :mod:`fmus.estimators.ekf_accelerometer_model` (eqs. 3, 12-19, 26), whose
 constants (``F``, ``G_u``, ``G_w Q G_w^T``, ``R``, the inertia, gravity, spring and mount
 constants) are used as they are; this module only repeats its per-sample arithmetic with a
-leading run axis, expression by expression in the same order, so that each run's numbers are
-the single filter's to round-off (numpy's ``tanh`` may differ from ``math.tanh`` in the last
-bit). :class:`BatchedEkfAccelerometer` repeats the FMU adapter (``ekf_accelerometer_fmu.py``)
-and its base :class:`~fmus.estimators.stamped_estimator.StampedEstimator`: the same
-commit / predict / update order and the same sample-time rule.
+leading run axis, expression by expression in the same order and with ``math.tanh``'s bits,
+so that each run's numbers are the single filter's (measured: bit for bit on the 2012
+scenario; numpy's batched matrix products and solves call the same LAPACK/BLAS kernels per
+matrix). :class:`BatchedEkfAccelerometer` repeats the FMU adapter
+(``ekf_accelerometer_fmu.py``) and its base
+:class:`~fmus.estimators.stamped_estimator.StampedEstimator`: the same commit / predict /
+update order and the same sample-time rule.
 """
 from __future__ import annotations
 
@@ -22,6 +24,14 @@ from fmus.common.sample_time import TIME_TOL, UNSTAMPED, intervals, measurement_
 from fmus.estimators import ekf_accelerometer_model as em
 
 _TRIL = np.tril_indices(6)
+
+
+_math_tanh = np.frompyfunc(math.tanh, 1, 1)
+
+
+def _tanh(x: np.ndarray) -> np.ndarray:
+    """``math.tanh`` elementwise: the single filter's bits (numpy's tanh differs in the last bit)."""
+    return _math_tanh(x).astype(float)
 
 
 def _T(a: np.ndarray) -> np.ndarray:
@@ -48,13 +58,13 @@ class BatchedMeasurement:
         D = []
         for i in range(2):
             k_hi, k_soft, delta, t = m._k_hi[i], m._k_soft[i], m._delta[i], tau[i]
-            d = (t + np.copysign(k_soft * delta * np.tanh(np.abs(t) / (k_hi * delta)), t)) / k_hi
+            d = (t + np.copysign(k_soft * delta * _tanh(np.abs(t) / (k_hi * delta)), t)) / k_hi
             tol = 1e-12 * np.maximum(1.0, np.abs(t))
             active = np.ones(d.shape, dtype=bool)     # Newton per run, each stops on its own
             for _ in range(50):
                 da, ta = d[active], t[active]
-                f = k_hi * da - k_soft * delta * np.tanh(da / delta) - ta
-                d[active] = da - f / (k_hi - k_soft * (1.0 - np.tanh(da / delta) ** 2))
+                f = k_hi * da - k_soft * delta * _tanh(da / delta) - ta
+                d[active] = da - f / (k_hi - k_soft * (1.0 - _tanh(da / delta) ** 2))
                 active[active] = ~(np.abs(f) <= tol[active])
                 if not active.any():
                     break
@@ -117,7 +127,7 @@ class BatchedMeasurement:
         H = np.zeros((runs, L.m, L.n))
         Jt = self._arm_torque_jacobian(x)
         for i in range(2):
-            k = m._k_hi[i] - m._k_soft[i] * (1.0 - np.tanh(D[i] / m._delta[i]) ** 2)
+            k = m._k_hi[i] - m._k_soft[i] * (1.0 - _tanh(D[i] / m._delta[i]) ** 2)
             y[:, i] = m.r[i] * (x[:, i] + D[i])
             H[:, i, 0:6] = (m.r[i] / k)[:, None] * Jt[:, i]
             H[:, i, i] += m.r[i]

@@ -471,14 +471,16 @@ class BatchedRuns:
             else:
                 kernels[n] = _Slaves([s.components[n] for s in scenarios], in_names, needed[n], sc.stop_time)
                 looped.append(n)
-        self._state = (t_wall, sc, R, p, ins, varying, needed, wanted, kernels, shared, batched, looped,
-                       dict(record))
+        self.scenario, self.runs, self.plan, self.inputs, self.varying = sc, R, p, ins, varying
+        self.needed, self.wanted, self.kernels, self.record = needed, wanted, kernels, dict(record)
         self.shared, self.batched, self.looped = shared, batched, looped
+        self._t0 = t_wall
 
     def run(self) -> BatchResult:
-        """Simulate the runs."""
-        (t_wall, sc, R, p, ins, varying, needed, wanted, kernels, shared, batched, looped,
-         record) = self._state
+        """Simulate the runs (once: the kernels hold their state)."""
+        t_wall, sc, R, p, ins, varying = self._t0, self.scenario, self.runs, self.plan, self.inputs, self.varying
+        needed, wanted, kernels, record = self.needed, self.wanted, self.kernels, self.record
+        shared, batched, looped = self.shared, self.batched, self.looped
         out: dict[str, np.ndarray] = {n: np.zeros((len(needed[n]), 1)) for n in sc.components}
         index = {n: {s: i for i, s in enumerate(needed[n])} for n in sc.components}
         sources = {n: [(src, index[src][s]) for _, src, s in ins[n]] for n in sc.components}

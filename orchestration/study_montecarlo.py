@@ -4,10 +4,18 @@ Fig. 4).
 
 ``flexfusion study montecarlo SCENARIO --runs N [--workers K | --scheduler ADDRESS] --out DIR``
 
-* Runs ``N`` seeds (``scenario.seed = first_seed .. first_seed + N - 1``) of the scenario on a
-  :mod:`concurrent.futures` executor (:func:`orchestration.study.open_executor`). The seed only
-  changes the sensor noise: the true trajectory is the same in every run (checked: the largest
-  deviation of the true states from run 0 is written to ``study.json``).
+* Runs ``N`` seeds (``scenario.seed = first_seed .. first_seed + N - 1``) of the scenario. The
+  seed only changes the sensor noise: the true trajectory is the same in every run (checked:
+  the largest deviation of the true states from run 0 is written to ``study.json``).
+* Engines (``--engine``): ``batched`` (default) simulates all runs and the sweep together,
+  vectorised over the runs (:mod:`orchestration.batched`: the noise-free closed loop once, the
+  sensors and EKFs with a run axis), and runs ``--check-seeds`` of the seeds (default 3, spread
+  over them) through the FMUs at the same time on the executor: their RMSEs, mean NEES and true
+  states must agree to 1e-12 relative, or the study stops naming the seed, the quantity and
+  the difference (``engine`` in ``study.json``). A scenario the engine cannot batch (a
+  particle filter) runs on the FMUs, and ``engine.fallback`` says why. ``fmu``: one
+  co-simulation of the FMUs per run on a :mod:`concurrent.futures` executor
+  (:func:`orchestration.study.open_executor`).
 * The filters are the scenario's components whose FMU is ``EkfAccelerometer`` or
   ``ParticleFilter``; with and without accelerometer are two components of one scenario (the
   same noise realisation for both, so their difference is a paired comparison).
@@ -263,9 +271,9 @@ def check_against_fmus(batched: dict[str, np.ndarray], fmu: dict[str, np.ndarray
     return worst
 
 
-def _run_jobs(engine: str, jobs: list[tuple], seeds: list[int], check_seeds: int, workers: int | None,
-              scheduler: str | None, progress: bool, desc: str) -> tuple[dict[str, Any], list[dict]]:
-    """Every job's :func:`run_one` result (job order) and what the engine did."""
+def _run_jobs(engine: str, jobs: list[tuple], seeds: list[int], check_seeds: int, ex: Any, progress: bool,
+              desc: str) -> tuple[dict[str, Any], list[dict]]:
+    """Every job's :func:`run_one` result (job order) and what the engine did, on the executor ``ex``."""
     from .batched import BatchError
     from .master import RunError
 
@@ -276,30 +284,27 @@ def _run_jobs(engine: str, jobs: list[tuple], seeds: list[int], check_seeds: int
         except BatchError as exc:
             reason = f"the batched engine cannot run this study ({exc}): every run goes through the FMUs"
             print(f"montecarlo: {reason}", file=sys.stderr)
-            info, results = _run_jobs("fmu", jobs, seeds, 0, workers, scheduler, progress, desc)
+            info, results = _run_jobs("fmu", jobs, seeds, 0, ex, progress, desc)
             return dict(info, fallback=reason), results
         picks = sorted({int(round(i)) for i in np.linspace(0, len(seeds) - 1, min(check_seeds, len(seeds)))})
-        with study.open_executor(workers, scheduler) as ex:
-            # the checks run on the executor while the batched engine runs here
-            checks = {seeds[i]: ex.submit(run_one, *jobs[i]) for i in picks}
+        # the checks run on the executor while the batched engine runs here
+        checks = {seeds[i]: ex.submit(run_one, *jobs[i]) for i in picks}
+        try:
+            results, res = _batched_results(prepared, filters, plant)
+        except RunError as exc:
+            raise study.StudyError(f"batched engine: {exc}") from None
+        worst = 0.0
+        for i in picks:
             try:
-                results, res = _batched_results(prepared, filters, plant)
-            except RunError as exc:
-                raise study.StudyError(f"batched engine: {exc}") from None
-            worst = 0.0
-            for i in picks:
-                try:
-                    fmu = checks[seeds[i]].result()
-                except Exception as exc:  # noqa: BLE001 - reported with its seed
-                    raise study.StudyError(f"the FMU check run of seed {seeds[i]} failed: "
-                                           f"{type(exc).__name__}: {exc}") from None
-                worst = max(worst, check_against_fmus(results[i], fmu, seeds[i], filters))
+                fmu = checks[seeds[i]].result()
+            except Exception as exc:  # noqa: BLE001 - reported with its seed
+                raise study.StudyError(f"the FMU check run of seed {seeds[i]} failed: "
+                                       f"{type(exc).__name__}: {exc}") from None
+            worst = max(worst, check_against_fmus(results[i], fmu, seeds[i], filters))
         return ({"used": "batched", "checked_seeds": [seeds[i] for i in picks], "check_rtol": CHECK_RTOL,
                  "max_relative_difference": worst, "shared": res.shared, "batched": res.batched,
                  "looped": res.looped, "engine_wall_time_s": res.wall_time}, results)
-    with study.open_executor(workers, scheduler) as ex:
-        results = study.map_jobs(run_one, jobs, ex, desc=desc, progress=progress, star=True)
-    return {"used": "fmu"}, results
+    return {"used": "fmu"}, study.map_jobs(run_one, jobs, ex, desc=desc, progress=progress, star=True)
 
 
 def nees(err: np.ndarray, P_packed: np.ndarray) -> np.ndarray:
@@ -440,74 +445,78 @@ def run_study(scenario: str | Path, runs: int, out: str | Path, overrides: Seque
     jobs = [job((), s) for s in seeds]
     for q in sweep_values:
         jobs += [job([f"{f.name}.q_jerk={q!r}" for f in ekfs], s) for s in sweep_seeds]
-    t0 = time.perf_counter()
-    engine_info, all_results = _run_jobs(engine, jobs, seeds, check_seeds, workers, scheduler, progress,
-                                         f"montecarlo {sc.name}")
-    wall_runs = time.perf_counter() - t0
-    results = all_results[:runs]
+    with study.open_executor(workers, scheduler) as ex:
+        # the bound's validation case needs nothing from the runs: it runs on the executor beside them
+        validation_job = None
+        if crlb and validation_runs and ekfs:
+            p = study.dataclass_from_scalars(EkfAccelerometerParameters, ekfs[0].parameters)
+            validation_job = ex.submit(validation_case, p, p.q_jerk, validation_runs, T=T, stop_time=sc.stop_time,
+                                       after=after, path=_controller_path(sc), seed=first_seed)
+        t0 = time.perf_counter()
+        engine_info, all_results = _run_jobs(engine, jobs, seeds, check_seeds, ex, progress, f"montecarlo {sc.name}")
+        wall_runs = time.perf_counter() - t0
+        results = all_results[:runs]
 
-    tk = results[0]["time"]
-    truth0 = results[0]["truth"]
-    truth_dev = max(float(np.max(np.abs(r["truth"] - truth0))) for r in results)
-    keep = tk >= after
-    summary, per_time = _summarise(results, filters, keep)
+        tk = results[0]["time"]
+        truth0 = results[0]["truth"]
+        truth_dev = max(float(np.max(np.abs(r["truth"] - truth0))) for r in results)
+        keep = tk >= after
+        summary, per_time = _summarise(results, filters, keep)
 
-    # ---- the q_jerk sweep: RMSE and consistency (ANEES) of the EKFs per value
-    sweep_rows = []
-    for i, q in enumerate(sweep_values):
-        part = all_results[runs + i * sweep_runs: runs + (i + 1) * sweep_runs]
-        row_summary, _ = _summarise(part, ekfs, keep)
-        sweep_rows.append({"q_jerk": q, "label": "paper, eq. 26 (Q = 4e-6 I)" if q == PAPER_Q_JERK else "",
-                           "filters": row_summary})
-    sweep_out: dict[str, Any] | None = None
-    if sweep_rows:
-        scored = [(max(_consistency(e) for e in r["filters"].values() if "anees" in e), r["q_jerk"])
-                  for r in sweep_rows if all("anees" in e for e in r["filters"].values())]
-        sweep_out = {"runs_per_value": sweep_runs, "seeds": [sweep_seeds[0], sweep_seeds[-1]],
-                     "criterion": "the q_jerk whose worst EKF (with and without accelerometer) has its "
-                                  "time-averaged ANEES closest to the state dimension 6: min max |ln(ANEES/6)|",
-                     "rows": sweep_rows,
-                     "selected_q_jerk": min(scored)[1] if scored else None,
-                     "scenario_q_jerk": {f.name: f.parameters.get("q_jerk") for f in ekfs}}
+        # ---- the q_jerk sweep: RMSE and consistency (ANEES) of the EKFs per value
+        sweep_rows = []
+        for i, q in enumerate(sweep_values):
+            part = all_results[runs + i * sweep_runs: runs + (i + 1) * sweep_runs]
+            row_summary, _ = _summarise(part, ekfs, keep)
+            sweep_rows.append({"q_jerk": q, "label": "paper, eq. 26 (Q = 4e-6 I)" if q == PAPER_Q_JERK else "",
+                               "filters": row_summary})
+        sweep_out: dict[str, Any] | None = None
+        if sweep_rows:
+            scored = [(max(_consistency(e) for e in r["filters"].values() if "anees" in e), r["q_jerk"])
+                      for r in sweep_rows if all("anees" in e for e in r["filters"].values())]
+            sweep_out = {"runs_per_value": sweep_runs, "seeds": [sweep_seeds[0], sweep_seeds[-1]],
+                         "criterion": "the q_jerk whose worst EKF (with and without accelerometer) has its "
+                                      "time-averaged ANEES closest to the state dimension 6: min max |ln(ANEES/6)|",
+                         "rows": sweep_rows,
+                         "selected_q_jerk": min(scored)[1] if scored else None,
+                         "scenario_q_jerk": {f.name: f.parameters.get("q_jerk") for f in ekfs}}
 
-    # ---- the bound along the true trajectory of run 0
-    bounds: dict[str, Any] = {}
-    model_bounds: dict[str, Any] = {}
-    t1 = time.perf_counter()
-    if crlb:
-        plant_p = study.dataclass_from_scalars(RobotParameters, sc.components[plant].parameters)
-        u0 = results[0]["inputs"]
-        cache: dict[tuple, Any] = {}
-        for f in filters:
-            p = study.dataclass_from_scalars(EkfAccelerometerParameters, f.parameters)
-            for dyn, tag, store in (("physical", "crlb", bounds), ("ekf", "ekf_model_bound", model_bounds)):
-                key = (f.use_accelerometer, p, dyn)
-                if key not in cache:
-                    try:
-                        cache[key] = robot_crlb(truth0[:, 0:2], truth0[:, 2:4], truth0[:, 4:6], u0[:, 0:2],
-                                                u0[:, 2:4], u0[:, 4:6], T, p, f.use_accelerometer, plant_p,
-                                                dynamics=dyn)
-                    except CrlbError as exc:
-                        raise study.StudyError(f"CRLB ({dyn} dynamics) for filter '{f.name}': {exc}") from None
-                b = cache[key]
-                store[f.name] = {g: getattr(b, g) for g in GROUPS}
-                for g in GROUPS:
-                    summary[f.name][f"{tag}_{g}"] = float(np.mean(store[f.name][g][keep]))
-                    summary[f.name][f"rmse_over_{tag}_{g}"] = (summary[f.name][f"rmse_{g}"]
-                                                               / summary[f.name][f"{tag}_{g}"])
-    wall_crlb = time.perf_counter() - t1
+        # ---- the bound along the true trajectory of run 0
+        bounds: dict[str, Any] = {}
+        model_bounds: dict[str, Any] = {}
+        t1 = time.perf_counter()
+        if crlb:
+            plant_p = study.dataclass_from_scalars(RobotParameters, sc.components[plant].parameters)
+            u0 = results[0]["inputs"]
+            cache: dict[tuple, Any] = {}
+            for f in filters:
+                p = study.dataclass_from_scalars(EkfAccelerometerParameters, f.parameters)
+                for dyn, tag, store in (("physical", "crlb", bounds), ("ekf", "ekf_model_bound", model_bounds)):
+                    key = (f.use_accelerometer, p, dyn)
+                    if key not in cache:
+                        try:
+                            cache[key] = robot_crlb(truth0[:, 0:2], truth0[:, 2:4], truth0[:, 4:6], u0[:, 0:2],
+                                                    u0[:, 2:4], u0[:, 4:6], T, p, f.use_accelerometer, plant_p,
+                                                    dynamics=dyn)
+                        except CrlbError as exc:
+                            raise study.StudyError(f"CRLB ({dyn} dynamics) for filter '{f.name}': {exc}") from None
+                    b = cache[key]
+                    store[f.name] = {g: getattr(b, g) for g in GROUPS}
+                    for g in GROUPS:
+                        summary[f.name][f"{tag}_{g}"] = float(np.mean(store[f.name][g][keep]))
+                        summary[f.name][f"rmse_over_{tag}_{g}"] = (summary[f.name][f"rmse_{g}"]
+                                                                   / summary[f.name][f"{tag}_{g}"])
+        wall_crlb = time.perf_counter() - t1
 
-    # ---- the bound's validation case: a true system with the process noise the bound assumes
-    t2 = time.perf_counter()
-    validation = None
-    if crlb and validation_runs and ekfs:
-        p = study.dataclass_from_scalars(EkfAccelerometerParameters, ekfs[0].parameters)
-        try:
-            validation = validation_case(p, p.q_jerk, validation_runs, T=T, stop_time=sc.stop_time,
-                                         after=after, path=_controller_path(sc), seed=first_seed)
-        except CrlbError as exc:
-            raise study.StudyError(f"CRLB validation case: {exc}") from None
-    wall_validation = time.perf_counter() - t2
+        # ---- the bound's validation case: a true system with the process noise the bound assumes
+        t2 = time.perf_counter()
+        validation = None
+        if validation_job is not None:
+            try:
+                validation = validation_job.result()
+            except CrlbError as exc:
+                raise study.StudyError(f"CRLB validation case: {exc}") from None
+        wall_validation = time.perf_counter() - t2      # the wait for it, after the runs and the bound
 
     # ---- Table 1 and the accelerometer's gain (first EKF with / without accelerometer)
     with_acc = next((f.name for f in ekfs if f.use_accelerometer), None)
@@ -751,7 +760,7 @@ def register(subparsers: Any) -> None:
                         "(default); fmu: one co-simulation of the FMUs per run")
     p.add_argument("--check-seeds", type=int, default=CHECK_SEEDS, metavar="N",
                    help=f"seeds checked through the FMUs with the batched engine (default {CHECK_SEEDS}; "
-                        f"they must agree to {CHECK_RTOL:g} relative)")
+                        f"0: none; they must agree to {CHECK_RTOL:g} relative)")
     study.add_executor_arguments(p)
     p.set_defaults(func=main)
 

@@ -4,7 +4,8 @@ covariances ``(runs, n, n)``, for the batched study engine (:mod:`orchestration.
 The model is :mod:`fmus.estimators.ekf_accelerometer_model` (eqs. 3, 12-19, 26), whose
 constants (``F``, ``G_u``, ``G_w Q G_w^T``, ``R``, the inertia, gravity, spring and mount
 constants) are used as they are; this module only repeats its per-sample arithmetic with a
-leading run axis, expression by expression in the same order and with ``math.tanh``'s bits,
+leading run axis, expression by expression in the same order and with Python's scalar
+``math.tanh`` and ``** 2`` (C's ``pow``) where the model uses them,
 so that each run's numbers are the single filter's (measured: bit for bit on the 2012
 scenario; numpy's batched matrix products and solves call the same LAPACK/BLAS kernels per
 matrix). :class:`BatchedEkfAccelerometer` repeats the FMU adapter
@@ -27,11 +28,18 @@ _TRIL = np.tril_indices(6)
 
 
 _math_tanh = np.frompyfunc(math.tanh, 1, 1)
+_math_tanh_squared = np.frompyfunc(lambda v: math.tanh(v) ** 2, 1, 1)
 
 
 def _tanh(x: np.ndarray) -> np.ndarray:
     """``math.tanh`` elementwise: the single filter's bits (numpy's tanh differs in the last bit)."""
     return _math_tanh(x).astype(float)
+
+
+def _tanh_squared(x: np.ndarray) -> np.ndarray:
+    """``math.tanh(x) ** 2`` elementwise: Python's ``**`` is C's ``pow``, which is not always
+    the correctly rounded square numpy's ``** 2`` computes."""
+    return _math_tanh_squared(x).astype(float)
 
 
 def _T(a: np.ndarray) -> np.ndarray:
@@ -64,7 +72,7 @@ class BatchedMeasurement:
             for _ in range(50):
                 da, ta = d[active], t[active]
                 f = k_hi * da - k_soft * delta * _tanh(da / delta) - ta
-                d[active] = da - f / (k_hi - k_soft * (1.0 - _tanh(da / delta) ** 2))
+                d[active] = da - f / (k_hi - k_soft * (1.0 - _tanh_squared(da / delta)))
                 active[active] = ~(np.abs(f) <= tol[active])
                 if not active.any():
                     break
@@ -127,7 +135,7 @@ class BatchedMeasurement:
         H = np.zeros((runs, L.m, L.n))
         Jt = self._arm_torque_jacobian(x)
         for i in range(2):
-            k = m._k_hi[i] - m._k_soft[i] * (1.0 - _tanh(D[i] / m._delta[i]) ** 2)
+            k = m._k_hi[i] - m._k_soft[i] * (1.0 - _tanh_squared(D[i] / m._delta[i]))
             y[:, i] = m.r[i] * (x[:, i] + D[i])
             H[:, i, 0:6] = (m.r[i] / k)[:, None] * Jt[:, i]
             H[:, i, i] += m.r[i]

@@ -15,7 +15,8 @@ when an edge is broken). Same math: every component is either
 * **per run**: a batched kernel with a leading run axis (:data:`KERNELS`: the Encoder and Imu
   of :mod:`fmus.robot_plant.sensor_batched`, the EkfAccelerometer of
   :mod:`fmus.estimators.ekf_accelerometer_batched`), one kernel per group of runs whose
-  parameters differ only in the seed; a per-run component without a kernel (e.g. the plant
+  parameters differ only in what the kernel takes per run (the sensors' seed, the EKF's
+  ``q_jerk``); a per-run component without a kernel (e.g. the plant
   when noise enters the closed loop) runs as one in-process FMU class instance per run
   (correct, but a Python loop over the runs: :attr:`BatchResult.looped` names them).
 

@@ -80,11 +80,6 @@ class RunSensorChannels(SensorChannels):
         return np.clip(y, -self._lim, self._lim)
 
 
-def _column(x: np.ndarray, runs: int) -> np.ndarray:
-    """A per-run input, ``(runs,)`` or ``(1,)`` (the same in every run), as ``(runs, 1)``."""
-    return np.broadcast_to(np.asarray(x, dtype=float).reshape(-1, 1), (runs, 1))
-
-
 class BatchedEncoder:
     """The Encoder FMU (``encoder_fmu.py``) for many seeds: ``q_m`` ``(runs, 2)`` in,
     ``q_m_meas`` ``(runs, 2)`` out; the sample stamps ``t_truth`` / ``t_meas`` are shared

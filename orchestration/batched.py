@@ -1,12 +1,11 @@
 """The batched study engine: many runs of one scenario (over seeds, and over parameter sets where
 the structure allows) simulated together, vectorised over runs, without FMI.
 
-Same schedule as the co-simulation: the Gauss–Seidel order, the broken cycle edges and the
-inputs of each component come from :func:`orchestration.master.plan` and
-:func:`orchestration.master.wiring`, and the stepping rule is the master's (a component of
-ratio ``k`` steps at the base steps ``j`` with ``j % k == 0`` as ``doStep(j h, k h)``, its
-inputs set from the freshest outputs; initialisation in the same order, with the extra pass
-when an edge is broken). Same math: every component is either
+Same schedule as the co-simulation, from the master's own definitions: the Gauss–Seidel order
+and the broken cycle edges (:func:`orchestration.master.plan`), which components step at each
+base step (:func:`orchestration.master.due`: multi-rate) and each one's inputs
+(:func:`orchestration.master.wiring`, set from the freshest outputs before its step);
+initialisation in the same order, with the extra pass when an edge is broken. Same math: every component is either
 
 * **shared**: its parameters are the same in every run and so are its inputs (no per-run
   producer upstream): it is simulated once, by its own FMU class instantiated in this process
@@ -35,7 +34,7 @@ import numpy as np
 
 from fmus.common.fmi import _nominal_step
 
-from .master import RunError, plan, wiring
+from .master import RunError, due, plan, wiring
 from .scenario import Component, Scenario, load_scenario, scenario_document
 
 
@@ -531,12 +530,11 @@ class BatchedRuns:
 
         # ---- stepping
         h = sc.base_step
-        slots = [(n, kernels[n], sc.components[n].ratio, sc.components[n].step, bool(needed[n])) for n in p.order]
+        slots = {n: (kernels[n], sc.components[n].step, bool(needed[n])) for n in p.order}
+        stepping = [[(n, *slots[n]) for n in names] for names in due(sc, p.order)]
         for j in range(n_steps):
             t = j * h
-            for n, k, ratio, dt, read in slots:
-                if j % ratio:
-                    continue
+            for n, k, dt, read in stepping[j % len(stepping)]:
                 if sources[n]:
                     k.set_inputs(gather(n))
                 k.do_step(t, dt)

@@ -21,6 +21,7 @@
 from __future__ import annotations
 
 import ctypes
+import math
 import shutil
 import sys
 import tempfile
@@ -185,15 +186,22 @@ def _find_cycle(nodes: list[str], edges: set[tuple[str, str]], rank: dict[str, i
 
 def wiring(scenario: Scenario) -> dict[str, list[tuple[str, str, str]]]:
     """Each component's connected inputs as ``(input scalar, producer, producer scalar)``, in the
-    order they are set. With :func:`plan`'s order and the rule of :func:`simulate` (a component
-    of ratio ``k`` steps at the base steps ``j`` with ``j % k == 0``, ``doStep(j h, k h)``, its
-    inputs set from the freshest outputs first), this is the schedule; the batched study engine
+    order they are set (from the freshest outputs, just before the component's step). With
+    :func:`plan` and :func:`due`, the schedule :func:`simulate` follows; the batched study engine
     (:mod:`orchestration.batched`) takes it from here too."""
     inputs: dict[str, list[tuple[str, str, str]]] = {n: [] for n in scenario.components}
     for c in scenario.connections:
         for s, d in c.pairs:
             inputs[c.dst].append((d, c.src, s))
     return inputs
+
+
+def due(scenario: Scenario, order: list[str]) -> list[list[str]]:
+    """The components that step at base step ``j``, in Gauss–Seidel order: ``due(...)[j % len]``
+    (a component of ratio ``k`` steps at the base steps ``j`` with ``j % k == 0``, as
+    ``doStep(j h, k h)``); one period of the pattern (the least common multiple of the ratios)."""
+    period = math.lcm(*(scenario.components[n].ratio for n in order)) if order else 1
+    return [[n for n in order if j % scenario.components[n].ratio == 0] for j in range(period)]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -435,11 +443,11 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
         n_steps = scenario.n_steps
         every = scenario.record_every
         tick = max(1, n_steps // 200)
+        slot_of = {s.inst.name: s for s in slots}
+        stepping = [[slot_of[n] for n in names] for names in due(scenario, p.order)]
         for k in range(n_steps):
             t_now = k * h
-            for s in slots:
-                if k % s.ratio:
-                    continue
+            for s in stepping[k % len(stepping)]:
                 inst = s.inst
                 if s.n_in:
                     np.take(values, s.in_idx, out=s.in_view)
@@ -630,4 +638,4 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     return result
 
 
-__all__ = ["RunError", "CouplingWarning", "Plan", "plan", "wiring", "find_algebraic_loop", "simulate", "run"]
+__all__ = ["RunError", "CouplingWarning", "Plan", "plan", "wiring", "due", "find_algebraic_loop", "simulate", "run"]

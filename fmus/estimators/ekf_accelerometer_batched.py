@@ -260,7 +260,7 @@ class BatchedEkfAccelerometer:
     :class:`BatchedEkfModel`): the measurement inputs are ``(runs, ...)`` arrays, the
     times (``t``, ``t_meas``) are shared. Call :meth:`initial` where the FMU leaves
     Initialization Mode, :meth:`refresh` where an input changed without a step (the FMU's
-    output update) and :meth:`step` per communication step; :attr:`outputs` are then the
+    output update) and :meth:`step` per communication step; :meth:`outputs` are then the
     FMU's outputs. A diverged run raises :class:`~.ekf_accelerometer_model.FilterDivergence`
     naming it (the FMU ends its step with an error there)."""
 

@@ -90,6 +90,7 @@ import scipy.linalg
 from fmus.common.robot_params import RobotParameters
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
+from fmus.estimators.ekf_accelerometer_batched import BatchedEkfModel, BatchedMeasurement
 
 
 class CrlbError(ValueError):
@@ -381,13 +382,13 @@ def robot_crlb(q_a, dq_a, ddq_a, q_m, dq_m, ddq_m, T: float, ekf: am.EkfAccelero
         model = RobotCrlbModel(plant if plant is not None else ekf.robot())
         A = model.system_matrix(x, u, rel_step)
     elif dynamics == "ekf":
-        A = np.broadcast_to(am.continuous_model(am.Layout(False, False))[0], (len(x), 6, 6))
+        A = am.continuous_model(am.Layout(False, False))[0][None]     # the same at every time
     else:
         raise CrlbError(f"dynamics must be 'physical' or 'ekf', not {dynamics!r}")
-    F, G = discretise(A, T)
+    F, G = (np.broadcast_to(m, (len(x),) + m.shape[1:]) for m in discretise(A, T))
     layout = am.Layout(bool(use_accelerometer), False)
     meas = am.MeasurementModel(ekf.robot(), layout)
-    H = np.stack([meas.jacobian(xi) for xi in x])
+    H = BatchedMeasurement(meas).h_and_jacobian(x)[1]       # meas.jacobian at every time, vectorised
     Q = ekf.q_jerk * np.eye(2)
     R = am.measurement_noise(ekf, layout)
     return RobotCrlb(crlb_linear(F, H, Q, R, G, method=method))
@@ -450,20 +451,28 @@ def validation_case(ekf: am.EkfAccelerometerParameters, q_true: float, runs: int
     Lr = np.sqrt(np.diag(am.measurement_noise(ekf, layout)))
     x0 = np.concatenate([ekf.initial_angles(), np.zeros(4)])
     L0 = np.linalg.cholesky(am.initial_covariance(ekf, am.Layout(False, False)))
-    err = {k: np.zeros((runs, len(t), 6)) for k in variants}
-    truth = np.zeros((runs, len(t), 6))
-    for j in range(runs):
-        rng = np.random.default_rng([seed, j])
-        x = x0 + L0 @ rng.standard_normal(6)
-        filters = {k: em.EkfAccelerometerModel(p) for k, p in params.items()}
-        for i in range(len(t)):
-            truth[j, i] = x
-            y = meas.h(x) + Lr * rng.standard_normal(4)
-            for k, f in filters.items():
-                xf = f.update(y if f.layout.use_accelerometer else y[0:2])
-                err[k][j, i] = xf[0:6] - x
-                f.predict(u[i], T)
-            x = F @ x + Gu @ u[i] + Gw[:, 0:2] @ (math.sqrt(q_true) * rng.standard_normal(2))
+    # all runs at once (a leading run axis); run j draws from default_rng([seed, j]) in the
+    # order x_0 (6), then per sample the measurement noise (4) and the jerk noise (2)
+    K = len(t)
+    draws = np.stack([np.random.default_rng([seed, j]).standard_normal(6 + 6 * K) for j in range(runs)])
+    noise = draws[:, 6:].reshape(runs, K, 6)
+    x = x0 + (L0 @ draws[:, :6, None])[:, :, 0]
+    h = BatchedMeasurement(meas)
+    filters = {k: BatchedEkfModel(p) for k, p in params.items()}
+    est = {k: (np.repeat(f.single.x[None], runs, 0), np.repeat(f.single.P[None], runs, 0))
+           for k, f in filters.items()}
+    err = {k: np.zeros((runs, K, 6)) for k in variants}
+    truth = np.zeros((runs, K, 6))
+    Gw2 = Gw[:, 0:2]
+    for i in range(K):
+        truth[:, i] = x
+        y = h.h_and_jacobian(x)[0] + Lr * noise[:, i, 0:4]
+        ui = np.broadcast_to(u[i], (runs, 2))
+        for k, f in filters.items():
+            xf, Pf, _ = f.filtered(y if f.layout.use_accelerometer else y[:, 0:2], *est[k])
+            err[k][:, i] = xf[:, 0:6] - x
+            est[k] = f.predicted(ui, T, xf, Pf)
+        x = (x @ F.T + u[i] @ Gu.T) + (math.sqrt(q_true) * noise[:, i, 4:6]) @ Gw2.T
     flat = truth.reshape(-1, 6)
     zeros = np.zeros((len(flat), 2))
     bounds: dict[tuple, RobotCrlb] = {}

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import ctypes
 import heapq
+import math
 import shutil
 import signal
 import sys
@@ -243,6 +244,26 @@ def _find_cycle(nodes: list[str], edges: set[tuple[str, str]], rank: dict[str, i
         path.append(n)
 
 
+def wiring(scenario: Scenario) -> dict[str, list[tuple[str, str, str]]]:
+    """Each component's connected inputs as ``(input scalar, producer, producer scalar)``, in the
+    order they are set (from the freshest outputs, just before the component's step). With
+    :func:`plan` and :func:`due`, the schedule :func:`simulate` follows; the batched study engine
+    (:mod:`orchestration.batched`) takes it from here too."""
+    inputs: dict[str, list[tuple[str, str, str]]] = {n: [] for n in scenario.components}
+    for c in scenario.connections:
+        for s, d in c.pairs:
+            inputs[c.dst].append((d, c.src, s))
+    return inputs
+
+
+def due(scenario: Scenario, order: list[str]) -> list[list[str]]:
+    """The components that step at base step ``j``, in Gauss–Seidel order: ``due(...)[j % len]``
+    (a component of ratio ``k`` steps at the base steps ``j`` with ``j % k == 0``, as
+    ``doStep(j h, k h)``); one period of the pattern (the least common multiple of the ratios)."""
+    period = math.lcm(*(scenario.components[n].ratio for n in order)) if order else 1
+    return [[n for n in order if j % scenario.components[n].ratio == 0] for j in range(period)]
+
+
 # ---------------------------------------------------------------------------------------------
 # instances
 # ---------------------------------------------------------------------------------------------
@@ -414,10 +435,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
     values[:] = 0.0
     record_idx = np.array([offsets[tuple(col.split(".", 1))] for col in scenario.record_columns()],
                           dtype=np.intp)
-    inputs: dict[str, list[tuple[str, str, str]]] = {n: [] for n in comps}   # (dst var, src comp, src var)
-    for c in scenario.connections:
-        for s, d in c.pairs:
-            inputs[c.dst].append((d, c.src, s))
+    inputs = wiring(scenario)
 
     instances: list[_Instance] = []
     slots: list[_Slot] = []
@@ -493,10 +511,12 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
         every = scenario.record_every
         tick = max(1, min(n_steps // 200, 100))
         save_at = getattr(hook, "step", None)
+        slot_of = {s.inst.name: s for s in slots}
+        stepping = [[slot_of[n] for n in names] for names in due(scenario, p.order)]
         for k in range(k0, n_steps):
             t_now = k * h
-            for s in slots:
-                if k % s.ratio or k > s.last_k:
+            for s in stepping[k % len(stepping)]:
+                if k > s.last_k:        # its next step would pass the stop time
                     continue
                 inst = s.inst
                 if s.n_in:
@@ -769,5 +789,5 @@ def metric_unit(sc: Scenario, ref: str) -> str:
     return c.variables[c.group(var)[0]].unit or ""
 
 
-__all__ = ["RunError", "CouplingWarning", "Interrupted", "stop_on_signals", "metric_unit", "Plan", "plan",
+__all__ = ["RunError", "CouplingWarning", "Interrupted", "stop_on_signals", "metric_unit", "Plan", "plan", "wiring", "due",
            "find_algebraic_loop", "simulate", "run"]

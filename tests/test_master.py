@@ -12,7 +12,7 @@ from fmpy.util import read_csv
 from numpy.testing import assert_allclose, assert_array_equal
 
 from orchestration import CouplingWarning, Result, ResultWarning, RunError, ScenarioError, run
-from orchestration.master import plan
+from orchestration.master import due, plan
 from orchestration.scenario import load_scenario
 from toys import FAILING, MASS_SPRING, analytic, write
 
@@ -143,6 +143,9 @@ variables = ["slow.n", "slow.t_s", "fast.n", "g.y"]
     # g (step 0.002) samples slow.y when it is stepped (base steps 0, 2, 4, ...) and holds it
     expected = np.where(k == 0, 0.0, 0.004 * np.ceil((2 * np.floor((k - 1) / 2) + 1) / 4))
     assert_allclose(r["g.y"], expected, rtol=0, atol=1e-15)
+    # the schedule behind it (shared with the batched engine): one period of lcm(4, 1, 2) steps
+    sc = load_scenario(path)
+    assert due(sc, plan(sc).order) == [["slow", "fast", "g"], ["fast"], ["fast", "g"], ["fast"]]
 
 
 def test_multirate_coupled_mass_springs_stay_accurate(tmp_path):

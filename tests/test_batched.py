@@ -1,0 +1,155 @@
+"""Tests of the batched study engine (orchestration.batched) and its kernels
+(fmus.robot_plant.sensor_batched, fmus.estimators.ekf_accelerometer_batched): the same numbers
+as the co-simulation of the FMUs."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from fmus.common.noise import make_rng
+from orchestration import batched, study, study_montecarlo
+from orchestration.scenario import DEFAULT_FMU_DIR, scenario_document
+
+SCENARIO = Path(study_montecarlo.__file__).resolve().parent / "scenarios" / "axelsson2012.toml"
+SHORT = ["scenario.stop_time=0.3"]
+
+needs_fmus = pytest.mark.skipif(not (DEFAULT_FMU_DIR / "EkfAccelerometer.fmu").exists(),
+                                reason="needs the built FMUs in dist/fmus (flexfusion build)")
+
+
+def test_run_streams_are_each_seeds_own_generator():
+    """Run r's numbers are what the FMU with seed r draws, call by call, across block borders."""
+    from fmus.robot_plant.sensor_batched import RunStreams
+    seeds = [3, 7, 11]
+    streams = RunStreams(seeds, "encoder/noise", block=3)
+    got = np.stack([streams.standard_normal(2) for _ in range(7)])         # (calls, runs, 2)
+    for r, s in enumerate(seeds):
+        rng = make_rng(s, "encoder/noise")
+        assert_array_equal(got[:, r], [rng.standard_normal(2) for _ in range(7)])
+
+
+def test_batched_ekf_equals_the_single_filter():
+    """BatchedEkfModel: each run's update and prediction are the single filter's, bit for bit
+    (the normalised innovation to round-off: one solve for it and the gain), also for runs
+    that differ in q_jerk."""
+    from fmus.estimators import ekf_accelerometer_model as em
+    from fmus.estimators.ekf_accelerometer_batched import BatchedEkfModel
+    base = em.EkfAccelerometerParameters(p_tool0=(1.2, 0.9))
+    params = [base, em.EkfAccelerometerParameters(p_tool0=(1.2, 0.9), q_jerk=0.3)]
+    model = BatchedEkfModel(params)
+    rng = np.random.default_rng(4)
+    singles = [em.EkfAccelerometerModel(p) for p in params]
+    x = np.stack([s.x + 1e-3 * rng.standard_normal(6) for s in singles])
+    P = np.stack([s.P for s in singles])
+    y = np.stack([s.meas.h(xi) for s, xi in zip(singles, x)]) + 1e-3 * rng.standard_normal((2, 4))
+    u = rng.standard_normal((2, 2))
+    xf, Pf, nu = model.filtered(y, x, P)
+    xp, Pp = model.predicted(u, 0.01, xf, Pf)
+    for r, s in enumerate(singles):
+        xs, Ps, ns = s.filtered(y[r], x[r], P[r])
+        assert_array_equal(xf[r], xs)
+        assert_array_equal(Pf[r], Ps)
+        assert_allclose(nu[r], ns, rtol=1e-13)
+        xq, Pq = s.predicted(u[r], 0.01, xs, Ps)
+        assert_array_equal(xp[r], xq)
+        assert_array_equal(Pp[r], Pq)
+    with pytest.raises(ValueError, match="q_jerk only"):
+        BatchedEkfModel([base, em.EkfAccelerometerParameters(r_acc=1.0)])
+
+
+@needs_fmus
+def test_batched_runs_equal_the_fmus():
+    """Three seeds on the batched engine and through the FMUs: the same numbers, bit for bit
+    (the shared closed loop runs the FMU classes' own code, the kernels repeat their math)."""
+    sc, filters, plant = study_montecarlo._scenario_parts(str(SCENARIO), SHORT)
+    seeds = [1, 2, 5]
+    runs, res = study_montecarlo.run_batched(str(SCENARIO), [SHORT + [f"scenario.seed={s}"] for s in seeds],
+                                             filters, plant, filters[0].ratio)
+    assert res.shared == ["plant", "controller"] and res.looped == []
+    assert res.batched == ["encoder", "imu", "ekf_acc", "ekf_motor"]
+    for s, b in zip(seeds, runs):
+        f = study_montecarlo.run_one(str(SCENARIO), SHORT + [f"scenario.seed={s}"], filters, plant,
+                                     filters[0].ratio)
+        assert study_montecarlo.check_against_fmus(b, f, s, filters) == 0.0
+        for key in f:
+            if key != "wall_time":
+                assert_array_equal(b[key], f[key], err_msg=key)
+    # different seeds, different noise
+    assert not np.allclose(runs[0]["ekf_acc"], runs[1]["ekf_acc"])
+
+
+def test_check_names_seed_quantity_and_difference():
+    """A difference above the tolerance stops the study with the seed, the quantity and the number."""
+    filters = [study_montecarlo.FilterInfo("ekf_acc", "EkfAccelerometer", True, 10, 0.01, {}, True)]
+    rng = np.random.default_rng(1)
+    fmu = {"time": np.arange(5.0), "truth": rng.standard_normal((5, 6)),
+           "ekf_acc": 1e-5 * rng.standard_normal((5, 6)), "ekf_acc.nees": rng.uniform(1, 9, 5)}
+    same = {k: v.copy() for k, v in fmu.items()}
+    assert study_montecarlo.check_against_fmus(same, fmu, 4, filters) == 0.0
+    same["ekf_acc"][:, 2:4] *= 1 + 1e-9
+    with pytest.raises(study.StudyError, match=r"seed 4: ekf_acc velocity RMSE differs by 1e-09"):
+        study_montecarlo.check_against_fmus(same, fmu, 4, filters)
+
+
+@needs_fmus
+def test_noise_in_the_closed_loop_runs_the_plant_per_run():
+    """A controller fed by the noisy encoder puts the noise into the loop: the plant and the
+    controller become per-run components (their FMU classes, one instance per run), and the runs
+    still equal the FMUs' and differ in their true states."""
+    doc = scenario_document(SCENARIO, ["scenario.stop_time=0.05"])
+    doc["connections"] = [c.replace("plant.q_m -> controller.q_m", "encoder.q_m_meas -> controller.q_m")
+                          for c in doc["connections"]]
+    seeds = [1, 2]
+    runs = [(f"scenario.seed={s}",) for s in seeds]
+    res = batched.simulate_runs(doc, runs, {"plant.q_a": None, "ekf_acc.q_a_hat": None})
+    assert res.looped == ["plant", "controller"] and "encoder" in res.batched
+    for r, s in enumerate(seeds):
+        f = study.simulate(doc, runs[r], ["plant.q_a", "ekf_acc.q_a_hat"])
+        assert_array_equal(res["plant.q_a"][r], f["plant.q_a"])
+        assert_array_equal(res["ekf_acc.q_a_hat"][r], f["ekf_acc.q_a_hat"])
+    assert not np.array_equal(res["plant.q_a"][0], res["plant.q_a"][1])
+
+
+@needs_fmus
+def test_study_falls_back_to_the_fmus_and_says_why(tmp_path, monkeypatch):
+    def refuse(model_identifier):
+        raise batched.BatchError(f"no kernel for '{model_identifier}' (test)")
+    monkeypatch.setattr(batched, "fmu_class", refuse)
+    data = study_montecarlo.run_study(SCENARIO, 2, tmp_path, SHORT, workers=1, progress=False, after=0.1,
+                                      plots=False, crlb=False, sweep_runs=0, validation_runs=0)
+    assert data["engine"]["used"] == "fmu"
+    assert "no kernel for" in data["engine"]["fallback"]
+
+
+@needs_fmus
+def test_runs_of_another_structure_are_refused():
+    with pytest.raises(batched.BatchError, match="run 1 has another structure"):
+        batched.simulate_runs(str(SCENARIO), [SHORT, ["scenario.stop_time=0.2"]], {"plant.q_a": None})
+
+
+@needs_fmus
+@pytest.mark.slow
+def test_100_runs_batched_equal_the_fmu_study(tmp_path):
+    """The whole Monte Carlo table of 100 runs (seeds 1-100) on both engines: the same numbers."""
+    kw = dict(workers=2, progress=False, plots=False, crlb=False, sweep_runs=0, validation_runs=0)
+    fast = study_montecarlo.run_study(SCENARIO, 100, tmp_path / "b", engine="batched", check_seeds=5, **kw)
+    slow = study_montecarlo.run_study(SCENARIO, 100, tmp_path / "f", engine="fmu", **kw)
+    assert fast["engine"]["used"] == "batched" and len(fast["engine"]["checked_seeds"]) == 5
+    for name, entry in slow["summary"].items():
+        for key, value in entry.items():
+            if isinstance(value, float):
+                assert fast["summary"][name][key] == value, f"{name} {key}"
+
+
+@needs_fmus
+def test_particle_filter_stays_on_the_fmus():
+    """The particle filter has no kernel: the study's engine refuses it before simulating (the
+    study then runs every run through the FMUs)."""
+    pf = SCENARIO.with_name("axelsson2012_pf.toml")
+    sc, filters, plant = study_montecarlo._scenario_parts(str(pf), SHORT)
+    with pytest.raises(batched.BatchError, match="'pf_alg1' .ParticleFilter. differs between runs and has no"):
+        study_montecarlo._batched_runs(str(pf), [SHORT + [f"scenario.seed={s}"] for s in (1, 2)], filters,
+                                       plant, filters[0].ratio)

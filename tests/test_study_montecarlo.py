@@ -188,7 +188,9 @@ def test_cli_reports_a_bad_scenario_in_one_line(tmp_path, capsys):
 
 
 def test_resume_recomputes_only_the_missing_runs_with_the_same_numbers(tmp_path, capsys):
-    argv = ["study", "montecarlo", str(SCENARIO), "--runs", "3", "--out", str(tmp_path), "--workers", "2",
+    """On the FMU engine each run is a stored job (the batched engine computes all runs at once,
+    in seconds, and stores none)."""
+    argv = ["study", "montecarlo", str(SCENARIO), "--engine", "fmu", "--runs", "3", "--out", str(tmp_path), "--workers", "2",
             "--no-progress", "--after", "0.2", "--no-plots", "--no-crlb", "--sweep-runs", "0",
             "--validation-runs", "0", "--set", SHORT[0]]
     assert cli.main(argv) == 0

@@ -7,8 +7,6 @@ import sys
 import zipfile
 from pathlib import Path
 
-from fmu_host import every_fmu
-
 REPO = Path(__file__).resolve().parent.parent
 
 AFTER_AN_FMU_RAN = """
@@ -25,10 +23,10 @@ print(bundled, len(binaries))
 """
 
 
-def test_build_after_an_fmu_ran_in_the_process_has_binaries(tmp_path, tmp_path_factory) -> None:
+def test_build_after_an_fmu_ran_in_the_process_has_binaries(tmp_path, every_fmu) -> None:
     """After an FMU ran, 'pythonfmu' resolves to its bundled copy (no binaries); the build must
     still use the installed package's builder (fresh process: pytest has imported the builder)."""
-    encoder = next(p for p in every_fmu(tmp_path_factory) if p.stem == "Encoder")
+    encoder = every_fmu["Encoder"]
     env = dict(os.environ, PYTHONPATH=str(REPO))
     out = subprocess.run([sys.executable, "-c", AFTER_AN_FMU_RAN, str(encoder), str(tmp_path)],
                          capture_output=True, text=True, timeout=120, cwd=REPO, env=env)

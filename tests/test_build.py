@@ -12,6 +12,7 @@ import pytest
 
 from orchestration.build import BUNDLE_ID_FILE, FMU_REQUIREMENTS, BuildError, build_all
 from toys import TOYS
+
 REPO = Path(__file__).resolve().parent.parent
 
 AFTER_AN_FMU_RAN = """

@@ -4,8 +4,9 @@ model module cites where its equations come from (a paper's "eq." or a named sou
 
 Math modules: ``fmus/common/*.py`` and, beside each FMU, ``*_model.py``, ``*_math.py`` and
 ``*_dynamics.py``. A parameter counts as documented when its name appears as a word in the
-docstring of the function, or for ``__init__`` and a dataclass in the class docstring (a
-parameter dataclass documents its fields with :func:`fmus.common.parameters.param`).
+docstring of the function or, for a method, of its class (where a class documents the
+arguments all its methods take); ``__init__`` needs no docstring of its own. A parameter
+dataclass documents its fields with :func:`fmus.common.parameters.param`.
 """
 from __future__ import annotations
 
@@ -38,8 +39,6 @@ REFACTORING = {
     ("documented", "fmus/estimators/ekf_flexible_model.py"): "18 parameters or definitions undocumented at c35e7a2",
     ("documented", "fmus/estimators/imu_ekf_model.py"): "14 parameters or definitions undocumented at c35e7a2",
     ("documented", "fmus/estimators/particle_filter_model.py"): "16 parameters or definitions undocumented at c35e7a2",
-    ("documented", "fmus/force_observer/force_observer_math.py"): "17 undocumented: being fixed on this branch",
-    ("documented", "fmus/force_observer/impedance_math.py"): "39 undocumented: being fixed on this branch",
     ("documented", "fmus/robot_plant/force_pulse_model.py"): "9 undocumented: being fixed on this branch",
     ("documented", "fmus/robot_plant/motion_control_model.py"): "11 undocumented: being fixed on this branch",
     ("documented", "fmus/robot_plant/plant_dynamics.py"): "21 undocumented: being fixed on this branch",
@@ -60,10 +59,6 @@ def _rel(path: Path) -> str:
 
 def _public(name: str) -> bool:
     return not name.startswith("_") or name == "__init__"
-
-
-def _is_dataclass(node: ast.ClassDef) -> bool:
-    return any("dataclass" in ast.unparse(d) for d in node.decorator_list)
 
 
 def _parameters(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> list[str]:
@@ -87,11 +82,10 @@ def undocumented(path: Path) -> list[str]:
         if any(isinstance(d, ast.Name) and d.id == "overload" for d in fn.decorator_list):
             return
         doc = ast.get_docstring(fn) or ""
-        if fn.name == "__init__":
-            doc = doc + "\n" + fallback
-        elif not doc:
+        if not doc and fn.name != "__init__":
             problems.append(f"{_rel(path)}:{qualname}")
             return
+        doc = doc + "\n" + fallback
         problems.extend(f"{_rel(path)}:{qualname}({p})" for p in _parameters(fn) if not _mentions(doc, p))
 
     for node in tree.body:

@@ -125,13 +125,14 @@ class ImpedanceDesign:
 
 
 def replace_design(d: ImpedanceDesign, **changes) -> ImpedanceDesign:
-    """A copy of ``d`` with some fields changed (validated)."""
+    """A copy of ``d`` with the fields named in ``changes`` changed (validated)."""
     import dataclasses
     return dataclasses.replace(d, **changes)
 
 
 def design_model(d: ImpedanceDesign, k_env: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``(A, B)`` of the design model and input ``Delta``.
+    """``(A, B)`` of the design model of ``d`` and input ``Delta``; with ``k_env`` (N/m) the
+    tool is in contact with a surface of that stiffness (free motion when None).
 
     Rigid tool: states ``(e, e', zeta)``. Compliant tool (``d.compliant``; the paper's robot +
     Optidrive model, eq. 39): states ``(e_f, e_f', dl, dl', zeta)`` with ``e_f`` the flange
@@ -159,7 +160,7 @@ def design_model(d: ImpedanceDesign, k_env: float | None = None) -> tuple[np.nda
 
 
 def design_gains(d: ImpedanceDesign) -> np.ndarray:
-    """LQR gain ``L`` for ``Delta = -L s`` (eqs. 40-41): on ``(e, e', zeta)`` (3) for a rigid
+    """LQR gain ``L`` of the design ``d`` for ``Delta = -L s`` (eqs. 40-41): on ``(e, e', zeta)`` (3) for a rigid
     tool, ``(e_f, e_f', dl, dl', zeta)`` (5) for the compliant one (eq. 41's diagonal form:
     weights on the robot's and the tool's position and velocity states); the ``"paper"``
     structure drops ``zeta`` (2 or 4 entries)."""
@@ -172,7 +173,8 @@ def design_gains(d: ImpedanceDesign) -> np.ndarray:
 
 def force_gain(d: ImpedanceDesign, L: np.ndarray) -> float:
     """The paper's force gain ``c`` (eq. 40) for ``Delta = -L s + c (F - F_d)``: the one that
-    makes the design model's static contact the target impedance (eq. 2) on the tool.
+    makes the static contact of the design model ``d`` with state gain ``L`` the target
+    impedance (eq. 2) on the tool.
 
     At rest the design model's position loop (stiffness ``k_r``) holds the flange at
     ``e_f = Delta - F / k_r``, the tool mount deflects by ``dl = -C F`` (``C = 1 / tool_k``,
@@ -191,7 +193,7 @@ def force_gain(d: ImpedanceDesign, L: np.ndarray) -> float:
 
 
 def closed_loop_poles(d: ImpedanceDesign, L: np.ndarray, k_env: float) -> np.ndarray:
-    """Poles of the design model with gain ``L`` on a surface of stiffness ``k_env``; for the
+    """Poles of the design model ``d`` with gain ``L`` on a surface of stiffness ``k_env``; for the
     ``"paper"`` structure the force term ``c F = c k_env e_tool`` (in contact) is closed too."""
     A, B = design_model(d, k_env)
     L = np.asarray(L, float).ravel()
@@ -210,7 +212,9 @@ def stationary_contact(K_z: float, k_wall: float, x_r: float, x_w: float, F_d: f
                        ) -> tuple[float, float]:
     """Stationary position and force from the impedance relation and the wall (module doc).
 
-    Positions along the normal (the tool pushes towards +x); returns ``(x_s, F_s)``.
+    The target impedance has stiffness ``K_z`` (N/m), reference ``x_r`` and desired force
+    ``F_d`` (N); the wall, at ``x_w``, has stiffness ``k_wall`` (N/m). Positions along the
+    normal (the tool pushes towards +x); returns ``(x_s, F_s)``.
     """
     x_free = x_r + F_d / K_z
     if x_free <= x_w:
@@ -231,6 +235,9 @@ class ImpedanceLaw:
     the flange position ``x_flange`` must be given; ``x`` is always the tool position, used in
     the impedance variable ``z``. Lengths 2 and 4 are the paper's structure: the same without
     ``zeta``, plus ``c (F - F_d)`` (``force_gain``, :func:`force_gain`).
+
+    ``L`` is the state gain (:func:`design_gains`), ``K_z`` (N/m) and ``D_z`` (N s/m) the
+    target stiffness and damping of the impedance variable ``z`` (eq. 3).
     """
 
     def __init__(self, L: np.ndarray, K_z: float, D_z: float, tau_v: float = 0.01,
@@ -255,6 +262,7 @@ class ImpedanceLaw:
 
     @e_prev.setter
     def e_prev(self, value: None) -> None:
+        """Forget the last sample: ``value`` must be ``None`` (a gap in the samples)."""
         if value is not None:
             raise ValueError("e_prev can only be reset to None")
         self.q_prev = None
@@ -291,7 +299,7 @@ class ImpedanceLaw:
 
     def impedance_variable(self, F: float, x: float, x_r: float, F_d: float = 0.0, h: float = 0.0,
                            x_flange: float | None = None) -> float:
-        """``z`` of eq. 3 at this sample (N)."""
+        """``z`` of eq. 3 at this sample (N); ``h`` is the time since the last one."""
         q = self._positions(x, x_r, x_flange)
         return self._z(F, F_d, q, self._rates(q, h))
 
@@ -348,10 +356,14 @@ def simulate_1dof(plant: OneAxisPlant, design: ImpedanceDesign, x_ref, t_end: fl
                   seed: int = 0, tau_v: float = 0.01, controller=None) -> dict[str, np.ndarray]:
     """Close the impedance loop on :class:`OneAxisPlant`.
 
-    ``x_ref(t)`` is the reference along the normal. The force fed back is the observer's
-    estimate (``observer`` = one of :data:`fom.OBSERVER_KINDS`) or, with ``use_raw``, the raw
-    sensor reading ``u = F + m_t a``. The plant is integrated with RK4, ``substeps`` per
-    controller step ``h``. ``controller(t, u, a, x, x_ref) -> (F_hat, Delta)``, if given,
+    ``x_ref(t)`` is the reference along the normal, ``design`` the controller's
+    :class:`ImpedanceDesign`, ``t_end`` (s) the duration, ``x0`` (m) the start position and
+    ``F_d`` (N) the desired force. The force fed back is the observer's estimate
+    (``observer`` = one of :data:`fom.OBSERVER_KINDS`, configured by ``obs_cfg`` if given) or,
+    with ``use_raw``, the raw sensor reading ``u = F + m_t a``; ``noise_f`` (N) and
+    ``noise_a`` (m/s^2) are the standard deviations of the force and acceleration readings'
+    white noise (generator seeded with ``seed``), ``tau_v`` (s) the velocity filter's time
+    constant. The plant is integrated with RK4, ``substeps`` per controller step ``h``. ``controller(t, u, a, x, x_ref) -> (F_hat, Delta)``, if given,
     replaces the built-in observer and impedance law for one sample (advancing over ``h``).
     Returns time series (``t, x, v, a, F, u, F_hat, delta, x_ref``).
     """

@@ -39,17 +39,13 @@ REFACTORING = {
     ("documented", "fmus/estimators/ekf_flexible_model.py"): "18 parameters or definitions undocumented at c35e7a2",
     ("documented", "fmus/estimators/imu_ekf_model.py"): "14 parameters or definitions undocumented at c35e7a2",
     ("documented", "fmus/estimators/particle_filter_model.py"): "16 parameters or definitions undocumented at c35e7a2",
-    ("documented", "fmus/robot_plant/force_pulse_model.py"): "9 undocumented: being fixed on this branch",
-    ("documented", "fmus/robot_plant/motion_control_model.py"): "11 undocumented: being fixed on this branch",
-    ("documented", "fmus/robot_plant/plant_dynamics.py"): "21 undocumented: being fixed on this branch",
-    ("documented", "fmus/robot_plant/plant_model.py"): "1 undocumented: being fixed on this branch",
-    ("cited", "fmus/robot_plant/plant_model.py"): "no citation: being fixed on this branch",
-    ("documented", "fmus/robot_plant/sensor_model.py"): "15 undocumented: being fixed on this branch",
     ("documented", "fmus/estimators/rigid_kinematics_model.py"): "5 parameters or definitions undocumented at c35e7a2",
 }
 
-# "eq. 16", "Eqs. (17)-(19)", "equation 3", or "Author (2012)", "Author et al. (2009)", "Author and Other 2003"
-CITATION = re.compile(r"\b[Ee]q(s|uations?)?\.?\s*\(?\d|[A-Z][\w-]+(\s+et al\.|\s+and\s+[A-Z][\w-]+)?,?\s+\(?(19|20)\d\d\b")
+# "eq. 16", "Eqs. (17)-(19)", "equation 3"; or a named source: "Author (2012)", "Author et al.
+# (2009)", "Author and Other 2003", or a reference list's "..., J. Dyn. Syst. 136 (2014)"
+CITATION = re.compile(r"\b[Ee]q(s|uations?)?\.?\s*\(?\d|[A-Z][\w-]+(\s+et al\.|\s+and\s+[A-Z][\w-]+)?,?\s+\(?(19|20)\d\d\b"
+                      r"|\((19|20)\d\d\)")
 SKIPPED_PARAMETERS = {"self", "cls"}
 
 
@@ -116,7 +112,7 @@ def test_the_checks_can_fail(tmp_path: Path) -> None:
                                  "bad_model.py:C.g"]
     assert not CITATION.search(bad.read_text())
     for cited in ("eq. 16", "Eqs. (17)-(19)", "equation 3", "Moberg (2010)", "Axelsson et al. (2012)",
-                  "Henriksson et al., 2009", "De Luca and Book 2008"):
+                  "Henriksson et al., 2009", "De Luca and Book 2008", "ASME J. Dyn. Sys. 136 (2014)"):
         assert CITATION.search(cited), cited
 
 

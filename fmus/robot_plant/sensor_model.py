@@ -75,7 +75,9 @@ def butterworth_coefficients(cutoff: float, dt: float, order: int) -> tuple[np.n
 
 
 def butterworth_magnitude(f: np.ndarray | float, cutoff: float, dt: float, order: int) -> np.ndarray:
-    """Analytic magnitude of :func:`butterworth_coefficients` at frequency ``f`` (Hz)."""
+    """Analytic magnitude at frequency ``f`` (Hz) of :func:`butterworth_coefficients`' filter of
+    ``order`` 1 or 2 with ``cutoff`` (Hz), discretised at ``dt`` (s) (bilinear transform, the
+    cutoff prewarped)."""
     ratio = np.tan(np.pi * np.asarray(f, dtype=float) * dt) / math.tan(math.pi * cutoff * dt)
     return 1.0 / np.sqrt(1.0 + ratio ** (2 * order))
 
@@ -112,6 +114,8 @@ class SensorChannels:
 
     Parameters
     ----------
+    filter_order
+        Order of the anti-aliasing Butterworth low-pass, 1 or 2.
     names
         FMU parameter names used in error messages, keys ``"sample_rate"`` and ``"cutoff"``.
     """
@@ -259,7 +263,8 @@ def rot_y(phi: float) -> np.ndarray:
 
 
 def rot_rpy(rpy: Sequence[float]) -> np.ndarray:
-    """Mounting rotation from roll, pitch, yaw (``Rz(yaw) @ Ry(pitch) @ Rx(roll)``), sensor to tool."""
+    """Mounting rotation from ``rpy`` = (roll, pitch, yaw) in rad (``Rz(yaw) @ Ry(pitch) @
+    Rx(roll)``), sensor to tool."""
     r, p, y = (float(v) for v in rpy)
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
     rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
@@ -269,7 +274,8 @@ def rot_rpy(rpy: Sequence[float]) -> np.ndarray:
 
 
 def sensor_rotation(phi: float, mount_rpy: Sequence[float]) -> np.ndarray:
-    """``R_s = Ry(phi) @ R_mount``: sensor frame to world."""
+    """``R_s = Ry(phi) @ R_mount``: sensor frame to world, for the tool angle ``phi`` (rad) and
+    the mount's ``mount_rpy`` (:func:`rot_rpy`)."""
     return rot_y(phi) @ rot_rpy(mount_rpy)
 
 
@@ -305,8 +311,10 @@ def force_sensor_reading(f_ext_xz: Sequence[float], a_tool_xz: Sequence[float], 
     """Ideal wrist force in the sensor frame (the impedance paper's eq. 1, in 3-D).
 
     ``f_s = R_s^T (m_tool (a_tool - g_vec) - f_ext)``: the force the sensor exerts on the tool
-    balances inertia, weight and the contact force ``f_ext`` ON the tool (world x, z). At rest
-    in free space with a zero mount it reads ``+m_tool g`` on sensor z.
+    balances inertia, weight and the contact force ``f_ext`` (``f_ext_xz``) ON the tool (world x, z). At rest
+    in free space with a zero mount it reads ``+m_tool g`` on sensor z. ``a_tool_xz`` is the
+    tool's acceleration (m/s^2, world x, z), ``phi`` the tool angle and ``mount_rpy`` the
+    sensor's mount (:func:`sensor_rotation`).
     """
     rs = sensor_rotation(phi, mount_rpy)
     return rs.T @ (float(m_tool) * (_xz(a_tool_xz) - np.array([0.0, 0.0, -g])) - _xz(f_ext_xz))
@@ -364,14 +372,16 @@ class Wall:
 
 
 def penetration(p_tool: Sequence[float], wall: Wall) -> float:
-    """Depth of the tool inside the wall along the normal (m); negative outside."""
+    """Depth of the tool at ``p_tool`` (m, world x, z) inside the ``wall`` along its normal (m);
+    negative outside."""
     n = np.asarray(wall.normal, dtype=float)
     n = n / np.linalg.norm(n)
     return float(-(np.asarray(p_tool, dtype=float) - np.asarray(wall.point, dtype=float)) @ n)
 
 
 def contact_force(p_tool: Sequence[float], v_tool: Sequence[float], wall: Wall) -> np.ndarray:
-    """Force of the wall ON the tool, world x and z (N).
+    """Force of the ``wall`` ON the tool at ``p_tool`` moving at ``v_tool`` (m, m/s; world x
+    and z), world x and z (N).
 
     ``f = n max(0, k d - c v.n)`` when the penetration ``d > 0`` (a Kelvin-Voigt contact,
     the environment model of the impedance paper with 5 N/mm), zero outside; the clip at zero

@@ -44,7 +44,8 @@ def rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
 
 
 def max_error(estimate: np.ndarray, truth: np.ndarray) -> float:
-    """Largest Euclidean error ``max_k ||estimate_k - truth_k||``."""
+    """Largest Euclidean error ``max_k ||estimate_k - truth_k||`` of ``estimate`` against
+    ``truth`` (rows are samples)."""
     e = _error(estimate, truth)
     if len(e) == 0:
         return float("nan")
@@ -116,7 +117,8 @@ def at_sample_times(time: np.ndarray, estimate: np.ndarray, truth: np.ndarray, t
 
 def compute(spec: Any, time: np.ndarray, estimate: np.ndarray, truth: np.ndarray,
             truth_time: np.ndarray | None = None) -> dict[str, float]:
-    """Evaluate one scenario metric spec (:class:`orchestration.scenario.MetricSpec`).
+    """Evaluate one scenario metric ``spec`` (:class:`orchestration.scenario.MetricSpec`) of
+    ``estimate`` against ``truth``, rows sampled at ``time``.
 
     Returns ``{name: value}`` for ``rmse`` and ``max``, ``{name_max: .., name_mean: ..}`` for
     ``bandpass``. Samples with ``time < spec.after`` are left out. With ``truth_time`` (the

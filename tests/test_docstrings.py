@@ -2,8 +2,8 @@
 public function, class and method has a docstring that names each of its parameters, and every
 model module cites where its equations come from (a paper's "eq." or a named source).
 
-Math modules: ``fmus/common/*.py`` and, beside each FMU, ``*_model.py``, ``*_math.py`` and
-``*_dynamics.py``. A parameter counts as documented when its name appears as a word in the
+Math modules: ``fmus/common/*.py``; beside each FMU, ``*_model.py``, ``*_math.py`` and
+``*_dynamics.py``; and the orchestration's math: metrics, CRLB, identification. A parameter counts as documented when its name appears as a word in the
 docstring of the function or, for a method, of its class (where a class documents the
 arguments all its methods take); ``__init__`` needs no docstring of its own. A parameter
 dataclass documents its fields with :func:`fmus.common.parameters.param`.
@@ -18,9 +18,10 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 MATH_MODULES = sorted({*REPO.glob("fmus/common/*.py"), *REPO.glob("fmus/*/*_model.py"),
-                       *REPO.glob("fmus/*/*_math.py"), *REPO.glob("fmus/*/*_dynamics.py")}
+                       *REPO.glob("fmus/*/*_math.py"), *REPO.glob("fmus/*/*_dynamics.py"),
+                       *(REPO / "orchestration" / f"{m}.py" for m in ("metrics", "crlb", "identification"))}
                       - {REPO / "fmus/common/__init__.py"})
-MODEL_MODULES = [p for p in MATH_MODULES if p.parent.name != "common"]
+MODEL_MODULES = [p for p in MATH_MODULES if p.parent.name not in ("common", "orchestration")]
 
 #: Known failures in the packages being refactored on another branch (issue 15: fmus/common
 #: and fmus/estimators). The lead clears this list after merging; a listed item that passes

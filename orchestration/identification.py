@@ -289,10 +289,10 @@ class NoiseLevels:
     @classmethod
     def of_sensors(cls, encoder_noise: float, encoder_resolution: float, acc_noise: float,
                    acc_resolution: float) -> "NoiseLevels":
-        """From sensor data-sheet values: white noise ``encoder_noise`` (rad) and
-        ``acc_noise`` (m/s^2), each with the noise of its quantisation step ``encoder_resolution`` /
-        ``acc_resolution`` (``q / sqrt(12)``) added in quadrature; a level of zero is floored at 1e-9
-        of the unit."""
+        """From sensor data-sheet values: white noise ``encoder_noise`` (rad) and ``acc_noise``
+        (m/s^2), each with the noise ``q / sqrt(12)`` of its quantisation step
+        ``encoder_resolution`` / ``acc_resolution`` added in quadrature; a level of zero is
+        floored at 1e-9 of the unit."""
         return cls(max(math.hypot(encoder_noise, encoder_resolution / math.sqrt(12)), 1e-9),
                    max(math.hypot(acc_noise, acc_resolution / math.sqrt(12)), 1e-9))
 

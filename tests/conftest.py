@@ -46,6 +46,15 @@ def fmu_env(fmu_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return fmu_dir
 
 
+@pytest.fixture(scope="module")
+def fmu_env_module(fmu_dir: Path) -> Iterator[Path]:
+    """:func:`fmu_env` for a whole module, so that module-scoped fixtures' runs find the FMUs
+    too (``pytestmark = pytest.mark.usefixtures("fmu_env_module")``)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
+        yield fmu_dir
+
+
 @pytest.fixture(scope="session")
 def toy_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The toy FMUs of tests/fmus, built once per session."""

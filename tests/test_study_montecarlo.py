@@ -16,13 +16,7 @@ from orchestration import cli, study, study_montecarlo
 SCENARIO = Path(study_montecarlo.__file__).resolve().parent / "scenarios" / "axelsson2012.toml"
 SHORT = ["scenario.stop_time=0.5"]
 
-
-@pytest.fixture(scope="module", autouse=True)
-def _fmus(fmu_dir: Path):
-    """Scenarios find every FMU, already for the module-scoped runs below."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
-        yield
+pytestmark = pytest.mark.usefixtures("fmu_env_module")      # also for the module-scoped runs
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ Why a fresh build and not ``dist/fmus``: ``dist/fmus`` holds whatever ``flexfusi
 last. What an FMU contains depends on ``fmus/``, ``orchestration/build.py``, the native FMI
 library (``orchestration/native``) and the installed pythonfmu, so no cheap check proves a
 ``dist/fmus`` current, and a stale one would test old code without a word. The run builds every
-FMU once, when the first test needs one (about 30 s on a loaded machine), into its own
+FMU once, when the first test needs one (4-8 s here, 19 FMUs), into its own
 temporary folder; a test run that needs no FMU builds nothing. ``FLEXFUSION_FMU_DIR`` points at
 a folder that does not exist for the whole run, so a scenario test that forgets the
 :func:`fmu_env` fixture fails ("no FMU ...") instead of silently running ``dist/fmus``.

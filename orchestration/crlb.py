@@ -244,7 +244,9 @@ class RobotCrlbModel:
         self.d = np.asarray(p.d, float)
 
     def acceleration(self, q, dq, qm, dqm) -> np.ndarray:
-        """``k(q_a, dq_a; q_m, dq_m)`` of eq. 21 (arm acceleration, no external force)."""
+        """``k(q_a, dq_a; q_m, dq_m)`` of eq. 21 (arm acceleration, no external force) at arm
+        angles ``q`` and rates ``dq`` and motor angles ``qm`` and rates ``dqm`` (motor side),
+        each (..., 2)."""
         q, dq, qm, dqm = (np.asarray(v) for v in (q, dq, qm, dqm))
         D = qm / self.r - q
         tau = (self.k_hi * D - self.k_soft * self.delta * np.tanh(D / self.delta)
@@ -323,14 +325,17 @@ class RobotCrlb:
 
     @property
     def position(self) -> np.ndarray:
+        """``sqrt(tr P_qq)`` per time (rad)."""
         return self._rt(slice(0, 2))
 
     @property
     def velocity(self) -> np.ndarray:
+        """``sqrt(tr P_dqdq)`` per time (rad/s)."""
         return self._rt(slice(2, 4))
 
     @property
     def acceleration(self) -> np.ndarray:
+        """``sqrt(tr P_ddqddq)`` per time (rad/s^2)."""
         return self._rt(slice(4, 6))
 
 
@@ -419,6 +424,23 @@ def validation_case(ekf: am.EkfAccelerometerParameters, q_true: float, runs: int
     section 4, a filter ``Q`` above the truth's). Each is reported against the bound both ways:
     with the truth's ``Q`` (``crlb_true_q``, a real bound) and with its own tuning ``Q``
     (``crlb_filter_q``, the paper's construction).
+
+    Parameters
+    ----------
+    ekf
+        The filters' parameters (their ``R``, ``p(x_0)``; ``q_jerk`` is set per filter).
+    q_true
+        Intensity of the truth's white jerk noise.
+    runs
+        Number of Monte Carlo runs.
+    T, stop_time, after
+        Sample period, run length and start of the averaging window (s).
+    path
+        The motion controller's path whose jerk reference drives the truth.
+    overtune
+        Factor of the overtuned filters' ``q_jerk`` over ``q_true``.
+    seed
+        Seed of the runs' random numbers.
 
     Returns
     -------

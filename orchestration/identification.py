@@ -107,7 +107,8 @@ INITIAL_GUESS = {"k_lo": (3.0e5, 1.0e5), "k_hi": (6.0e5, 3.0e5), "d": (1000.0, 2
 
 
 class IdentificationError(RuntimeError):
-    """The fit did not converge; ``best`` is the best :class:`Fit` found (or None)."""
+    """The fit did not converge (``message`` says why); ``best`` is the best :class:`Fit` found
+    (or None)."""
 
     def __init__(self, message: str, best: "Fit | None" = None) -> None:
         super().__init__(message)
@@ -151,7 +152,8 @@ def robot_from_values(values: Sequence[float], nominal: RobotParameters) -> Robo
 
 
 def initial_guess(nominal: RobotParameters) -> np.ndarray:
-    """:data:`INITIAL_GUESS` and the uniform-link CAD model, in the order of :data:`NAMES`."""
+    """:data:`INITIAL_GUESS` and the uniform-link CAD model of the ``nominal`` parameters, in
+    the order of :data:`NAMES`."""
     cad = dataclasses.replace(nominal, c1=nominal.l1 / 2, c2=nominal.l2 / 2,
                               I1=nominal.m1 * nominal.l1 ** 2 / 12, I2=nominal.m2 * nominal.l2 ** 2 / 12,
                               **INITIAL_GUESS)
@@ -188,6 +190,7 @@ class Experiment:
 
     @property
     def dt(self) -> float:
+        """The sample period (s)."""
         return float(self.time[1] - self.time[0])
 
     def built_controller(self) -> MotionController:
@@ -206,7 +209,7 @@ _CONTROLLERS: dict[MotionControllerParameters, MotionController] = {}
 
 
 def rest_state(q_m0: Sequence[float], p: RobotParameters) -> np.ndarray:
-    """The state at rest whose motor angles are ``q_m0``: arm angles with
+    """The state at rest of the robot ``p`` whose motor angles are ``q_m0``: arm angles with
     ``tau_s(q_m0 / r - q_a) = G(q_a)`` (fixed point; the deflection is small)."""
     qm = np.asarray(q_m0, dtype=float)
     r = as_array(p.gear_ratio)
@@ -221,7 +224,9 @@ def rest_state(q_m0: Sequence[float], p: RobotParameters) -> np.ndarray:
 
 def specific_force(a_xz: np.ndarray, phi: np.ndarray, mount_rpy: Sequence[float], g: float) -> np.ndarray:
     """Accelerometer reading ``R_s^T (a - g_vec)`` in the sensor frame, vectorised over samples
-    (n, 3): :func:`fmus.robot_plant.sensor_model.imu_reading` for arrays."""
+    (n, 3): :func:`fmus.robot_plant.sensor_model.imu_reading` for arrays. ``a_xz`` (n, 2) is
+    the mount point's acceleration (world x, z), ``phi`` (n,) the tool angle, ``mount_rpy`` the
+    sensor's mount and ``g`` the gravitational acceleration."""
     c, s = np.cos(phi), np.sin(phi)
     ax, azg = a_xz[:, 0], a_xz[:, 1] + g
     tool = np.stack([c * ax - s * azg, np.zeros_like(ax), s * ax + c * azg], axis=1)   # Ry(phi)^T v
@@ -230,7 +235,7 @@ def specific_force(a_xz: np.ndarray, phi: np.ndarray, mount_rpy: Sequence[float]
 
 def simulate(p: RobotParameters, exp: Experiment) -> tuple[np.ndarray, np.ndarray]:
     """Encoder angles (n+1, 2) and accelerometer readings (n+1, 3) the model ``p`` predicts for
-    the experiment, in closed loop with the experiment's controller.
+    the experiment ``exp``, in closed loop with the experiment's controller.
 
     The timing is the co-simulation master's (Gauss-Seidel; the plant, whose outputs have no
     direct feedthrough, steps first): the plant integrates over ``[t, t + dt)`` (RK4) with the
@@ -285,7 +290,10 @@ class NoiseLevels:
     @classmethod
     def of_sensors(cls, encoder_noise: float, encoder_resolution: float, acc_noise: float,
                    acc_resolution: float) -> "NoiseLevels":
-        """From sensor data-sheet values (a level of zero is floored at 1e-9 of the unit)."""
+        """From sensor data-sheet values: white noise ``encoder_noise`` (rad) and ``acc_noise``
+        (m/s^2), each with the noise ``q / sqrt(12)`` of its quantisation step
+        ``encoder_resolution`` / ``acc_resolution`` added in quadrature; a level of zero is
+        floored at 1e-9 of the unit."""
         return cls(max(math.hypot(encoder_noise, encoder_resolution / math.sqrt(12)), 1e-9),
                    max(math.hypot(acc_noise, acc_resolution / math.sqrt(12)), 1e-9))
 
@@ -357,8 +365,9 @@ class _Weighting:
 
 def model_outputs(theta: Sequence[float], exp: Experiment, nominal: RobotParameters
                   ) -> tuple[np.ndarray, np.ndarray] | None:
-    """:func:`simulate` at ``theta = log(values)`` (order :data:`NAMES`); None if the model's
-    simulation diverges."""
+    """:func:`simulate` of the experiment ``exp`` at ``theta = log(values)`` (order
+    :data:`NAMES`; the other parameters from ``nominal``); None if the model's simulation
+    diverges."""
     p = robot_from_values(np.exp(np.asarray(theta, dtype=float)), nominal)
     with np.errstate(all="ignore"):
         try:
@@ -410,7 +419,9 @@ def _affine(a: np.ndarray) -> np.ndarray:
 
 def experiment_residual(theta: Sequence[float], exp: Experiment, nominal: RobotParameters,
                         noise: NoiseLevels, criterion: Criterion = Criterion()) -> np.ndarray:
-    """:class:`Residual` of one experiment at ``theta``; non-finite if the model diverges."""
+    """:class:`Residual` of one experiment ``exp`` at ``theta`` (other parameters from
+    ``nominal``), whitened by ``noise`` and weighted by ``criterion``; non-finite if the model
+    diverges."""
     return Residual([exp], noise, criterion)([model_outputs(theta, exp, nominal)])
 
 
@@ -481,6 +492,8 @@ def fit(experiments: Sequence[Experiment], nominal: RobotParameters, *, noise: N
         ``map_fn(fn, jobs) -> results`` running ``fn(*job)`` (e.g. on a study executor);
         default serial. The residual maps over experiments, the Jacobian (forward
         differences of step ``diff_step`` in ``log`` space) over experiments x parameters.
+    xtol, ftol
+        The optimiser's (scipy's ``least_squares``) tolerances on the step and the cost.
     progress
         Called with the cost after each residual evaluation.
 

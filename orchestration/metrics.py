@@ -50,7 +50,8 @@ def rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
 
 
 def max_error(estimate: np.ndarray, truth: np.ndarray) -> float:
-    """Largest Euclidean error ``max_k ||estimate_k - truth_k||``."""
+    """Largest Euclidean error ``max_k ||estimate_k - truth_k||`` of ``estimate`` against
+    ``truth`` (rows are samples)."""
     e = _error(estimate, truth)
     if len(e) == 0:
         return float("nan")
@@ -211,7 +212,8 @@ def monte_carlo_consistency(statistic: np.ndarray, dof: int, level: float = 0.95
 
 def compute(spec: Any, time: np.ndarray, estimate: np.ndarray, truth: np.ndarray | None,
             truth_time: np.ndarray | None = None, covariance: np.ndarray | None = None) -> dict[str, float]:
-    """Evaluate one scenario metric spec (:class:`orchestration.scenario.MetricSpec`).
+    """Evaluate one scenario metric ``spec`` (:class:`orchestration.scenario.MetricSpec`) of
+    ``estimate`` against ``truth`` (and ``covariance`` for NEES), rows sampled at ``time``.
 
     Returns ``{name: value}`` for ``rmse`` and ``max``, ``{name_max: .., name_mean: ..}`` for
     ``bandpass``, ``{name: time average, name_in_band: fraction of samples inside the two-sided

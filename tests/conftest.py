@@ -1,9 +1,62 @@
-"""Shared test fixtures: the toy FMUs."""
+"""Shared test fixtures: every FlexFusion FMU built once per test run, and the toy FMUs.
+
+Why a fresh build and not ``dist/fmus``: ``dist/fmus`` holds whatever ``flexfusion build`` made
+last. What an FMU contains depends on ``fmus/``, ``orchestration/build.py``, the native FMI
+library (``orchestration/native``) and the installed pythonfmu, so no cheap check proves a
+``dist/fmus`` current, and a stale one would test old code without a word. The run builds every
+FMU once, when the first test needs one (4-8 s here, 19 FMUs), into its own
+temporary folder; a test run that needs no FMU builds nothing. ``FLEXFUSION_FMU_DIR`` points at
+a folder that does not exist for the whole run, so a scenario test that forgets the
+:func:`fmu_env` fixture fails ("no FMU ...") instead of silently running ``dist/fmus``.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
 import pytest
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _no_stale_dist_fmus(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Scenarios never find ``dist/fmus`` by default during the tests (see the module docstring)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("FLEXFUSION_FMU_DIR", str(tmp_path_factory.getbasetemp() / "use_the_fmu_env_fixture"))
+        yield
+
+
 @pytest.fixture(scope="session")
-def toy_dir(tmp_path_factory):
+def every_fmu(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Every FlexFusion FMU by model identifier, built and validated once per test run from
+    the working tree's sources (see the module docstring)."""
+    from orchestration.build import build_all
+    return {p.stem: p for p in build_all(tmp_path_factory.mktemp("fmus"), quiet=True)}
+
+
+@pytest.fixture(scope="session")
+def fmu_dir(every_fmu: dict[str, Path]) -> Path:
+    """The folder of :func:`every_fmu` (``<model identifier>.fmu``)."""
+    return next(iter(every_fmu.values())).parent
+
+
+@pytest.fixture
+def fmu_env(fmu_dir: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """Scenarios find their FMUs among every FlexFusion FMU (``usefixtures("fmu_env")``)."""
+    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
+    return fmu_dir
+
+
+@pytest.fixture(scope="module")
+def fmu_env_module(fmu_dir: Path) -> Iterator[Path]:
+    """:func:`fmu_env` for a whole module, so that module-scoped fixtures' runs find the FMUs
+    too (``pytestmark = pytest.mark.usefixtures("fmu_env_module")``)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
+        yield fmu_dir
+
+
+@pytest.fixture(scope="session")
+def toy_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The toy FMUs of tests/fmus, built once per session."""
     from orchestration.build import build_all
     from toys import TOYS
@@ -13,6 +66,6 @@ def toy_dir(tmp_path_factory):
 
 
 @pytest.fixture
-def toy_fmus(toy_dir, monkeypatch):
+def toy_fmus(toy_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Scenarios find their FMUs among the toys (``pytestmark = usefixtures("toy_fmus")``)."""
     monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(toy_dir))

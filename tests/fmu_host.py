@@ -102,13 +102,3 @@ class Slave:
         if self._own_unzip:
             shutil.rmtree(self.unzip, ignore_errors=True)
 
-
-_EVERY_FMU: list[Path] = []
-
-
-def every_fmu(tmp_path_factory) -> list[Path]:  # noqa: ANN001 - pytest's TempPathFactory
-    """Every FlexFusion FMU, built once per test process (about 5 s)."""
-    if not _EVERY_FMU:
-        from orchestration.build import build_all
-        _EVERY_FMU.extend(build_all(tmp_path_factory.mktemp("every_fmu"), quiet=True))
-    return list(_EVERY_FMU)

@@ -3,6 +3,7 @@ fix, and the FMU (Henriksson et al. 2009, section III-B)."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import fmpy
 import numpy as np
@@ -14,7 +15,6 @@ from fmus.common.frames import G
 from fmus.common.parameters import ParameterError, validate
 from fmus.common.robot_params import RobotParameters
 from fmus.estimators import acceleration_observer_model as om
-from orchestration.build import build_all
 
 P = om.AccelerationObserverParameters
 
@@ -153,10 +153,8 @@ def test_parameter_errors_name_the_parameter() -> None:
 
 
 @pytest.fixture(scope="module")
-def fmu(tmp_path_factory):
-    dest = tmp_path_factory.mktemp("obs")
-    build_all(dest, only=["AccelerationObserver"], quiet=True)
-    return dest / "AccelerationObserver.fmu"
+def fmu(every_fmu: dict[str, Path]) -> Path:
+    return every_fmu["AccelerationObserver"]
 
 
 def test_fmu_at_rest_and_parameters(fmu) -> None:

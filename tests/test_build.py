@@ -2,12 +2,16 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import zipfile
 from pathlib import Path
 
-from fmu_host import every_fmu
+import pytest
+
+from orchestration.build import BUNDLE_ID_FILE, FMU_REQUIREMENTS, BuildError, build_all
+from toys import TOYS
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -25,10 +29,10 @@ print(bundled, len(binaries))
 """
 
 
-def test_build_after_an_fmu_ran_in_the_process_has_binaries(tmp_path, tmp_path_factory) -> None:
+def test_build_after_an_fmu_ran_in_the_process_has_binaries(tmp_path, every_fmu) -> None:
     """After an FMU ran, 'pythonfmu' resolves to its bundled copy (no binaries); the build must
     still use the installed package's builder (fresh process: pytest has imported the builder)."""
-    encoder = next(p for p in every_fmu(tmp_path_factory) if p.stem == "Encoder")
+    encoder = every_fmu["Encoder"]
     env = dict(os.environ, PYTHONPATH=str(REPO))
     out = subprocess.run([sys.executable, "-c", AFTER_AN_FMU_RAN, str(encoder), str(tmp_path)],
                          capture_output=True, text=True, timeout=120, cwd=REPO, env=env)
@@ -45,3 +49,46 @@ def test_an_unknown_fmu_name_is_refused_naming_the_known_ones(tmp_path, capsys) 
     assert err.startswith("error: no FMU named NoSuchFmu (known: AccelerationObserver, ")
     assert "Encoder" in err and "FlexibleRobot2DOF" in err and err.count("\n") == 1
     assert list(tmp_path.iterdir()) == []                 # nothing built, not even the Encoder
+
+
+def test_every_fmu_bundles_one_vendored_package_named_by_its_hash(every_fmu) -> None:
+    """All FMUs of a build carry the same ``fmus_<12 hex>`` package (imports rewritten, the hash
+    in BUNDLE_ID), their script under ``<script>_<12 hex>``, and the requirements."""
+    bundles = set()
+    for name, fmu in every_fmu.items():
+        with zipfile.ZipFile(fmu) as z:
+            files = z.namelist()
+            packages = {f.split("/")[1] for f in files if re.fullmatch(r"resources/fmus_[0-9a-f]{12}/.*", f)}
+            assert len(packages) == 1, name
+            package = packages.pop()
+            bundle_id = z.read(f"resources/{package}/{BUNDLE_ID_FILE}").decode().strip()
+            assert re.fullmatch(r"[0-9a-f]{64}", bundle_id) and package == f"fmus_{bundle_id[:12]}", name
+            sources = [f for f in files if f.startswith("resources/") and f.endswith(".py")]
+            assert any(re.fullmatch(r"resources/\w+_fmu_[0-9a-f]{12}\.py", f) for f in sources), name
+            for f in sources:
+                assert not re.search(r"^\s*(from|import)\s+fmus[.\s]", z.read(f).decode(), re.M), f
+            assert z.read("resources/requirements.txt").decode().split() == FMU_REQUIREMENTS
+        bundles.add(package)
+    assert len(bundles) == 1
+
+
+def test_only_picks_by_script_or_class_name_and_a_broken_script_is_named(tmp_path) -> None:
+    built = build_all(tmp_path / "a", quiet=True, scripts=sorted(TOYS.glob("*_fmu.py")),
+                      only=["gain_fmu", "MassSpring"])
+    assert sorted(p.name for p in built) == ["Gain.fmu", "MassSpring.fmu"]
+    broken = tmp_path / "broken_fmu.py"
+    broken.write_text("from fmus.common.fmi import FlexFusionSlave\n\n\n"
+                      "class Broken(FlexFusionSlave):\n    description = (\n")
+    with pytest.raises(BuildError, match=r"broken_fmu.py: build failed: .*SyntaxError"):
+        build_all(tmp_path / "b", quiet=True, scripts=[broken, TOYS / "gain_fmu.py"])
+    assert (tmp_path / "b" / "Gain.fmu").is_file()       # the others still build
+
+
+def test_cli_build_reports_a_failure_in_one_line_with_exit_2(tmp_path, monkeypatch, capsys) -> None:
+    import orchestration.build as build
+
+    def failing(*args, **kwargs):
+        raise BuildError("FMU build failed:\n  x_fmu.py: build failed: boom")
+    monkeypatch.setattr(build, "build_all", failing)
+    assert build.main(["--dest", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("error: FMU build failed:")

@@ -1,5 +1,6 @@
 """Complementary filter (IMU paper, eqs. 1-2): distortionless, its split, the FMU."""
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -132,11 +133,8 @@ def test_bad_parameters_are_named():
 
 # ---- the FMU -------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def cf_fmu(tmp_path_factory):
-    from orchestration.build import build_all
-    dest = tmp_path_factory.mktemp("cf_fmu")
-    build_all(dest, only=["ComplementaryFilter"], quiet=True)
-    return dest / "ComplementaryFilter.fmu"
+def cf_fmu(every_fmu: dict[str, Path]) -> Path:
+    return every_fmu["ComplementaryFilter"]
 
 
 def planar_signals(n, dt, lever_xz=(-0.15, 0.05)):

@@ -14,20 +14,10 @@ from fmu_host import Slave
 from fmus.common.frames import G
 from fmus.force_observer import impedance_math as imp
 from orchestration import study_contact as sc
-from orchestration.build import build_all
 from orchestration.scenario import scenario_document
 from orchestration.study import map_jobs, open_executor, simulate
 
-FMUS = ["FlexibleRobot2DOF", "MotionController", "Encoder", "Imu", "ForceTorqueSensor",
-        "ContactEnvironment", "ForceObserver", "ImpedanceController", "RigidKinematics"]
 H = 0.004
-
-
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    dest = tmp_path_factory.mktemp("contact_fmus")
-    build_all(dest, only=FMUS, quiet=True)
-    return dest
 
 
 #: The claims below are our controller variant's (the integral of the impedance variable): the

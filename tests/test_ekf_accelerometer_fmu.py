@@ -14,16 +14,13 @@ from fmus.common.frames import G
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmu_host import Slave
-from orchestration.build import build_all
 
 T = 0.01
 
 
 @pytest.fixture(scope="session")
-def fmu(tmp_path_factory) -> Path:
-    dest = tmp_path_factory.mktemp("ekf_fmu")
-    (path,) = build_all(dest, only=["EkfAccelerometer"], quiet=True)   # build_all validates
-    return path
+def fmu(every_fmu: dict[str, Path]) -> Path:
+    return every_fmu["EkfAccelerometer"]
 
 
 

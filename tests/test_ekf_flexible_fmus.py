@@ -14,7 +14,6 @@ from fmus.common import dynamics
 from fmus.common.parameters import replace
 from fmus.estimators import ekf_flexible_model as em
 from fmu_host import Slave
-from orchestration.build import build_all
 import ekf_flexible_truth as truth
 
 NAMES = {"complete": "EkfComplete", "motor": "EkfMotor", "integrated": "EkfIntegrated"}
@@ -22,11 +21,8 @@ T = truth.T
 
 
 @pytest.fixture(scope="session")
-def fmus(tmp_path_factory) -> dict[str, Path]:
-    dest = tmp_path_factory.mktemp("ekf_flexible_fmus")
-    paths = build_all(dest, only=list(NAMES.values()), quiet=True)   # build_all validates
-    by_name = {p.stem: p for p in paths}
-    return {v: by_name[n] for v, n in NAMES.items()}
+def fmus(every_fmu: dict[str, Path]) -> dict[str, Path]:
+    return {v: every_fmu[n] for v, n in NAMES.items()}
 
 
 @pytest.mark.parametrize("variant", em.VARIANTS)

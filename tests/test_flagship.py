@@ -14,6 +14,8 @@ from fmus.common.frames import G
 
 FLAGSHIP = Path(__file__).resolve().parent.parent / "orchestration" / "scenarios" / "flagship.toml"
 
+pytestmark = pytest.mark.usefixtures("fmu_env_module")      # also for the module-scoped run
+
 
 @pytest.fixture(scope="module")
 def result(tmp_path_factory):

@@ -16,16 +16,11 @@ from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from numpy.testing import assert_array_equal
 
-from fmu_host import Slave, every_fmu
+from fmu_host import Slave
 
 from fmus.common.frames import G
 
 DISCARD, ERROR, FATAL = 2, 3, 4
-
-
-@pytest.fixture(scope="module")
-def fmus(tmp_path_factory) -> dict[str, Path]:
-    return {p.stem: p for p in every_fmu(tmp_path_factory)}
 
 
 def _status(call, *args) -> int:
@@ -37,22 +32,22 @@ def _status(call, *args) -> int:
 
 
 @pytest.mark.parametrize("h", [float("nan"), 0.0, -1e-3, float("inf")])
-def test_bad_step_size_is_an_error_logged_without_debug_logging(fmus, h) -> None:
-    s = Slave(fmus["Encoder"], init=True, logging_on=False)
+def test_bad_step_size_is_an_error_logged_without_debug_logging(every_fmu, h) -> None:
+    s = Slave(every_fmu["Encoder"], init=True, logging_on=False)
     assert _status(s.fmu.doStep, 0.0, h) in (ERROR, FATAL)
     s.close()
     assert s.log.has("step size must be finite and > 0"), s.log
 
 
-def test_do_step_before_initialisation_is_an_error(fmus) -> None:
-    s = Slave(fmus["Encoder"], logging_on=False)
+def test_do_step_before_initialisation_is_an_error(every_fmu) -> None:
+    s = Slave(every_fmu["Encoder"], logging_on=False)
     assert _status(s.fmu.doStep, 0.0, 1e-3) in (ERROR, FATAL)
     s.close()
     assert s.log.has("called in the initialization state"), s.log
 
 
-def test_non_finite_output_is_an_error_naming_it(fmus) -> None:
-    s = Slave(fmus["FlexibleRobot2DOF"], init=True, logging_on=False)
+def test_non_finite_output_is_an_error_naming_it(every_fmu) -> None:
+    s = Slave(every_fmu["FlexibleRobot2DOF"], init=True, logging_on=False)
     s.set(tau_m=[1e300, 1e300])            # finite, absurd: the states overflow
     s.step(1e-3)
     vrs = [s.vr[f"q_a[{i}]"] for i in (1, 2)]
@@ -60,17 +55,17 @@ def test_non_finite_output_is_an_error_naming_it(fmus) -> None:
     assert s.log.has("output 'q_a[1]' is not finite", "t = 0.001 s"), s.log
 
 
-def test_non_finite_input_is_an_error_naming_it_until_it_is_finite_again(fmus) -> None:
+def test_non_finite_input_is_an_error_naming_it_until_it_is_finite_again(every_fmu) -> None:
     """The one check per step (issue 16) still names the input, every step it stays bad, and a
     huge but finite input (whose sum overflows) is no error."""
-    s = Slave(fmus["Encoder"], {"resolution": 0.0}, init=True, logging_on=False)
+    s = Slave(every_fmu["Encoder"], {"resolution": 0.0}, init=True, logging_on=False)
     s.set(q_m=[1e308, 1e308])
     s.step(1e-3)
     s.set(q_m=[0.1, float("nan")])
     assert _status(s.fmu.doStep, 1e-3, 1e-3) in (DISCARD, ERROR, FATAL)   # the step is refused
     assert s.log.has("input 'q_m' is not finite", "t = 0.001 s"), s.log
     s.close()
-    s = Slave(fmus["Encoder"], init=True, logging_on=False)
+    s = Slave(every_fmu["Encoder"], init=True, logging_on=False)
     s.set(q_m=[0.1, float("inf")])
     assert _status(s.fmu.doStep, 0.0, 1e-3) in (DISCARD, ERROR, FATAL)
     assert _status(s.fmu.doStep, 0.0, 1e-3) in (DISCARD, ERROR, FATAL)    # not set again: still bad
@@ -79,15 +74,15 @@ def test_non_finite_input_is_an_error_naming_it_until_it_is_finite_again(fmus) -
     s.close()
 
 
-def test_fixed_parameter_refuses_a_change_after_initialisation(fmus) -> None:
-    s = Slave(fmus["Encoder"], {"noise": 1e-5}, init=True, logging_on=False)
+def test_fixed_parameter_refuses_a_change_after_initialisation(every_fmu) -> None:
+    s = Slave(every_fmu["Encoder"], {"noise": 1e-5}, init=True, logging_on=False)
     assert _status(s.fmu.setReal, [s.vr["noise"]], [2e-5]) in (ERROR, FATAL)
     assert s.log.has("parameter 'noise' is fixed"), s.log
     assert s.get("noise") == 1e-5
     assert _status(s.fmu.setInteger, [s.vr["seed"]], [7]) in (ERROR, FATAL)
     assert s.log.has("parameter 'seed' is fixed"), s.log
     s.close()
-    before = Slave(fmus["Encoder"])              # in Initialization Mode it may change
+    before = Slave(every_fmu["Encoder"])              # in Initialization Mode it may change
     before.fmu.setReal([before.vr["noise"]], [2e-5])
     before.init()
     assert before.get("noise") == 2e-5
@@ -108,9 +103,9 @@ def _drive(s: Slave, inputs: list[str], k0: int, n: int, h: float) -> np.ndarray
     return np.array(rows)
 
 
-def test_every_fmu_declares_and_restores_its_complete_state(fmus) -> None:
+def test_every_fmu_declares_and_restores_its_complete_state(every_fmu) -> None:
     h, n1, n2 = 1e-3, 15, 25
-    for name, path in fmus.items():
+    for name, path in every_fmu.items():
         md = read_model_description(str(path))
         assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate, name
         inputs = [v.name for v in md.modelVariables if v.causality == "input"]

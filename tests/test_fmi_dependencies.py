@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from fmu_host import every_fmu
 from orchestration.build import fmu_scripts
 from fmus.common.parameters import replace
 from fmus.force_observer import impedance_math as imp
@@ -45,10 +44,9 @@ def _requirements(fmu: Path, name: str = "requirements.txt") -> set[str]:
     return {re.split(r"[<>=!~;\[ ]", line.strip())[0].lower() for line in lines if line.strip()}
 
 
-def test_every_fmu_requires_exactly_what_it_imports(tmp_path_factory) -> None:
-    fmus = every_fmu(tmp_path_factory)
-    assert len(fmus) == len(fmu_scripts())
-    for fmu in fmus:
+def test_every_fmu_requires_exactly_what_it_imports(every_fmu) -> None:
+    assert len(every_fmu) == len(fmu_scripts())
+    for fmu in every_fmu.values():
         imported = _third_party_imports(fmu)
         assert "numpy" in imported, fmu.name        # the scan sees through the bundle
         required, optional = _requirements(fmu), _requirements(fmu, "optional-requirements.txt")

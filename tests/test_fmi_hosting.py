@@ -9,7 +9,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-from fmu_host import every_fmu
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -35,9 +34,9 @@ print(json.dumps({"failures": failures, "bundles": bundles, "outputs": outputs},
 """
 
 
-def test_every_fmu_of_two_builds_in_one_plain_fmpy_process(tmp_path_factory, monkeypatch) -> None:
+def test_every_fmu_of_two_builds_in_one_plain_fmpy_process(tmp_path_factory, monkeypatch, every_fmu) -> None:
     import orchestration.build as build
-    first = every_fmu(tmp_path_factory)
+    first = list(every_fmu.values())
     # a second build from different sources (one more comment line): a different bundle
     sources = tmp_path_factory.mktemp("other_sources") / "fmus"
     shutil.copytree(REPO / "fmus", sources, ignore=shutil.ignore_patterns("__pycache__"))
@@ -58,8 +57,8 @@ def test_every_fmu_of_two_builds_in_one_plain_fmpy_process(tmp_path_factory, mon
         assert report["outputs"][str(a)] == report["outputs"][str(b)], a.name
 
 
-def test_every_fmu_alone_gives_the_same_bits_under_plain_fmpy_and_our_master(tmp_path_factory,
-                                                                          monkeypatch) -> None:
+def test_every_fmu_alone_gives_the_same_bits_under_plain_fmpy_and_our_master(tmp_path_factory, fmu_env,
+                                                                          every_fmu) -> None:
     """Standalone (default inputs), 50 steps of 1 ms. fmpy's simulate_fmu passes the step as
     (n + 1) h - n h, which is not h in the last bits for some n (from t = 0.011 s here): the
     ParticleFilter's estimate used to differ from there on."""
@@ -71,11 +70,9 @@ def test_every_fmu_alone_gives_the_same_bits_under_plain_fmpy_and_our_master(tmp
     from orchestration.scenario import load_scenario
     from toys import write
 
-    fmus = every_fmu(tmp_path_factory)
-    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmus[0].parent))
     tmp = tmp_path_factory.mktemp("alone")
     h, n = 1e-3, 50
-    for path in fmus:
+    for path in every_fmu.values():
         md = read_model_description(str(path))
         outputs = [v.name for v in md.modelVariables if v.causality == "output"]
         bases = sorted({o.split("[")[0] for o in outputs})
@@ -101,12 +98,12 @@ variables = {[f"c.{b}" for b in bases]!r}
             assert np.array_equal(mine, fmpy_values), f"{path.stem}.{b}"
 
 
-def test_a_thin_script_instantiates_again_under_pythonfmus_library(tmp_path_factory) -> None:
+def test_a_thin_script_instantiates_again_under_pythonfmus_library(tmp_path_factory, every_fmu) -> None:
     """pythonfmu 0.7's library (still the FMUs' Windows binary) releases the script module's
     dictionary once per ``fmi2Instantiate``; FlexFusionSlave's _MODULE_DICTS balances that.
     Without it, EkfMotor (a script without functions) fails to instantiate the 2nd time."""
     from orchestration import native
-    ours = next(p for p in every_fmu(tmp_path_factory) if p.stem == "EkfMotor")
+    ours = every_fmu["EkfMotor"]
     fmu = tmp_path_factory.mktemp("pythonfmu_library") / ours.name
     shutil.copy(ours, fmu)
     native.install_into(fmu, native.pythonfmu_library())

@@ -14,13 +14,8 @@ import pytest
 from fmpy import read_model_description
 from numpy.testing import assert_allclose, assert_array_equal
 
-from fmu_host import Slave, every_fmu
+from fmu_host import Slave
 from orchestration.build import fmu_scripts
-
-
-@pytest.fixture(scope="module")
-def fmus(tmp_path_factory) -> dict[str, Path]:
-    return {p.stem: p for p in every_fmu(tmp_path_factory)}
 
 
 def _inputs(path: Path) -> dict[str, float]:
@@ -44,8 +39,8 @@ def _sample_parameter(path: Path) -> tuple[str, float]:
     pytest.skip(f"{path.stem} has no Real parameter")
 
 
-def test_outputs_are_calculated_initial_unknowns(fmus: dict[str, Path]) -> None:
-    for name, path in fmus.items():
+def test_outputs_are_calculated_initial_unknowns(every_fmu: dict[str, Path]) -> None:
+    for name, path in every_fmu.items():
         md = read_model_description(str(path))
         outputs = [v for v in md.modelVariables if v.causality == "output"]
         assert outputs, name
@@ -53,9 +48,9 @@ def test_outputs_are_calculated_initial_unknowns(fmus: dict[str, Path]) -> None:
         assert {u.variable.name for u in md.initialUnknowns} == {v.name for v in outputs}, name
 
 
-def test_every_fmu_outputs_in_initialization_mode_equal_those_after_it(fmus: dict[str, Path]) -> None:
-    assert len(fmus) == len(fmu_scripts())
-    for name, path in fmus.items():
+def test_every_fmu_outputs_in_initialization_mode_equal_those_after_it(every_fmu: dict[str, Path]) -> None:
+    assert len(every_fmu) == len(fmu_scripts())
+    for name, path in every_fmu.items():
         s = Slave(path)
         s.set(**_inputs(path))
         during = _outputs(s)                   # before fmi2ExitInitializationMode
@@ -66,9 +61,9 @@ def test_every_fmu_outputs_in_initialization_mode_equal_those_after_it(fmus: dic
         assert_array_equal(during, after, err_msg=name)
 
 
-def test_a_parameter_set_after_a_read_takes_effect(fmus: dict[str, Path]) -> None:
+def test_a_parameter_set_after_a_read_takes_effect(every_fmu: dict[str, Path]) -> None:
     changed = 0
-    for name, path in fmus.items():
+    for name, path in every_fmu.items():
         param, value = _sample_parameter(path)
         s = Slave(path)
         s.set(**_inputs(path))
@@ -89,12 +84,12 @@ def test_a_parameter_set_after_a_read_takes_effect(fmus: dict[str, Path]) -> Non
     assert changed >= 6      # the sample parameter changes some initial output of many FMUs
 
 
-def test_plant_pose_is_right_before_exit_initialization(fmus: dict[str, Path]) -> None:
+def test_plant_pose_is_right_before_exit_initialization(every_fmu: dict[str, Path]) -> None:
     """The flagship's failure in libcosim: consumers started from p_tool = 0."""
     from fmus.common import kinematics
     from fmus.robot_plant.plant_model import PlantParameters
     p = PlantParameters(ideal=True)     # the nominal geometry: tool position by rigid kinematics
-    s = Slave(fmus["FlexibleRobot2DOF"], {"ideal": True})
+    s = Slave(every_fmu["FlexibleRobot2DOF"], {"ideal": True})
     q_a, p_tool = s.get("q_a", 2), s.get("p_tool", 2)
     s.close()
     assert_allclose(q_a, p.initial_angles(), atol=1e-12)

@@ -18,21 +18,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fmu_host import every_fmu
-
 pytest.importorskip("libcosimpy")
 
 REPO = Path(__file__).resolve().parent.parent
 
 
-def test_flagship_in_libcosim_starts_from_the_right_pose(tmp_path, tmp_path_factory, monkeypatch) -> None:
+def test_flagship_in_libcosim_starts_from_the_right_pose(tmp_path, fmu_env) -> None:
     from orchestration.cli import export_ssp
     from orchestration.master import run
     from orchestration.metrics import rmse
     from test_ssp import cosim
 
-    fmus = every_fmu(tmp_path_factory)
-    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmus[0].parent))
     scenario = REPO / "orchestration" / "scenarios" / "flagship.toml"
     # the ideal plant and the nominal model: a host comparison, not a model-error study (the
     # realistic plant's static errors would hide a one-step shift)

@@ -7,7 +7,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-from fmu_host import every_fmu
 from toys import write
 
 REPO = Path(__file__).resolve().parent.parent
@@ -24,8 +23,7 @@ sys.exit(status)
 """
 
 
-def test_run_imports_no_working_tree_fmus_and_cleans_its_extractions(tmp_path_factory) -> None:
-    fmus = every_fmu(tmp_path_factory)
+def test_run_imports_no_working_tree_fmus_and_cleans_its_extractions(tmp_path_factory, fmu_dir) -> None:
     tmp = tmp_path_factory.mktemp("run")
     scenario = write(tmp, """
 connections = ["plant.q_m -> enc.q_m", "enc.q_m_meas -> pf.q_m_meas"]
@@ -47,7 +45,7 @@ variables = ["pf.q_a_hat"]
     temp = tmp / "temp"
     temp.mkdir()
     env = dict(os.environ, PYTHONPATH=str(REPO), TMPDIR=str(temp),
-               FLEXFUSION_FMU_DIR=str(fmus[0].parent))
+               FLEXFUSION_FMU_DIR=str(fmu_dir))
     proc = subprocess.run([sys.executable, "-c", RUN, "run", str(scenario), "--out", str(tmp / "out"),
                            "--no-progress"], capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -1,7 +1,6 @@
 """ForceObserver and ImpedanceController built and exercised through fmpy."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,18 +10,9 @@ from fmus.common.frames import G
 from fmus.force_observer import force_observer_math as fom
 from fmus.force_observer import impedance_math as imp
 from fmu_host import Slave
-from orchestration.build import build_all
 
 M = 12.0
 H = 0.004
-
-
-@pytest.fixture(scope="session")
-def fmu_dir(tmp_path_factory) -> Path:
-    dest = tmp_path_factory.mktemp("force_fmus")
-    build_all(dest, only=["ForceObserver", "ImpedanceController"], quiet=True)
-    return dest
-
 
 
 def sensor_signals(n: int, phi: float = 0.3):

@@ -3,6 +3,7 @@ as math and through its FMU."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import fmpy
 import numpy as np
@@ -11,7 +12,6 @@ from numpy.testing import assert_allclose
 
 from fmus.common.parameters import ParameterError, validate
 from fmus.robot_plant import force_pulse_model as fp
-from orchestration.build import build_all
 
 
 def test_pulse_shape_and_impulse() -> None:
@@ -38,10 +38,8 @@ def test_parameters() -> None:
 
 
 @pytest.fixture(scope="module")
-def fmu(tmp_path_factory):
-    dest = tmp_path_factory.mktemp("pulse")
-    build_all(dest, only=["ForcePulse"], quiet=True)
-    return dest / "ForcePulse.fmu"
+def fmu(every_fmu: dict[str, Path]) -> Path:
+    return every_fmu["ForcePulse"]
 
 
 def test_fmu_delivers_the_impulse_along_the_direction(fmu) -> None:

@@ -14,23 +14,10 @@ import pythonfmu.builder  # noqa: F401 - at collection, before any FMU runs in t
 
 from orchestration import CouplingWarning, HonestSignalWarning, ScenarioError, load_scenario, run
 from orchestration import roles
-from orchestration.build import build_all
 from orchestration.scenario import Component
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "orchestration" / "scenarios"
 SHIPPED = sorted(p for p in SCENARIOS.glob("*.toml") if "connections" in p.read_text())
-
-
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    dest = tmp_path_factory.mktemp("honest_fmus")
-    build_all(dest, quiet=True)
-    return dest
-
-
-@pytest.fixture
-def fmus(fmu_dir, monkeypatch):
-    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
 
 
 def arm(extra_connections=(), oracles=None, rigid_compensation=False) -> dict:
@@ -61,11 +48,11 @@ def honest_warnings(source) -> list[str]:
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
-def test_every_shipped_scenario_is_honest(fmus, path):
+def test_every_shipped_scenario_is_honest(fmu_env, path):
     assert honest_warnings(path) == []
 
 
-def test_sensors_reference_and_drive_feedback_are_honest(fmus):
+def test_sensors_reference_and_drive_feedback_are_honest(fmu_env):
     """The arm reads the plant through the encoder and the tracker; the motion controller reads
     the drive's own q_m, dq_m. Nothing to warn about."""
     assert honest_warnings(arm()) == []
@@ -75,7 +62,7 @@ def test_sensors_reference_and_drive_feedback_are_honest(fmus):
     ("plant.q_m -> rigid.q_m_meas", "estimator"),     # motor angles without the encoder
     ("plant.p_tool -> controller.dp_ref", "controller"),   # any truth into a controller input
 ])
-def test_a_truth_input_warns_in_one_line(fmus, connection, role):
+def test_a_truth_input_warns_in_one_line(fmu_env, connection, role):
     doc = arm()
     doc["connections"] = [c for c in doc["connections"] if not c.endswith("rigid.q_m_meas")] + [connection]
     msgs = honest_warnings(doc)
@@ -83,14 +70,14 @@ def test_a_truth_input_warns_in_one_line(fmus, connection, role):
     assert f"'{connection}'" in msgs[0] and role in msgs[0] and "oracles" in msgs[0]
 
 
-def test_only_q_m_and_dq_m_are_the_drives_feedback(fmus):
+def test_only_q_m_and_dq_m_are_the_drives_feedback(fmu_env):
     doc = arm()
     doc["connections"] = [c.replace("plant.q_m -> controller.q_m", "plant.q_a -> controller.q_m")
                           for c in doc["connections"]]
     assert [m.split("'")[1] for m in honest_warnings(doc)] == ["plant.q_a -> controller.q_m"]
 
 
-def test_an_oracle_does_not_warn(fmus):
+def test_an_oracle_does_not_warn(fmu_env):
     doc = arm(["plant.p_tool -> controller.dp_ref"], oracles=["plant.p_tool->controller.dp_ref"])
     assert honest_warnings(doc) == []
     assert load_scenario(doc).oracles == ["plant.p_tool -> controller.dp_ref"]
@@ -101,7 +88,7 @@ def test_an_oracle_does_not_warn(fmus):
     (["plant.p_tool"], "is not one of the connections"),
     ("plant.p_tool -> controller.dp_ref", "must be a list"),
 ])
-def test_an_oracle_that_is_not_a_connection_is_an_error(fmus, oracles, match):
+def test_an_oracle_that_is_not_a_connection_is_an_error(fmu_env, oracles, match):
     with pytest.raises(ScenarioError, match=match):
         load_scenario(arm(oracles=oracles))
 
@@ -115,7 +102,7 @@ def test_an_unknown_fmu_counts_as_an_estimator():
         ["truth", "truth", "reference", "controller"]
 
 
-def test_metrics_say_what_they_compare_with(fmus, tmp_path):
+def test_metrics_say_what_they_compare_with(fmu_env, tmp_path):
     """metrics.json: a metric against plant.p_tool is "against": "truth", one against the
     tracker's measurement "reference". With the tracker's noise and skew off, our Gauss-Seidel
     master hands it the plant's position of the same instant: it measures the truth exactly."""
@@ -142,7 +129,7 @@ def test_metrics_say_what_they_compare_with(fmus, tmp_path):
     assert np.isfinite(list(result.metrics.values())).all()
 
 
-def test_the_tuning_study_prunes_oracles_with_their_connections(fmus):
+def test_the_tuning_study_prunes_oracles_with_their_connections(fmu_env):
     """study tune keeps only the components an estimate needs: an oracle of a dropped
     connection goes with it (else the pruned scenario would not load), a kept one stays."""
     from orchestration.study_tune import prune
@@ -164,7 +151,7 @@ def test_a_run_folder_with_the_old_flat_metrics_still_loads(tmp_path):
     assert r.metrics == {"e_rmse": 0.5} and r.against == {}
 
 
-def test_metrics_at_the_references_own_sample_times(fmus, tmp_path):
+def test_metrics_at_the_references_own_sample_times(fmu_env, tmp_path):
     """A 250 Hz tracker holds each sample for 4 ms: compared row by row the hold counts as an
     error; with truth_time = "tracker.t_meas" only fresh samples count, each at its stamp, and
     a noise- and skew-free tracker agrees with the truth exactly."""

@@ -1,6 +1,7 @@
 """IMU EKF (IMU paper, eqs. 3-4): bias states track bias steps, it converges on noise-free
 data, the FMU matches the plain model, divergence is reported."""
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -88,11 +89,8 @@ def test_bad_parameters_are_named():
 
 # ---- the FMU -------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def ekf_fmu(tmp_path_factory):
-    from orchestration.build import build_all
-    dest = tmp_path_factory.mktemp("imu_ekf_fmu")
-    build_all(dest, only=["ImuEkf"], quiet=True)
-    return dest / "ImuEkf.fmu"
+def ekf_fmu(every_fmu: dict[str, Path]) -> Path:
+    return every_fmu["ImuEkf"]
 
 
 def test_fmu_matches_the_model(ekf_fmu):

@@ -11,17 +11,15 @@ from numpy.testing import assert_allclose
 
 from fmus.robot_plant import motion_control_model as mcm
 from fmu_host import Slave
-from orchestration.build import build_all, validate_fmu
+from orchestration.build import validate_fmu
 
 REPO = Path(__file__).resolve().parent.parent
 EXAMPLE_CSV = REPO / "orchestration" / "scenarios" / "paths" / "example_waypoints.csv"
 
 
 @pytest.fixture(scope="session")
-def fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    dest = tmp_path_factory.mktemp("motion_controller_fmu")
-    build_all(dest, only=["MotionController"], quiet=True)
-    return dest / "MotionController.fmu"
+def fmu(every_fmu: dict[str, Path]) -> Path:
+    return every_fmu["MotionController"]
 
 
 

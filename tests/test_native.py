@@ -28,7 +28,6 @@ from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 
 from orchestration import native
 from orchestration.build import BuildError, build_all, fmu_scripts
-from toys import TOYS
 
 STOP_TIME = 1.0          # the life-cycle runs: one simulated second at the FMU's default step
 REPEATS = 20
@@ -63,18 +62,16 @@ class Fmu:
 
 
 @pytest.fixture(scope="session")
-def fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Fmu]:
-    """Every FMU that ``flexfusion build`` makes, built here and extracted."""
+def fmus(every_fmu: dict[str, Path], tmp_path_factory: pytest.TempPathFactory) -> dict[str, Fmu]:
+    """Every FMU that ``flexfusion build`` makes, extracted."""
     dest = tmp_path_factory.mktemp("native_fmus")
-    built = build_all(dest / "fmus", quiet=True)
-    return {f.name: f for f in (Fmu(p, dest / p.stem) for p in built)}
+    return {f.name: f for f in (Fmu(p, dest / p.stem) for p in every_fmu.values())}
 
 
 @pytest.fixture(scope="session")
-def toys(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Fmu]:
+def toys(toy_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Fmu]:
     dest = tmp_path_factory.mktemp("native_toys")
-    built = build_all(dest / "fmus", quiet=True, scripts=sorted(TOYS.glob("*_fmu.py")))
-    return {f.name: f for f in (Fmu(p, dest / p.stem) for p in built)}
+    return {f.name: f for f in (Fmu(p, dest / p.stem) for p in sorted(toy_dir.glob("*.fmu")))}
 
 
 @pytest.fixture(scope="session")

@@ -14,17 +14,14 @@ from fmus.common.frames import G
 from fmus.common.parameters import validate
 from fmus.estimators import particle_filter_model as pm
 from fmu_host import Slave
-from orchestration.build import build_all
 from test_particle_filter_model import signals_from_rest
 
 T = 0.01
 
 
 @pytest.fixture(scope="session")
-def fmu(tmp_path_factory) -> Path:
-    dest = tmp_path_factory.mktemp("pf_fmu")
-    (path,) = build_all(dest, only=["ParticleFilter"], quiet=True)   # build_all validates
-    return path
+def fmu(every_fmu: dict[str, Path]) -> Path:
+    return every_fmu["ParticleFilter"]
 
 
 def _acc3(f: np.ndarray, p: pm.ParticleFilterParameters) -> np.ndarray:

@@ -13,17 +13,15 @@ from fmus.common import dynamics, kinematics
 from fmus.common.parameters import as_array
 from fmus.robot_plant.plant_model import PlantParameters
 from fmu_host import Slave
-from orchestration.build import build_all, validate_fmu
+from orchestration.build import validate_fmu
 
 OUTPUTS = ("q_a", "dq_a", "ddq_a", "q_m", "dq_m", "p_tool", "v_tool", "a_tool", "p_sensor", "a_sensor", "tau_s")
 DT = 1e-3
 
 
 @pytest.fixture(scope="session")
-def fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    dest = tmp_path_factory.mktemp("plant_fmu")
-    build_all(dest, only=["FlexibleRobot2DOF"], quiet=True)
-    return dest / "FlexibleRobot2DOF.fmu"
+def fmu(every_fmu: dict[str, Path]) -> Path:
+    return every_fmu["FlexibleRobot2DOF"]
 
 
 @pytest.fixture(scope="session")

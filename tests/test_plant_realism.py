@@ -16,7 +16,6 @@ from fmus.common.parameters import ParameterError, as_array, replace
 from fmus.robot_plant import plant_dynamics
 from fmus.robot_plant.plant_model import PlantParameters
 from fmu_host import Slave
-from orchestration.build import build_all
 
 P = PlantParameters()
 #: no damping, no friction anywhere (gearboxes, bending joints, motors)
@@ -322,10 +321,8 @@ OUTPUTS = ("q_a", "dq_a", "ddq_a", "q_m", "dq_m", "p_tool", "v_tool", "a_tool", 
 
 
 @pytest.fixture(scope="module")
-def fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    dest = tmp_path_factory.mktemp("plant_realism_fmu")
-    build_all(dest, only=["FlexibleRobot2DOF"], quiet=True)
-    return dest / "FlexibleRobot2DOF.fmu"
+def fmu(every_fmu: dict[str, Path]) -> Path:
+    return every_fmu["FlexibleRobot2DOF"]
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,8 @@
 """RigidKinematics: the motor-angle baseline, as math and through its FMU."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import fmpy
 import numpy as np
 import pytest
@@ -9,7 +11,6 @@ from numpy.testing import assert_allclose
 from fmus.common import dynamics, kinematics
 from fmus.common.robot_params import RobotParameters
 from fmus.estimators import rigid_kinematics_model as rk
-from orchestration.build import build_all
 
 
 def test_gravity_compensation_inverts_the_static_deflection() -> None:
@@ -80,10 +81,8 @@ def test_scalar_spring_pieces_match_the_numpy_functions() -> None:
 
 
 @pytest.fixture(scope="module")
-def fmu(tmp_path_factory):
-    dest = tmp_path_factory.mktemp("rigid")
-    build_all(dest, only=["RigidKinematics"], quiet=True)
-    return dest / "RigidKinematics.fmu"
+def fmu(every_fmu: dict[str, Path]) -> Path:
+    return every_fmu["RigidKinematics"]
 
 
 @pytest.mark.parametrize("compensate", [False, True])

@@ -10,7 +10,7 @@ from fmpy import read_model_description, simulate_fmu
 from numpy.testing import assert_allclose, assert_array_equal
 
 from fmu_host import Slave
-from orchestration.build import build_all, validate_fmu
+from orchestration.build import validate_fmu
 
 from fmus.common.frames import G
 
@@ -20,13 +20,6 @@ N_ROWS = int(round(STOP / DT)) + 1
 # the sensors' default calibration errors switched off (ideal mounting and scale)
 IDEAL_IMU = {f"{v}[{i}]": 0.0 for v in ("mount_rpy", "acc_scale", "gyro_scale") for i in (1, 2, 3)}
 IDEAL_FTS = {f"{v}[{i}]": 0.0 for v in ("mount_rpy", "scale") for i in (1, 2, 3)}
-
-
-@pytest.fixture(scope="session")
-def fmu_dir(tmp_path_factory) -> Path:
-    dest = tmp_path_factory.mktemp("sensor_fmus")
-    build_all(dest, only=NAMES, quiet=True)          # raises BuildError if fmpy validate complains
-    return dest
 
 
 def sim(fmu_dir: Path, name: str, logger=None, **start_values) -> np.ndarray:

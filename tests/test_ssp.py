@@ -344,14 +344,6 @@ def test_two_different_fmus_with_one_file_name_get_unique_archive_names(tmp_path
     assert (tmp_path / "ssp" / "results.csv").read_bytes() == (tmp_path / "toml" / "results.csv").read_bytes()
 
 
-def _every_fmu_dir(tmp_path_factory, monkeypatch) -> Path:
-    """Scenarios find the FlexFusion FMUs (built once per test process)."""
-    from fmu_host import every_fmu
-    folder = every_fmu(tmp_path_factory)[0].parent
-    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(folder))
-    return folder
-
-
 def _same_run(a: Path, b: Path) -> None:
     """Two run folders hold the same results, bit for bit, and the same metrics."""
     assert (a / "results.csv").read_bytes() == (b / "results.csv").read_bytes()
@@ -360,8 +352,7 @@ def _same_run(a: Path, b: Path) -> None:
 
 
 def test_a_packed_csv_file_is_bound_by_a_relative_uri_and_the_package_runs_as_the_scenario(
-        tmp_path, tmp_path_factory, monkeypatch):
-    _every_fmu_dir(tmp_path_factory, monkeypatch)
+        tmp_path, fmu_env):
     scenario = REPO / "orchestration" / "scenarios" / "contact_raw.toml"
     ssp = tmp_path / "contact.ssp"
     assert main(["export-ssp", str(scenario), "-o", str(ssp)]) == 0
@@ -380,9 +371,8 @@ def test_a_packed_csv_file_is_bound_by_a_relative_uri_and_the_package_runs_as_th
     _same_run(tmp_path / "ssp", tmp_path / "toml")
 
 
-def test_a_file_parameter_naming_no_file_is_refused_with_one_error(tmp_path, tmp_path_factory, monkeypatch,
+def test_a_file_parameter_naming_no_file_is_refused_with_one_error(tmp_path, fmu_env,
                                                                    capsys):
-    _every_fmu_dir(tmp_path_factory, monkeypatch)
     scenario = REPO / "orchestration" / "scenarios" / "contact_raw.toml"
     out = tmp_path / "x.ssp"
     status = main(["export-ssp", str(scenario), "-o", str(out), "--set", 'path.csv_file="paths/nowhere.csv"'])
@@ -412,8 +402,7 @@ after = 0.05
     assert (tmp_path / "ssp" / "results.csv").read_bytes() != (tmp_path / "ssp_5" / "results.csv").read_bytes()
 
 
-def test_the_flagship_round_trips_bit_for_bit(tmp_path, tmp_path_factory, monkeypatch):
-    _every_fmu_dir(tmp_path_factory, monkeypatch)
+def test_the_flagship_round_trips_bit_for_bit(tmp_path, fmu_env):
     scenario = REPO / "orchestration" / "scenarios" / "flagship.toml"
     ssp = tmp_path / "flagship.ssp"
     assert main(["export-ssp", str(scenario), "-o", str(ssp)]) == 0

@@ -26,7 +26,7 @@ NOISE_FREE = ["encoder.noise=0", "encoder.resolution=0", "imu.acc_noise=0", "imu
 
 
 # ---- the study, through the FMUs -----------------------------------------------------------
-def test_model_simulation_reproduces_the_fmu_experiment():
+def test_model_simulation_reproduces_the_fmu_experiment(fmu_env):
     """With the plant's own parameters and noise-free sensors, the fit's closed-loop simulation
     (controller, plant timing, accelerometer filter) is the co-simulation to rounding error."""
     overrides = NOISE_FREE + study_identify.experiment_overrides(0, (0.9, -0.6), 0.5) + ["scenario.stop_time=0.6"]
@@ -40,7 +40,7 @@ def test_model_simulation_reproduces_the_fmu_experiment():
     assert_allclose(acc, exp.acc, atol=1e-8)
 
 
-def test_cli_identifies_the_ideal_plant_and_writes_the_report_and_include(tmp_path, capsys):
+def test_cli_identifies_the_ideal_plant_and_writes_the_report_and_include(tmp_path, capsys, fmu_env):
     """Noise-free sensors, two short experiments, the study's own starting point (the CAD guess):
     every fitted parameter within 1 % of the plant's, none biased; the include file is a
     parameter set a scenario can use."""
@@ -67,7 +67,7 @@ def test_cli_identifies_the_ideal_plant_and_writes_the_report_and_include(tmp_pa
     assert "flexfusion study identify" in inc.read_text() and "k_lo[1]" in capsys.readouterr().out
 
 
-def test_non_convergence_is_one_error_and_keeps_the_best_fit(tmp_path, capsys):
+def test_non_convergence_is_one_error_and_keeps_the_best_fit(tmp_path, capsys, fmu_env):
     out = tmp_path / "out"
     rc = main(["study", "identify", "--out", str(out), "--working-point", "0.7,1.3", "--stop-time", "0.5",
                "--max-nfev", "1", "--workers", "1", "--no-progress"])
@@ -86,7 +86,7 @@ def test_bad_working_point_is_one_error(tmp_path, capsys):
     assert "--prefilter -1: prefilter cut-off must be a frequency >= 0 Hz" in capsys.readouterr().err
 
 
-def test_realistic_plant_gives_biased_estimates_and_says_so(tmp_path):
+def test_realistic_plant_gives_biased_estimates_and_says_so(tmp_path, fmu_env):
     """Unmodelled dynamics (elastic mode, torque ripple, torque-constant error) bias the fit,
     and identify.json says which estimates and why (a fit that fails to converge on it still
     writes its best fit)."""

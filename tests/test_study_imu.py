@@ -9,17 +9,6 @@ from numpy.testing import assert_allclose
 
 from orchestration import study_imu
 
-FMUS = ["MotionController", "FlexibleRobot2DOF", "Encoder", "Imu", "RigidKinematics",
-        "ComplementaryFilter", "ImuEkf"]
-
-
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    from orchestration.build import build_all
-    dest = tmp_path_factory.mktemp("imu_study_fmus")
-    build_all(dest, only=FMUS, quiet=True)
-    return dest
-
 
 def fake_run(n=200, fk=1e-3, cf=0.5e-3, ekf=0.6e-3, cf_paper=1.1e-3, cf_same=0.7e-3):
     t = np.arange(n) * 0.01

@@ -1,6 +1,6 @@
 """Tests of orchestration.study_montecarlo (the 2012 paper's Monte Carlo study, Fig. 3, Table 1).
 
-The FMUs come from dist/fmus (``flexfusion build``), as for every scenario run.
+The FMUs are the test run's own build (tests/conftest.py), never a possibly stale dist/fmus.
 """
 from __future__ import annotations
 
@@ -13,13 +13,11 @@ import pytest
 from numpy.testing import assert_allclose
 
 from orchestration import cli, study, study_montecarlo
-from orchestration.scenario import DEFAULT_FMU_DIR
 
 SCENARIO = Path(study_montecarlo.__file__).resolve().parent / "scenarios" / "axelsson2012.toml"
 SHORT = ["scenario.stop_time=0.5"]
 
-pytestmark = pytest.mark.skipif(not (DEFAULT_FMU_DIR / "EkfAccelerometer.fmu").exists(),
-                                reason="needs the built FMUs in dist/fmus (flexfusion build)")
+pytestmark = pytest.mark.usefixtures("fmu_env_module")      # also for the module-scoped runs
 
 
 @pytest.fixture(scope="module")
@@ -316,11 +314,8 @@ def test_section4_ekf_within_1_5x_of_the_crlb_with_and_without_accelerometer(sec
 
 PF_SCENARIO = SCENARIO.with_name("axelsson2012_pf.toml")
 PF_NAMES = ("pf_alg1", "pf_regularised", "pf_ekf_proposal")
-needs_pf = pytest.mark.skipif(not (DEFAULT_FMU_DIR / "ParticleFilter.fmu").exists(),
-                              reason="needs ParticleFilter.fmu")
 
 
-@needs_pf
 def test_particle_filter_scenario_gives_fig4(tmp_path):
     d = study_montecarlo.run_study(PF_SCENARIO, 2, tmp_path, ["scenario.stop_time=0.2"]
                                    + [f"{n}.n_particles=100" for n in PF_NAMES],
@@ -337,7 +332,6 @@ def test_particle_filter_scenario_gives_fig4(tmp_path):
 
 
 @pytest.mark.slow
-@needs_pf
 def test_pf_algorithm_1_needs_many_particles(tmp_path):
     """Reduced Fig. 4 (4 runs, 1.5 s): the paper's Algorithm 1 with 10000 particles is within
     1.25x of the EKF; with 1000 the plain bootstrap degenerates (more than 10x the EKF), while

@@ -3,35 +3,12 @@ findings on the full runs (slow)."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
 from orchestration import study_robustness as sr
-from orchestration.build import build_all
-from orchestration.study_tune import load_document
-
-
-def _fmu_types() -> list[str]:
-    kinds = set()
-    for _, _, fname, _ in sr.CASES:
-        doc = load_document(sr.SCENARIOS / fname)
-        kinds |= {Path(str(c["fmu"])).stem for c in doc["components"].values()}
-    return sorted(kinds)
-
-
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    dest = tmp_path_factory.mktemp("robust_fmus")
-    build_all(dest, only=_fmu_types(), quiet=True)
-    return dest
-
-
-@pytest.fixture
-def fmus(fmu_dir, monkeypatch):
-    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
 
 
 def test_jobs_give_only_the_estimators_the_model_errors() -> None:
@@ -117,7 +94,7 @@ def test_error_stats_of_a_known_error() -> None:
     assert s["band_mean"] == pytest.approx(2e-3 / np.pi, rel=0.02)
 
 
-def test_short_robustness_table(fmus, tmp_path) -> None:
+def test_short_robustness_table(fmu_env, tmp_path) -> None:
     table = sr.robustness(stop_time=0.3, after=0.05, progress=False, workers=1)
     cases = table["cases"]
     assert list(cases) == [c[0] for c in sr.CASES]
@@ -159,7 +136,7 @@ REDUCED_STOP_TIME = 3.0
 
 
 @pytest.mark.slow
-def test_the_papers_findings(fmus, tmp_path) -> None:
+def test_the_papers_findings(fmu_env, tmp_path) -> None:
     """The study at reduced size (every case, the shipped P1-tuned scenarios, the first
     :data:`REDUCED_STOP_TIME` s, as `flexfusion study robustness --stop-time 3 --workers 2`:
     128 s on 2 workers of a busy machine, 8 min under heavy load; the full study 239 s). Asserted, as the README and the findings claim: the one paper

@@ -2,6 +2,8 @@
 through its FMU."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import pythonfmu.builder  # noqa: F401 - at collection, before any FMU runs in this process: after
@@ -11,7 +13,7 @@ from numpy.testing import assert_allclose
 
 from fmu_host import Slave
 from fmus.robot_plant.tracker_model import TrackerModel
-from orchestration.build import build_all, validate_fmu
+from orchestration.build import validate_fmu
 
 V = np.array([0.2, -0.1])          # m/s: a ramp at 200 mm/s (the ISO path's speed)
 P0 = np.array([1.0, 0.6])
@@ -90,10 +92,8 @@ def test_bad_model_arguments(kwargs, word):
 
 # ---- the FMU -----------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def fmu(tmp_path_factory):
-    dest = tmp_path_factory.mktemp("tracker")
-    build_all(dest, only=["Tracker"], quiet=True)
-    return dest / "Tracker.fmu"
+def fmu(every_fmu: dict[str, Path]) -> Path:
+    return every_fmu["Tracker"]
 
 
 def test_fmu_validates_with_units(fmu):

@@ -108,6 +108,8 @@ def world_readings(f_s_xz: np.ndarray, acc_s_xz: np.ndarray, phi: float, m: floa
         Tool angle (rad); ``R(phi)`` maps the sensor frame to the world.
     m
         Tool mass (kg) between the force sensor and the tool tip.
+    g
+        Gravitational acceleration (m/s^2).
 
     Returns
     -------
@@ -142,7 +144,8 @@ def static_force(u: np.ndarray, a: np.ndarray, m: float) -> np.ndarray:
 
 
 def model_matrices(m: float) -> dict[str, np.ndarray]:
-    """``A, B, C, D_u, D_F`` of eqs. 5-7 and 11-12 for one axis, measurements ``y = (x, a)``."""
+    """``A, B, C, D_u, D_F`` of eqs. 5-7 and 11-12 for one axis of a tool of mass ``m`` (kg),
+    measurements ``y = (x, a)``."""
     return dict(A=np.array([[0.0, 1.0], [0.0, 0.0]]), B=np.array([[0.0], [1.0 / m]]),
                 C=np.array([[1.0, 0.0], [0.0, 0.0]]), D_u=np.array([[0.0], [1.0 / m]]),
                 D_F=np.array([[0.0], [-1.0 / m]]))
@@ -175,7 +178,11 @@ def kalman_gain(m: float, h: float, sigma_f: float, sigma_x: float, sigma_a: flo
 
 def lowpass_matrices(m: float, k11: float, k13: float, k21: float, k23: float
                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Continuous low-pass observer (eq. 27) as ``xi^' = A_o xi^ + B_o w``, ``w = (u, a, x)``."""
+    """Continuous low-pass observer (eq. 27) as ``xi^' = A_o xi^ + B_o w``, ``w = (u, a, x)``.
+
+    ``m`` is the tool mass (kg); ``k11``, ``k13`` (position row) and ``k21``, ``k23`` (velocity
+    row) are the observer gains on the position and acceleration innovations (eq. 27).
+    """
     A_o = np.array([[-k11, 1.0], [-k21, 0.0]])
     B_o = np.array([[-k13 / m, k13, k11],
                     [(1.0 - k23) / m, k23, k21]])
@@ -205,9 +212,10 @@ def lowpass_error_tf(k11: float, k13: float, k21: float, k23: float, m: float,
 
 
 def reading_fault(f_s: np.ndarray, acc_s: np.ndarray, f_range: float, acc_range: float) -> int:
-    """Fault code of one reading: ``FAULT_NOT_FINITE`` if any value is NaN/inf, else
-    ``FAULT_SATURATED`` if a force or acceleration component is at its sensor's range
-    (within 1e-9 relative), else ``FAULT_NONE``."""
+    """Fault code of one reading: ``FAULT_NOT_FINITE`` if any value of the force reading
+    ``f_s`` (N) or the accelerometer reading ``acc_s`` (m/s^2) is NaN/inf, else
+    ``FAULT_SATURATED`` if a component is at its sensor's range ``f_range`` (N) or
+    ``acc_range`` (m/s^2) (within 1e-9 relative), else ``FAULT_NONE``."""
     if not (np.all(np.isfinite(f_s)) and np.all(np.isfinite(acc_s))):
         return FAULT_NOT_FINITE
     if np.any(np.abs(f_s) >= f_range * (1.0 - 1e-9)) or np.any(np.abs(acc_s) >= acc_range * (1.0 - 1e-9)):
@@ -216,7 +224,8 @@ def reading_fault(f_s: np.ndarray, acc_s: np.ndarray, f_range: float, acc_range:
 
 
 class ForceObserverCore:
-    """One of the three observers on both world axes (x, z), sampled with step ``h``.
+    """One of the three observers on both world axes (x, z), configured by ``cfg``
+    (:class:`ObserverConfig`), sampled with step ``h``.
 
     Use :meth:`output` for the estimate at the current sample (it does not change the state)
     and then :meth:`advance` to move to the next sample with the same inputs held (ZOH).

@@ -119,7 +119,8 @@ def design_gains(d: ImpedanceControllerParameters) -> np.ndarray:
 
 def force_gain(d: ImpedanceControllerParameters, L: np.ndarray) -> float:
     """The paper's force gain ``c`` (eq. 40) for ``Delta = -L s + c (F - F_d)``: the one that
-    makes the design model's static contact the target impedance (eq. 2) on the tool.
+    makes the static contact of the design model ``d`` with state gain ``L`` the target
+    impedance (eq. 2) on the tool.
 
     At rest the design model's position loop (stiffness ``k_r``) holds the flange at
     ``e_f = Delta - F / k_r``, the tool mount deflects by ``dl = -C F`` (``C = 1 / tool_k``,
@@ -157,7 +158,9 @@ def stationary_contact(K_z: float, k_wall: float, x_r: float, x_w: float, F_d: f
                        ) -> tuple[float, float]:
     """Stationary position and force from the impedance relation and the wall (module doc).
 
-    Positions along the normal (the tool pushes towards +x); returns ``(x_s, F_s)``.
+    The target impedance has stiffness ``K_z`` (N/m), reference ``x_r`` and desired force
+    ``F_d`` (N); the wall, at ``x_w``, has stiffness ``k_wall`` (N/m). Positions along the
+    normal (the tool pushes towards +x); returns ``(x_s, F_s)``.
     """
     x_free = x_r + F_d / K_z
     if x_free <= x_w:
@@ -178,6 +181,9 @@ class ImpedanceLaw:
     the flange position ``x_flange`` must be given; ``x`` is always the tool position, used in
     the impedance variable ``z``. Lengths 2 and 4 are the paper's structure: the same without
     ``zeta``, plus ``c (F - F_d)`` (``force_gain``, :func:`force_gain`).
+
+    ``L`` is the state gain (:func:`design_gains`), ``K_z`` (N/m) and ``D_z`` (N s/m) the
+    target stiffness and damping of the impedance variable ``z`` (eq. 3).
     """
 
     def __init__(self, L: np.ndarray, K_z: float, D_z: float, tau_v: float = 0.01,
@@ -202,6 +208,7 @@ class ImpedanceLaw:
 
     @e_prev.setter
     def e_prev(self, value: None) -> None:
+        """Forget the last sample: ``value`` must be ``None`` (a gap in the samples)."""
         if value is not None:
             raise ValueError("e_prev can only be reset to None")
         self.q_prev = None
@@ -238,7 +245,7 @@ class ImpedanceLaw:
 
     def impedance_variable(self, F: float, x: float, x_r: float, F_d: float = 0.0, h: float = 0.0,
                            x_flange: float | None = None) -> float:
-        """``z`` of eq. 3 at this sample (N)."""
+        """``z`` of eq. 3 at this sample (N); ``h`` is the time since the last one."""
         q = self._positions(x, x_r, x_flange)
         return self._z(F, F_d, q, self._rates(q, h))
 
@@ -295,10 +302,14 @@ def simulate_1dof(plant: OneAxisPlant, design: ImpedanceControllerParameters, x_
                   seed: int = 0, tau_v: float = 0.01, controller=None) -> dict[str, np.ndarray]:
     """Close the impedance loop on :class:`OneAxisPlant`.
 
-    ``x_ref(t)`` is the reference along the normal. The force fed back is the observer's
-    estimate (``observer`` = one of :data:`fom.OBSERVER_KINDS`) or, with ``use_raw``, the raw
-    sensor reading ``u = F + m_t a``. The plant is integrated with RK4, ``substeps`` per
-    controller step ``h``. ``controller(t, u, a, x, x_ref) -> (F_hat, Delta)``, if given,
+    ``x_ref(t)`` is the reference along the normal, ``design`` the controller's
+    :class:`ImpedanceDesign`, ``t_end`` (s) the duration, ``x0`` (m) the start position and
+    ``F_d`` (N) the desired force. The force fed back is the observer's estimate
+    (``observer`` = one of :data:`fom.OBSERVER_KINDS`, configured by ``obs_cfg`` if given) or,
+    with ``use_raw``, the raw sensor reading ``u = F + m_t a``; ``noise_f`` (N) and
+    ``noise_a`` (m/s^2) are the standard deviations of the force and acceleration readings'
+    white noise (generator seeded with ``seed``), ``tau_v`` (s) the velocity filter's time
+    constant. The plant is integrated with RK4, ``substeps`` per controller step ``h``. ``controller(t, u, a, x, x_ref) -> (F_hat, Delta)``, if given,
     replaces the built-in observer and impedance law for one sample (advancing over ``h``).
     Returns time series (``t, x, v, a, F, u, F_hat, delta, x_ref``).
     """

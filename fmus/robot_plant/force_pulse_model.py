@@ -41,6 +41,7 @@ class ForcePulseParameters:
                             high=1.0, source="assumed: rubber hammer on a steel tool, 5-10 ms")
 
     def check(self) -> None:
+        """Checks across fields: a non-zero direction, one amplitude per time."""
         if math.hypot(*self.direction) < 1e-9:
             raise ParameterError(f"parameter 'direction' = {self.direction} must not be zero")
         if len(self.times) != len(self.amplitudes):
@@ -54,7 +55,9 @@ class ForcePulseParameters:
 
 
 def pulse_force(t: float, times: Sequence[float], amplitudes: Sequence[float], duration: float) -> float:
-    """Sum of the half-sine pulses at time ``t`` (scalar, along the direction)."""
+    """Sum of the half-sine pulses at time ``t`` (scalar, along the direction, N): pulse ``i``
+    starts at ``times[i]`` (s, 0 = unused), has peak ``amplitudes[i]`` (N) and lasts
+    ``duration`` (s)."""
     f = 0.0
     for t0, a in zip(times, amplitudes):
         t0 = float(t0)
@@ -71,7 +74,8 @@ def _integral(t: float, t0: float, duration: float) -> float:
 
 def mean_force(t: float, dt: float, times: Sequence[float], amplitudes: Sequence[float],
                duration: float) -> float:
-    """Mean of :func:`pulse_force` over ``[t, t + dt]`` (``dt = 0``: the value at ``t``)."""
+    """Mean of :func:`pulse_force` (pulses at ``times`` with peaks ``amplitudes``, each lasting
+    ``duration``) over ``[t, t + dt]`` (``dt = 0``: the value at ``t``)."""
     if dt <= 0.0:
         return pulse_force(t, times, amplitudes, duration)
     total = 0.0
@@ -83,7 +87,8 @@ def mean_force(t: float, dt: float, times: Sequence[float], amplitudes: Sequence
 
 
 def impulse(amplitude: float, duration: float) -> float:
-    """Impulse ``2 F d / pi`` of one half-sine strike (N s)."""
+    """Impulse ``2 F d / pi`` (N s) of one half-sine strike of peak ``amplitude`` ``F`` (N) and
+    ``duration`` ``d`` (s)."""
     return 2.0 * amplitude * duration / math.pi
 
 

@@ -137,6 +137,8 @@ class PidGains:
     @classmethod
     def from_values(cls, kp: Sequence[float], kd: Sequence[float], ti: Sequence[float],
                     tau_max: Sequence[float]) -> "PidGains":
+        """Gains from per-joint sequences: ``kp`` (N m/rad), ``kd`` (N m s/rad), integral time
+        ``ti`` (s, 0 = no integral action) and torque limit ``tau_max`` (N m), motor side."""
         return cls(*(np.array(x, dtype=float).reshape(2) for x in (kp, kd, ti, tau_max)))
 
 
@@ -324,7 +326,8 @@ class MotionControlModel:
         return r0 + (x - i) * (self.table[i + 1] - r0)
 
     def offset_arm_angles(self, row: np.ndarray, dp: np.ndarray) -> np.ndarray:
-        """Change of the arm reference that moves the tool by ``dp`` (module docstring)."""
+        """Change of the arm reference of the table ``row`` (:meth:`sample`) that moves the tool
+        by ``dp`` (m, world x and z; module docstring)."""
         jinv = row[_JINV]
         dq = np.array([jinv[0] * dp[0] + jinv[1] * dp[1], jinv[2] * dp[0] + jinv[3] * dp[1]])
         if dp[0] * dp[0] + dp[1] * dp[1] > 1e-8:       # |dp| > 0.1 mm: one exact Newton step
@@ -349,6 +352,8 @@ class MotionController:
     ----------
     model
         The precomputed :class:`MotionControlModel`.
+    excitation
+        The identification experiment's torque excitation added to the PID output, or None.
 
     Notes
     -----
@@ -379,7 +384,8 @@ class MotionController:
         self.integral[:] = 0.0
 
     def evaluate(self, t: float, q_m: np.ndarray, dq_m: np.ndarray, dp_ref: np.ndarray) -> np.ndarray:
-        """References at ``t`` and the motor torque for the measurement ``(q_m, dq_m)``.
+        """References at ``t`` and the motor torque for the measurement ``(q_m, dq_m)``, the
+        reference moved by the Cartesian offset ``dp_ref`` (m, from the impedance controller).
 
         Updates :attr:`row`, :attr:`q_a_ref`, :attr:`q_m_ref`, :attr:`p_ref`, :attr:`error` and
         returns :attr:`tau` [N m, motor side].
@@ -432,7 +438,8 @@ class Multisine:
     ``u_j(t) = A_j sqrt(2 / N) sum_k cos(2 pi f_k t + phi_jk)``, ``f_k = k / T`` for the ``N``
     harmonics of the period ``T`` in the band ``[f_lo, f_hi]``; the phases ``phi_jk`` are
     uniform, independent per joint (uncorrelated inputs), from ``seed``. The RMS of ``u_j`` is
-    ``A_j``.
+    ``A_j``, the ``amplitude`` (N m) of joint ``j``; ``band`` is ``(f_lo, f_hi)`` (Hz) and
+    ``period`` is ``T`` (s).
 
     Raises
     ------
@@ -495,6 +502,7 @@ class MotionControllerParameters(RobotParameters):
 
 
     def check(self) -> None:
+        """The robot's checks, a waypoint file when ``path = 'csv'``, an ordered excitation band."""
         super().check()
         if self.path == "csv" and not self.csv_file.strip():
             raise ParameterError("parameter 'csv_file' must name a waypoint file when path = 'csv'")
@@ -516,7 +524,7 @@ class MotionControllerParameters(RobotParameters):
 
 
 def build_trajectory(params: MotionControllerParameters) -> Trajectory:
-    """The path the parameters select.
+    """The path the parameters ``params`` select.
 
     Raises
     ------
@@ -532,7 +540,7 @@ def build_trajectory(params: MotionControllerParameters) -> Trajectory:
 
 
 def build_controller(params: MotionControllerParameters) -> MotionController:
-    """Trajectory, reference table and PID from the FMU parameters.
+    """Trajectory, reference table and PID from the FMU parameters ``params``.
 
     Raises
     ------

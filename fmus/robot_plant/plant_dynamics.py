@@ -66,7 +66,8 @@ HALF_PI = 0.5 * math.pi
 
 
 def true_link(p, i: int) -> tuple[float, float, float, float]:
-    """``(L, m, c, I)`` of the rigid link ``i`` (0 or 1) of the real robot: true length ``l + dl``."""
+    """``(L, m, c, I)`` of the rigid link ``i`` (0 or 1) of the real robot described by the plant
+    parameters ``p``: true length ``l + dl``."""
     if i == 0:
         return float(p.l1 + p.dl[0]), float(p.m1), float(p.c1), float(p.I1)
     return float(p.l2 + p.dl[1]), float(p.m2), float(p.c2), float(p.I2)
@@ -104,6 +105,11 @@ class PlantChain:
     ----------
     p
         :class:`fmus.robot_plant.plant_model.PlantParameters` (``ideal`` must be false).
+
+    Notes
+    -----
+    Methods take the state ``s`` (a tuple), the motor torque commands ``tau1, tau2`` (N m,
+    motor side) and the external force on the tool ``fx, fz`` (N, world x and z).
     """
 
     def __init__(self, p) -> None:
@@ -384,6 +390,9 @@ class CompliantTool:
     the flange (the chain's tool force) and ``m_t a_t = f_ext - F + m_t g_vec`` moves the tool.
     ``p_tool``, ``v_tool``, ``a_tool`` are the tool mass's motion; the tool angle, the
     accelerometer and ``q_a`` stay on the robot (the tool mount does not rotate).
+
+    ``p`` are the plant parameters (``tool_mass``, ``tool_compliance``, ``tool_damping``); the
+    methods take the same arguments as :class:`PlantChain`'s (``s``, ``tau1, tau2``, ``fx, fz``).
     """
 
     def __init__(self, p) -> None:
@@ -400,6 +409,7 @@ class CompliantTool:
                 self.k_t * (zt - flange[11]) + self.d_t * (vzt - flange[13]))
 
     def derivatives(self, s, tau1: float, tau2: float, fx: float, fz: float) -> tuple:
+        """``x_dot``: the chain's, pulled by the spring-damper force, then the tool mass's."""
         c = self.chain
         arm = s[:self.size]
         Fx, Fz = self._force(s, c.outputs(arm, 0.0, 0.0))
@@ -408,6 +418,7 @@ class CompliantTool:
                                                          (fz - Fz) / self.m_t - self.g)
 
     def outputs(self, s, fx: float, fz: float) -> tuple:
+        """:meth:`PlantChain.outputs` with the tool quantities those of the tool mass."""
         c = self.chain
         arm = s[:self.size]
         Fx, Fz = self._force(s, c.outputs(arm, 0.0, 0.0))
@@ -445,8 +456,9 @@ def jacobian(chain, s) -> np.ndarray:
 
 
 def highest_frequency(chain, s) -> float:
-    """Highest natural frequency [Hz], ``max |lambda| / 2 pi`` over the eigenvalues of the
-    linearisation at ``s`` (every coordinate free)."""
+    """Highest natural frequency [Hz] of the ``chain`` (:class:`PlantChain` or
+    :class:`CompliantTool`), ``max |lambda| / 2 pi`` over the eigenvalues of the linearisation
+    at ``s`` (every coordinate free)."""
     return float(np.abs(np.linalg.eigvals(jacobian(chain, s))).max() / (2 * np.pi))
 
 
@@ -478,7 +490,11 @@ def _solve_spd(M: list, b: list) -> list:
 
 
 class IdealPlant(dynamics.FlexibleRobotModel):
-    """Today's plant, unchanged: the estimators' 8-state model (``ideal = true``)."""
+    """Today's plant, unchanged: the estimators' 8-state model (``ideal = true``).
+
+    Methods take the motor torque commands ``tau1, tau2`` (N m) and the external force on the
+    tool ``fx, fz`` (N, world x and z) as :class:`ExtendedRobotModel`'s do.
+    """
 
     def outputs(self, fx: float, fz: float) -> tuple:
         """The outputs of :meth:`PlantChain.outputs`, from the rigid kinematics of the nominal robot."""
@@ -491,15 +507,21 @@ class IdealPlant(dynamics.FlexibleRobotModel):
                 + self.spring_torques())
 
     def applied_torques(self, tau1: float, tau2: float) -> tuple[float, float]:
+        """The commands themselves (an ideal drive)."""
         return tau1, tau2
 
     def check_step(self, dt: float) -> None:
-        """Nothing to check: today's plant, whose stiffest mode is far below 1 kHz."""
+        """Nothing to check for any ``dt``: today's plant, whose stiffest mode is far below 1 kHz."""
 
 
 class ExtendedRobotModel(dynamics.FlexibleRobotModel):
     """The realistic plant: :class:`PlantChain` integrated by the 8-state model's RK4 with
-    ``substeps`` per :meth:`step` (inherited: the integrator works on any state tuple)."""
+    ``substeps`` per :meth:`step` (inherited: the integrator works on any state tuple), for the
+    plant parameters ``p``, starting at rest in the static equilibrium at arm angles ``q_a0``.
+
+    Methods take the motor torque commands ``tau1, tau2`` (N m) and the external force on the
+    tool ``fx, fz`` (N, world x and z).
+    """
 
     def __init__(self, p, q_a0, substeps: int = 1) -> None:
         self.p = p
@@ -518,9 +540,11 @@ class ExtendedRobotModel(dynamics.FlexibleRobotModel):
         return self._k.outputs(self._s, fx, fz)[4:6]
 
     def spring_torques(self) -> tuple[float, float]:
+        """The gearbox spring torques now (N m, arm side, without damping)."""
         return self.outputs(0.0, 0.0)[22:24]
 
     def outputs(self, fx: float, fz: float) -> tuple:
+        """Every plant output now (:meth:`PlantChain.outputs`)."""
         return self._k.outputs(self._s, fx, fz)
 
     def applied_torques(self, tau1: float, tau2: float) -> tuple[float, float]:

@@ -90,6 +90,8 @@ class PlantParameters(RobotAtInitialPose):
                                 source="about 15 % of critical at 1e-4 m/N and 12 kg")
 
     def check(self) -> None:
+        """The robot's checks, and that each link's mass and inertia can be split into the two
+        bodies of its bending joint (a ParameterError naming the link otherwise)."""
         super().check()
         if self.link_bending and not self.ideal:
             from fmus.robot_plant.plant_dynamics import split_link

@@ -75,7 +75,9 @@ def butterworth_coefficients(cutoff: float, dt: float, order: int) -> tuple[np.n
 
 
 def butterworth_magnitude(f: np.ndarray | float, cutoff: float, dt: float, order: int) -> np.ndarray:
-    """Analytic magnitude of :func:`butterworth_coefficients` at frequency ``f`` (Hz)."""
+    """Analytic magnitude at frequency ``f`` (Hz) of :func:`butterworth_coefficients`' filter of
+    ``order`` 1 or 2 with ``cutoff`` (Hz), discretised at ``dt`` (s) (bilinear transform, the
+    cutoff prewarped)."""
     ratio = np.tan(np.pi * np.asarray(f, dtype=float) * dt) / math.tan(math.pi * cutoff * dt)
     return 1.0 / np.sqrt(1.0 + ratio ** (2 * order))
 
@@ -141,6 +143,8 @@ class SensorChannels:
 
     Parameters
     ----------
+    filter_order
+        Order of the anti-aliasing Butterworth low-pass, 1 or 2.
     names
         FMU parameter names used in error messages, keys ``"sample_rate"`` and ``"cutoff"``.
     """
@@ -322,8 +326,10 @@ def force_sensor_reading(f_ext_xz: Sequence[float], a_tool_xz: Sequence[float], 
     """Ideal wrist force in the sensor frame (the impedance paper's eq. 1, in 3-D).
 
     ``f_s = R_s^T (m_tool (a_tool - g_vec) - f_ext)``: the force the sensor exerts on the tool
-    balances inertia, weight and the contact force ``f_ext`` ON the tool (world x, z). At rest
-    in free space with a zero mount it reads ``+m_tool g`` on sensor z.
+    balances inertia, weight and the contact force ``f_ext`` (``f_ext_xz``) ON the tool (world x, z). At rest
+    in free space with a zero mount it reads ``+m_tool g`` on sensor z. ``a_tool_xz`` is the
+    tool's acceleration (m/s^2, world x, z), ``phi`` the tool angle and ``mount_rpy`` the
+    sensor's mount (:func:`sensor_rotation`).
     """
     rs = sensor_rotation(phi, mount_rpy)
     return rs.T @ (float(m_tool) * (_xz(a_tool_xz) - np.array([0.0, 0.0, -g])) - _xz(f_ext_xz))

@@ -13,6 +13,8 @@ from fmus.common.noise import make_rng
 from orchestration import batched, study, study_montecarlo
 from orchestration.scenario import DEFAULT_FMU_DIR, scenario_document
 
+pytestmark = pytest.mark.usefixtures("fmu_env_module")      # scenarios find every FMU of this test run
+
 SCENARIO = Path(study_montecarlo.__file__).resolve().parent / "scenarios" / "axelsson2012.toml"
 SHORT = ["scenario.stop_time=0.3"]
 

@@ -15,6 +15,8 @@ from orchestration.cli import main
 from orchestration.master import run
 from orchestration.scenario import DEFAULT_FMU_DIR, scenario_document
 
+pytestmark = pytest.mark.usefixtures("fmu_env_module")      # scenarios find every FMU of this test run
+
 REPO = Path(__file__).resolve().parent.parent
 THIRD_PARTY = Path(__file__).parent / "fmus" / "third_party"
 

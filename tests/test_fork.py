@@ -13,6 +13,8 @@ from orchestration.cli import main
 from orchestration.results import Result
 from orchestration.scenario import ScenarioError, scenario_document
 
+pytestmark = pytest.mark.usefixtures("fmu_env_module")      # scenarios find every FMU of this test run
+
 SCENARIO = Path(__file__).resolve().parent.parent / "orchestration" / "scenarios" / "replay_record.toml"
 STOP = ["scenario.stop_time=0.6"]
 T = 0.237        # not a multiple of the EKF's step: mid-way for a multi-rate part

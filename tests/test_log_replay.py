@@ -20,6 +20,8 @@ from orchestration.results import Result
 from orchestration.roles import LOG_TRUTH, HonestSignalWarning
 from orchestration.scenario import load_scenario
 
+pytestmark = pytest.mark.usefixtures("fmu_env_module")      # scenarios find every FMU of this test run
+
 SCENARIOS = Path(__file__).resolve().parent.parent / "orchestration" / "scenarios"
 OUTPUTS = {s.name: (s.size, s.unit) for s in SIGNALS}
 

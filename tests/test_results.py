@@ -11,7 +11,7 @@ import pytest
 from fmpy.util import read_csv
 from numpy.testing import assert_array_equal
 
-from orchestration.results import (CSV_NAME, METRICS_NAME, RUN_NAME, CsvWriter, Result,
+from orchestration.results import (CSV_NAME, METRICS_NAME, RUN_NAME, CsvWriter, Result, ResultWarning,
                                    read_results_csv, versions, write_json)
 
 COLUMNS = ["plant.q[1]", "plant.q[2]", "plant.q[10]", "ekf.trace_p", "plant.qq[1]"]
@@ -36,8 +36,8 @@ def write(tmp_path, rows: np.ndarray, columns=COLUMNS, **kw) -> None:  # noqa: A
 def test_csv_round_trip_is_bit_exact(tmp_path) -> None:
     rows = awkward_rows()
     write(tmp_path, rows)
-    names, data = read_results_csv(tmp_path / CSV_NAME)
-    assert names == COLUMNS
+    names, data, torn = read_results_csv(tmp_path / CSV_NAME)
+    assert names == COLUMNS and not torn
     assert_array_equal(data, rows)                          # nan == nan here
     assert np.signbit(data[1, 1])                           # -0.0 kept
     assert (tmp_path / CSV_NAME).read_text().splitlines()[0] == \
@@ -71,7 +71,7 @@ def test_a_column_name_that_would_break_the_csv_is_refused(tmp_path) -> None:
 @pytest.mark.filterwarnings("ignore:loadtxt")   # read_results_csv lets numpy warn on a header-only file
 def test_empty_run_and_no_columns(tmp_path) -> None:
     write(tmp_path, np.zeros((0, 1 + len(COLUMNS))))
-    names, data = read_results_csv(tmp_path / CSV_NAME)
+    names, data, _ = read_results_csv(tmp_path / CSV_NAME)
     assert names == COLUMNS and data.shape == (0, 1 + len(COLUMNS))
     write(tmp_path, np.array([[0.0], [0.5]]), columns=[])
     assert_array_equal(read_results_csv(tmp_path / CSV_NAME)[1], [[0.0], [0.5]])
@@ -108,13 +108,14 @@ def test_load_reads_a_run_folder(tmp_path) -> None:
                                                       "truth": "plant.p", "against": "truth"},
                                          "old_style": 2.0})
     write_json(tmp_path / RUN_NAME, {"status": "error", "error": "ekf: diverged at t = 0.004 s",
-                                     "warnings": ["w"]})
-    r = Result.load(tmp_path)
+                                     "warnings": ["w"]})              # the old name of "failed"
+    with pytest.warns(ResultWarning, match="failed"):
+        r = Result.load(tmp_path)
     assert_array_equal(r.time, rows[:, 0])
     assert_array_equal(r["plant.q"], rows[:, 1:4])
     assert r.metrics == {"ekf_rmse": 1e-4, "old_style": 2.0}
     assert r.against == {"ekf_rmse": "truth"}
-    assert (r.status, r.error, r.warnings) == ("error", "ekf: diverged at t = 0.004 s", ["w"])
+    assert (r.status, r.error, r.warnings) == ("failed", "ekf: diverged at t = 0.004 s", ["w"])
     with pytest.raises(FileNotFoundError, match="not a run folder"):
         Result.load(tmp_path / "nowhere")
 

@@ -350,6 +350,8 @@ class ForceObserverParameters:
     g: float = param(G, "m/s2", "gravity", low=0.0)
 
     def check(self) -> None:
+        """Cross-field rule (the ranges are checked per field): ``index_x`` and ``index_z``
+        select different sensor axes."""
         if self.index_x == self.index_z:
             raise ParameterError(f"parameters 'index_x' and 'index_z' must differ (both {self.index_x})")
 

@@ -149,8 +149,23 @@ def test_cli_saves_and_forks(tmp_path: Path, capsys) -> None:
     assert forked[0] == whole[0] and forked[1:] == whole[21:]        # header; rows from 0.02 s
 
 
+def test_cli_monte_carlo_after_a_warm_up(tmp_path: Path, capsys) -> None:
+    assert main(["run", str(SCENARIO), "--set", "scenario.stop_time=0.03", "--no-progress",
+                 "--out", str(tmp_path), "--save-state-at", "0.02", "--forks", "2"]) == 0
+    out = capsys.readouterr().out
+    seed = scenario_document(SCENARIO)["scenario"]["seed"]
+    for s in (seed + 1, seed + 2):
+        assert f"fork scenario.seed={s}: 11 rows in {tmp_path / f'seed-{s}'}" in out
+    a, b = (Result.load(tmp_path / f"seed-{s}") for s in (seed + 1, seed + 2))
+    assert_array_equal(a.data[0], b.data[0])
+    assert np.mean(a["imu.acc_s"][1:] != b["imu.acc_s"][1:]) > 0.5     # some quantised alike
+
+
 @pytest.mark.parametrize("extra, match", [
     (["--save-state-at", "0.02"], "--save-state-at T and --state-out FILE go together"),
+    (["--forks", "2"], "--forks N goes with --save-state-at T"),
+    (["--save-state-at", "0.02", "--state-out", "x.json", "--forks", "2"], "not with --state-out"),
+    (["--save-state-at", "0.02", "--forks", "0"], "--forks 0: at least one fork"),
     (["--save-state-at", "0.0205", "--state-out", "x.json"], "must be a multiple of the base step"),
     (["--save-state-at", "0.05", "--state-out", "x.json"], "before stop_time"),
     (["--from-state", "nope.json"], "state file not found: nope.json"),

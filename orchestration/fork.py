@@ -33,7 +33,8 @@ and sets ``reseed`` to the new value instead (:func:`reseed_fork`; an explicit `
 A component without ``reseed`` whose seed comes from a new ``scenario.seed`` keeps the saved one:
 its random numbers (e.g. a particle filter's) continue the saved stream. So forks of one state
 with different ``scenario.seed`` are the members of a Monte Carlo after a common warm-up
-(:func:`monte_carlo`), each reproducible, and equal to each other up to the state's time.
+(:func:`monte_carlo`), each reproducible, and equal to each other up to the state's time; a
+fork with the saved run's own seed changes nothing and continues that run exactly.
 """
 from __future__ import annotations
 

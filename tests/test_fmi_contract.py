@@ -106,8 +106,8 @@ def test_tunable_reseed_restarts_the_noise_between_steps(fmus, name) -> None:
     md = read_model_description(str(fmus[name]))
     assert {v.name: v.variability for v in md.modelVariables}["reseed"] == "tunable"
 
-    def run(reseeds: dict[int, int]) -> np.ndarray:
-        s = Slave(fmus[name], params, init=True, logging_on=False)
+    def run(reseeds: dict[int, int], at_start: dict | None = None) -> np.ndarray:
+        s = Slave(fmus[name], {**params, **(at_start or {})}, init=True, logging_on=False)
         rows = []
         for k in range(12):
             if k in reseeds:
@@ -122,6 +122,7 @@ def test_tunable_reseed_restarts_the_noise_between_steps(fmus, name) -> None:
     assert np.mean(reseeded[5:] != plain[5:]) > 0.5      # after: new ones (some quantised alike)
     assert_array_equal(again, reseeded)                  # reproducible
     assert_array_equal(refused, reseeded)                # a bad value: refused, the old one kept
+    assert_array_equal(run({}, {"reseed": 7}), run({0: 7}))   # set in Initialization Mode: from the start
 
 
 def _drive(s: Slave, inputs: list[str], k0: int, n: int, h: float) -> np.ndarray:

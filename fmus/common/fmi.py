@@ -16,7 +16,8 @@ every input. This base class adds what our FMUs all need, once:
 * the FMI contract: a bad step size, a non-finite output or a change of a fixed parameter after
   initialisation is an FMI error; a parameter declared ``param(..., tunable=True)`` may change
   between steps (FMI 2.0 variability "tunable"): it is validated, ``self.params`` follows and
-  :meth:`FlexFusionSlave.tuned` tells the model; errors reach the host's logger even without debug logging;
+  :meth:`FlexFusionSlave.tuned` tells the model; errors reach the host's logger even without
+  debug logging;
 * get/set (and serialise) FMU state of the complete internal state, bit-exact;
 * every exception turned into an FMI error status with one clear log message (pythonfmu 0.7's
   native layer turns an exception into ``fmi2Fatal``, a ``do_step`` returning False into

@@ -19,6 +19,7 @@ A run that never sets ``reseed`` draws exactly what it drew before the parameter
 from __future__ import annotations
 
 import zlib
+from typing import Any
 
 import numpy as np
 
@@ -61,7 +62,7 @@ def reseeded_rng(seed: int, stream: str = "") -> np.random.Generator:
     return make_rng(seed, f"{stream}/reseed")
 
 
-def reseed_param() -> int:
+def reseed_param() -> Any:
     """The tunable ``reseed`` parameter of a sensor (module docstring)."""
     return param(-1, "1", "restart the noise streams from this seed when set, also between steps "
                  "(tunable; -1 = never): a fork's new noise after a common warm-up", low=-1,

@@ -85,11 +85,17 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 128 + exc.signum if isinstance(exc, Interrupted) else EXIT_USER_ERROR
     except OSError as exc:          # the output folder: not creatable, not writable
         return _output_folder_error(exc, args.out)
-    if args.forks is not None:
+    if args.forks is not None:       # the metrics: mean +- standard deviation over the forks
+        import numpy as np
         print(f"{scenario.name}: warm-up in {out / 'warmup'}, state at t = {args.save_state_at:g} s "
               f"in {out / 'state.json'}")
         for seed, result in zip(seeds, forks):
             print(f"  fork scenario.seed={seed}: {len(result.time)} rows in {result.out_dir}")
+        for name in forks[0].metrics:       # each fork's metrics are over its rows, from T on
+            values = np.array([f.metrics[name] for f in forks])
+            spread = f" +- {values.std(ddof=1):.2g}" if len(values) > 1 else ""
+            unit = forks[0].units.get(name, "")
+            print(f"  {name:<32} {values.mean():.6g}{spread} {unit if unit != '1' else ''}".rstrip())
         return 0
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
     if args.state_out is not None:

@@ -150,8 +150,14 @@ def test_cli_saves_and_forks(tmp_path: Path, capsys) -> None:
 
 
 def test_cli_monte_carlo_after_a_warm_up(tmp_path: Path, capsys) -> None:
-    assert main(["run", str(SCENARIO), "--set", "scenario.stop_time=0.03", "--no-progress",
-                 "--out", str(tmp_path), "--save-state-at", "0.02", "--forks", "2"]) == 0
+    """The forks' rows, and their metrics' mean and spread over the forks."""
+    for name in (SCENARIO.name, "identified_robot.toml"):          # the scenario with a metric
+        (tmp_path / name).write_text((SCENARIO.parent / name).read_text())
+    with (tmp_path / SCENARIO.name).open("a") as f:
+        f.write('\n[[metrics]]\nkind = "rmse"\nname = "ekf_rmse"\nestimate = "ekf.p_tool_hat"\n'
+                'truth = "plant.p_tool"\n')
+    assert main(["run", str(tmp_path / SCENARIO.name), "--set", "scenario.stop_time=0.03",
+                 "--no-progress", "--out", str(tmp_path), "--save-state-at", "0.02", "--forks", "2"]) == 0
     out = capsys.readouterr().out
     seed = scenario_document(SCENARIO)["scenario"]["seed"]
     for s in (seed + 1, seed + 2):
@@ -159,6 +165,8 @@ def test_cli_monte_carlo_after_a_warm_up(tmp_path: Path, capsys) -> None:
     a, b = (Result.load(tmp_path / f"seed-{s}") for s in (seed + 1, seed + 2))
     assert_array_equal(a.data[0], b.data[0])
     assert np.mean(a["imu.acc_s"][1:] != b["imu.acc_s"][1:]) > 0.5     # some quantised alike
+    rmse = [a.metrics["ekf_rmse"], b.metrics["ekf_rmse"]]
+    assert f"ekf_rmse {np.mean(rmse):.6g} +- {np.std(rmse, ddof=1):.2g} m" in " ".join(out.split())
 
 
 @pytest.mark.parametrize("extra, match", [

@@ -51,17 +51,31 @@ def cmd_run(args: argparse.Namespace) -> int:
     from .results import OutputError
     from .scenario import ScenarioError
 
-    if (args.save_state_at is None) != (args.state_out is None):
+    if args.forks is not None:
+        if args.save_state_at is None or args.state_out is not None or args.from_state is not None:
+            return _error("--forks N goes with --save-state-at T (the state is written into the "
+                          "output folder), not with --state-out or --from-state")
+        if args.forks < 1:
+            return _error(f"--forks {args.forks}: at least one fork")
+        if args.scenario.suffix.lower() in (".ssp", ".ssd"):
+            return _error("--forks needs a scenario file (TOML), not an SSP package")
+    elif (args.save_state_at is None) != (args.state_out is None):
         return _error("--save-state-at T and --state-out FILE go together")
     if args.from_state is not None and args.save_state_at is not None:
         return _error("--from-state and --save-state-at cannot be combined")
     try:
         with stop_on_signals(), loaded(args.scenario, args.set or ()) as scenario:
-            out = args.out or Path("results") / scenario.name
-            hook = (fork.from_state(scenario, args.from_state) if args.from_state is not None else
-                    fork.saving(scenario, args.save_state_at, args.state_out)
-                    if args.save_state_at is not None else None)
-            result = run(scenario, out_dir=out, progress=not args.no_progress, force=args.force, hook=hook)
+            if args.forks is not None:      # fork i: scenario.seed = seed + i (fork.monte_carlo)
+                out = args.out or Path("results") / f"{scenario.name}-forks"
+                seeds = range(scenario.seed + 1, scenario.seed + 1 + args.forks)
+                forks = fork.monte_carlo(args.scenario, args.save_state_at, seeds, args.set or (), out)
+            else:
+                out = args.out or Path("results") / scenario.name
+                hook = (fork.from_state(scenario, args.from_state) if args.from_state is not None else
+                        fork.saving(scenario, args.save_state_at, args.state_out)
+                        if args.save_state_at is not None else None)
+                result = run(scenario, out_dir=out, progress=not args.no_progress, force=args.force,
+                             hook=hook)
     except (ScenarioError, RunError, OutputError, Interrupted) as exc:
         msg = str(exc)
         out_dir = getattr(exc, "out_dir", None)
@@ -71,6 +85,18 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 128 + exc.signum if isinstance(exc, Interrupted) else EXIT_USER_ERROR
     except OSError as exc:          # the output folder: not creatable, not writable
         return _output_folder_error(exc, args.out)
+    if args.forks is not None:       # the metrics: mean +- standard deviation over the forks
+        import numpy as np
+        print(f"{scenario.name}: warm-up in {out / 'warmup'}, state at t = {args.save_state_at:g} s "
+              f"in {out / 'state.json'}")
+        for seed, result in zip(seeds, forks):
+            print(f"  fork scenario.seed={seed}: {len(result.time)} rows in {result.out_dir}")
+        for name in forks[0].metrics:       # each fork's metrics are over its rows, from T on
+            values = np.array([f.metrics[name] for f in forks])
+            spread = f" +- {values.std(ddof=1):.2g}" if len(values) > 1 else ""
+            unit = forks[0].units.get(name, "")
+            print(f"  {name:<32} {values.mean():.6g}{spread} {unit if unit != '1' else ''}".rstrip())
+        return 0
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
     if args.state_out is not None:
         print(f"  state at t = {args.save_state_at:g} s in {args.state_out}")
@@ -206,11 +232,17 @@ def main(argv: list[str] | None = None) -> int:
                        help="replace the results of an earlier run in the output folder")
     p_run.add_argument("--no-progress", action="store_true", help="no progress bar")
     p_run.add_argument("--save-state-at", type=float, metavar="T",
-                       help="save the whole co-simulation's state at time T (s) into --state-out")
+                       help="save the whole co-simulation's state at time T (s) into --state-out "
+                            "(with --forks: into the output folder)")
     p_run.add_argument("--state-out", type=Path, metavar="FILE", help="the state file to write")
     p_run.add_argument("--from-state", type=Path, metavar="FILE",
                        help="start from a saved state (results from its time on); a fork may "
-                            "change stop_time, record, metrics and tunable parameters only")
+                            "change stop_time, record, metrics and tunable parameters only (a new "
+                            "scenario.seed or sensor seed reseeds the sensors)")
+    p_run.add_argument("--forks", type=int, metavar="N",
+                       help="with --save-state-at T: a Monte Carlo after a common warm-up, N forks "
+                            "from the state at T with scenario.seed = seed+1 .. seed+N, into "
+                            "--out (default results/<name>-forks): state.json, warmup/, seed-<s>/")
 
     p_plot = sub.add_parser("plot", help="PNG plots of a run folder")
     p_plot.add_argument("dir", type=Path, help="a run folder (flexfusion run --out)")

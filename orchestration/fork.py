@@ -20,10 +20,21 @@ those of the uninterrupted run (tests/test_fork.py).
 What a fork may change: FMI 2.0 lets a master change only **tunable** parameters after
 initialisation (and ``fmi2SetFMUstate`` restores the parameters with everything else), so a
 fork may override ``scenario.stop_time``, ``scenario.name``, the record and the metrics, and a
-parameter whose variability is ``tunable`` (set after the state). Every FlexFusion parameter is
-``fixed``, the noise seeds included, so with our FMUs a fork continues the saved run exactly:
-a Monte Carlo after a common warm-up needs sensors whose seed is tunable. Changing a fixed
-parameter, a component, a connection or a step is refused with a :class:`ScenarioError`.
+parameter whose variability is ``tunable`` (set after the state). Changing a fixed parameter,
+a component, a connection or a step is refused with a :class:`ScenarioError`.
+
+New noise in a fork (issue 17): a sensor's ``seed`` is fixed, but every sensor FMU (Encoder, Imu,
+ForceTorqueSensor, Tracker) has the tunable ``reseed`` (:mod:`fmus.common.noise`): set in a fork,
+it restarts the sensor's noise streams at the state's time from that seed, while everything else
+(plant, filters, held samples, bias walks) continues the saved state. A fork that changes a
+sensor's ``seed`` -- directly (``--set encoder.seed=7``) or through ``scenario.seed``, which
+seeds every component (:func:`orchestration.scenario.stable_seed`) -- keeps the saved ``seed``
+and sets ``reseed`` to the new value instead (:func:`reseed_fork`; an explicit ``reseed`` wins).
+A component without ``reseed`` whose seed comes from a new ``scenario.seed`` keeps the saved one:
+its random numbers (e.g. a particle filter's) continue the saved stream. So forks of one state
+with different ``scenario.seed`` are the members of a Monte Carlo after a common warm-up
+(:func:`monte_carlo`), each reproducible, and equal to each other up to the state's time; a
+fork with the saved run's own seed changes nothing and continues that run exactly.
 """
 from __future__ import annotations
 
@@ -35,7 +46,7 @@ from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
 
-from .scenario import Scenario, ScenarioError, load_scenario
+from .scenario import Scenario, ScenarioError, load_scenario, stable_seed
 
 if TYPE_CHECKING:
     from .results import Result
@@ -131,6 +142,22 @@ def read_state(path: str | Path) -> dict[str, Any]:
     return doc
 
 
+def reseed_fork(sc: Scenario, doc: dict[str, Any]) -> None:
+    """A fork's new sensor seeds become reseeds (the module docstring), in ``sc`` itself."""
+    then = doc["structure"]["components"]
+    for name, comp in sc.components.items():
+        saved = then.get(name, {}).get("parameters", {}).get("seed")
+        new = comp.parameters.get("seed")
+        if saved is None or new == saved:
+            continue
+        reseed = comp.variables.get("reseed")
+        if reseed is not None and reseed.variability == "tunable":
+            comp.parameters["seed"] = saved
+            comp.parameters.setdefault("reseed", new)
+        elif new == stable_seed(sc.seed, name):      # from scenario.seed: the stream continues
+            comp.parameters["seed"] = saved
+
+
 def check_fork(sc: Scenario, doc: dict[str, Any], where: str) -> None:
     """Refuse a state of another system, or a fork that changes what FMI 2.0 does not allow to
     change after initialisation (the module docstring)."""
@@ -196,6 +223,7 @@ def saving(sc: Scenario, t: float, state_out: str | Path) -> SaveState:
 def from_state(sc: Scenario, state: str | Path) -> FromState:
     """The hook that starts from the state file ``state`` (checked against the scenario)."""
     doc = read_state(state)
+    reseed_fork(sc, doc)
     check_fork(sc, doc, f"{sc.path or sc.name} from state {state}")
     check_capable(sc)
     return FromState(sc, doc)
@@ -217,6 +245,29 @@ def resume(scenario: str | Path, state: str | Path, overrides: Iterable[str] = (
     return run(sc, out_dir=out_dir, hook=from_state(sc, state))
 
 
-__all__ = ["FORMAT", "SaveState", "FromState", "read_state", "check_fork", "check_capable",
+def monte_carlo(scenario: str | Path | dict[str, Any], t: float, seeds: Iterable[int],
+                overrides: Iterable[str] = (), out_dir: str | Path | None = None) -> list["Result"]:
+    """A Monte Carlo after a common warm-up: run the scenario once, saving its state at ``t``,
+    then one fork from that state per seed ``s`` (``scenario.seed=s``: every sensor reseeded at
+    ``t``, the module docstring); the forks' results, in the order of ``seeds``.
+
+    ``out_dir`` (default ``results/<name>-forks``) gets ``state.json``, the warm-up run in
+    ``warmup/`` and fork ``s`` in ``seed-<s>/`` (each from ``t`` on). The warm-up runs to
+    ``stop_time`` too: a shorter run may not fit the components' steps and the record interval,
+    and it is the member of the scenario's own seed. Forks run one after the other.
+    """
+    seeds = [int(s) for s in seeds]
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ScenarioError(f"a Monte Carlo after a warm-up needs distinct seeds, got {seeds}")
+    overrides = list(overrides)
+    out = Path(out_dir) if out_dir is not None else \
+        Path("results") / f"{load_scenario(scenario, overrides).name}-forks"
+    state = out / "state.json"
+    run_saving(scenario, t, state, overrides, out_dir=out / "warmup")
+    return [resume(scenario, state, [*overrides, f"scenario.seed={s}"], out_dir=out / f"seed-{s}")
+            for s in seeds]
+
+
+__all__ = ["FORMAT", "SaveState", "FromState", "read_state", "reseed_fork", "check_fork", "check_capable",
            "structure", "save_step", "saving", "from_state",
-           "run_saving", "resume"]
+           "run_saving", "resume", "monte_carlo"]

@@ -89,6 +89,37 @@ def test_fixed_parameter_refuses_a_change_after_initialisation(every_fmu) -> Non
     before.close()
 
 
+# every sensor with its noise: the tunable `reseed` (fmus/common/noise.py)
+NOISY = {"Encoder": ({"noise": 1e-3, "bias_rw": 1e-3}, "q_m_meas", 2),
+         "Imu": ({}, "acc_s", 3), "ForceTorqueSensor": ({}, "f_s", 3),
+         "Tracker": ({"noise": 1e-3}, "p_tool_meas", 2)}
+
+
+@pytest.mark.parametrize("name", sorted(NOISY))
+def test_tunable_reseed_restarts_the_noise_between_steps(fmus, name) -> None:
+    params, output, size = NOISY[name]
+    md = read_model_description(str(fmus[name]))
+    assert {v.name: v.variability for v in md.modelVariables}["reseed"] == "tunable"
+
+    def run(reseeds: dict[int, int], at_start: dict | None = None) -> np.ndarray:
+        s = Slave(fmus[name], {**params, **(at_start or {})}, init=True, logging_on=False)
+        rows = []
+        for k in range(12):
+            if k in reseeds:
+                status = _status(s.fmu.setInteger, [s.vr["reseed"]], [reseeds[k]])
+                assert status == 0 or (reseeds[k] < -1 and s.log.has("parameter 'reseed'", ">= -1"))
+            s.step(1e-3)
+            rows.append(s.get(output, size))
+        s.close()
+        return np.array(rows)
+    plain, reseeded, again, refused = run({}), run({5: 7}), run({5: 7}), run({5: 7, 8: -2})
+    assert_array_equal(reseeded[:5], plain[:5])          # before the reseed: the seed's numbers
+    assert np.mean(reseeded[5:] != plain[5:]) > 0.5      # after: new ones (some quantised alike)
+    assert_array_equal(again, reseeded)                  # reproducible
+    assert_array_equal(refused, reseeded)                # a bad value: refused, the old one kept
+    assert_array_equal(run({}, {"reseed": 7}), run({0: 7}))   # set in Initialization Mode: from the start
+
+
 def _drive(s: Slave, inputs: list[str], k0: int, n: int, h: float) -> np.ndarray:
     """n steps with smoothly varying inputs (a function of the step number), the outputs after each."""
     outputs = [v.valueReference for v in s.md.modelVariables if v.causality == "output"]

@@ -76,13 +76,55 @@ def test_a_fork_may_change_stop_time_and_record(saved, tmp_path: Path) -> None:
 @pytest.mark.parametrize("overrides, match", [
     (["encoder.noise=1e-4"], r"parameter 'encoder.noise' = 0.0001 differs from the state's \(the FMU's default\), and "
                              r"it is fixed: FMI 2.0 allows a change after initialisation only for a tunable"),
-    (["scenario.seed=2"], r"parameter 'encoder.seed' = .* it is fixed"),
+    (["encoder.filter_order=1"], r"parameter 'encoder.filter_order' = 1 .* it is fixed"),
     (["scenario.stop_time=0.2"], r"stop_time 0.2 s is not after the state's time 0.237 s"),
 ])
 def test_a_fork_that_fmi_does_not_allow_is_refused(saved, tmp_path: Path, overrides, match) -> None:
     _, state = saved
     with pytest.raises(ScenarioError, match=match):
         fork.resume(_multirate(), state, STOP + overrides, out_dir=tmp_path)
+
+
+def test_forks_with_new_seeds_equal_each_other_before_the_state_and_differ_after(saved, tmp_path: Path) -> None:
+    """scenario.seed in a fork reseeds every sensor at the state's time (fork.reseed_fork); the
+    plant, which no noise reaches in this scenario, goes on alike."""
+    whole, state = saved
+    first = np.searchsorted(whole.time, T - 1e-9)
+    a, b = (fork.resume(_multirate(), state, STOP + [f"scenario.seed={s}"], out_dir=tmp_path / str(s))
+            for s in (5, 6))
+    assert_array_equal(a.data[0], whole.data[first])      # at the state's time: the saved values
+    assert_array_equal(b.data[0], whole.data[first])
+    # the encoder's noise is 0.2 of its quantum: about a quarter of its readings change
+    for name, changed in (("encoder.q_m_meas", 0.15), ("imu.acc_s", 0.9), ("ekf.p_tool_hat", 0.9)):
+        assert np.mean(a[name][1:] != b[name][1:]) > changed, name
+        assert np.mean(a[name][1:] != whole[name][first + 1:]) > changed, name
+    assert_array_equal(a["plant.p_tool"], b["plant.p_tool"])
+
+
+def test_a_reseeded_fork_is_reproducible_and_reseeds_only_its_sensor(saved, tmp_path: Path) -> None:
+    whole, state = saved
+    first = np.searchsorted(whole.time, T - 1e-9)
+    a, b = (fork.resume(_multirate(), state, STOP + ["encoder.reseed=7"], out_dir=tmp_path / k)
+            for k in "ab")
+    assert_array_equal(a.data, b.data)
+    assert np.mean(a["encoder.q_m_meas"][1:] != whole["encoder.q_m_meas"][first + 1:]) > 0.15
+    assert_array_equal(a["imu.acc_s"], whole["imu.acc_s"][first:])   # the IMU's stream goes on
+
+
+def test_monte_carlo_after_a_common_warm_up(tmp_path: Path) -> None:
+    stop = ["scenario.stop_time=0.05"]
+    forks = fork.monte_carlo(SCENARIO, 0.02, [3, 4], stop, out_dir=tmp_path)
+    warm = Result.load(tmp_path / "warmup")           # the uninterrupted run of the scenario's seed
+    for f in forks:
+        assert_array_equal(f.time, warm.time[20:])
+        assert_array_equal(f.data[0], warm.data[20])
+    assert np.mean(forks[0]["imu.acc_s"][1:] != forks[1]["imu.acc_s"][1:]) > 0.9
+    again = fork.resume(SCENARIO, tmp_path / "state.json", stop + ["scenario.seed=4"],
+                        out_dir=tmp_path / "again")
+    assert_array_equal(again.data, forks[1].data)
+    assert_array_equal(Result.load(tmp_path / "seed-3").data, forks[0].data)
+    with pytest.raises(ScenarioError, match="distinct seeds"):
+        fork.monte_carlo(SCENARIO, 0.02, [3, 3], stop, out_dir=tmp_path / "x")
 
 
 def test_a_fork_with_another_step_is_refused(saved, tmp_path: Path) -> None:
@@ -109,8 +151,31 @@ def test_cli_saves_and_forks(tmp_path: Path, capsys) -> None:
     assert forked[0] == whole[0] and forked[1:] == whole[21:]        # header; rows from 0.02 s
 
 
+def test_cli_monte_carlo_after_a_warm_up(tmp_path: Path, capsys) -> None:
+    """The forks' rows, and their metrics' mean and spread over the forks."""
+    for name in (SCENARIO.name, "identified_robot.toml"):          # the scenario with a metric
+        (tmp_path / name).write_text((SCENARIO.parent / name).read_text())
+    with (tmp_path / SCENARIO.name).open("a") as f:
+        f.write('\n[[metrics]]\nkind = "rmse"\nname = "ekf_rmse"\nestimate = "ekf.p_tool_hat"\n'
+                'truth = "plant.p_tool"\n')
+    assert main(["run", str(tmp_path / SCENARIO.name), "--set", "scenario.stop_time=0.03",
+                 "--no-progress", "--out", str(tmp_path), "--save-state-at", "0.02", "--forks", "2"]) == 0
+    out = capsys.readouterr().out
+    seed = scenario_document(SCENARIO)["scenario"]["seed"]
+    for s in (seed + 1, seed + 2):
+        assert f"fork scenario.seed={s}: 11 rows in {tmp_path / f'seed-{s}'}" in out
+    a, b = (Result.load(tmp_path / f"seed-{s}") for s in (seed + 1, seed + 2))
+    assert_array_equal(a.data[0], b.data[0])
+    assert np.mean(a["imu.acc_s"][1:] != b["imu.acc_s"][1:]) > 0.5     # some quantised alike
+    rmse = [a.metrics["ekf_rmse"], b.metrics["ekf_rmse"]]
+    assert f"ekf_rmse {np.mean(rmse):.6g} +- {np.std(rmse, ddof=1):.2g} m" in " ".join(out.split())
+
+
 @pytest.mark.parametrize("extra, match", [
     (["--save-state-at", "0.02"], "--save-state-at T and --state-out FILE go together"),
+    (["--forks", "2"], "--forks N goes with --save-state-at T"),
+    (["--save-state-at", "0.02", "--state-out", "x.json", "--forks", "2"], "not with --state-out"),
+    (["--save-state-at", "0.02", "--forks", "0"], "--forks 0: at least one fork"),
     (["--save-state-at", "0.0205", "--state-out", "x.json"], "must be a multiple of the base step"),
     (["--save-state-at", "0.05", "--state-out", "x.json"], "before stop_time"),
     (["--from-state", "nope.json"], "state file not found: nope.json"),

@@ -191,3 +191,27 @@ def test_hammer_pulse_integral_and_unused_times():
     assert_allclose(f.sum(axis=0) * dt, 2 * force * duration * 2 / math.pi, rtol=1e-3)
     assert_allclose(f[(t < 0.02) | ((t > 0.0251) & (t < 0.06))], 0.0)
     assert_allclose(sm.hammer_force(0.0225, [0.02], force, duration), force)   # the peak
+
+
+def test_reseed_draws_new_numbers_from_now_and_keeps_the_state():
+    """A reseed (fmus/common/noise.py) changes the random numbers to come, not the bias walk so
+    far; its streams are not those of any seed, so a fork reseeded with the run's own seed does
+    not replay the numbers the run drew from its start."""
+    def channels() -> sm.SensorChannels:
+        return sm.SensorChannels(2, seed=5, stream="s", noise=0.1, bias_rw=0.2)
+    plain, reseeded, fresh = channels(), channels(), channels()
+    x = np.zeros(2)
+    before = [plain.step(x, 0.01) for _ in range(10)]
+    assert_array_equal([reseeded.step(x, 0.01) for _ in range(10)], before)
+    walk = reseeded.walk.copy()
+    sm.reseed(5, reseeded)
+    assert_array_equal(reseeded.walk, walk)
+    after = np.array([reseeded.step(x, 0.01) for _ in range(200)])
+    assert not np.any(after == np.array([plain.step(x, 0.01) for _ in range(200)]))
+    assert not np.any(after == np.array([fresh.step(x, 0.01) for _ in range(200)]))
+    # the walk goes on from where it was: its increments are the reseeded stream's
+    expected = walk + np.cumsum(0.2 * math.sqrt(0.01) * make_rng(5, "s/bias_rw/reseed").standard_normal((200, 2)), axis=0)
+    assert_allclose(reseeded.walk, expected[-1], rtol=1e-12)
+    state = plain._rng_noise
+    sm.reseed(-1, plain)                 # -1: the parameter's "never"
+    assert plain._rng_noise is state

@@ -14,7 +14,10 @@ every input. This base class adds what our FMUs all need, once:
 * outputs valid in Initialization Mode (``initial="calculated"``): reading one there builds
   the model from the parameters and inputs set so far, and again after a later change;
 * the FMI contract: a bad step size, a non-finite output or a change of a fixed parameter after
-  initialisation is an FMI error; errors reach the host's logger even without debug logging;
+  initialisation is an FMI error; a parameter declared ``param(..., tunable=True)`` may change
+  between steps (FMI 2.0 variability "tunable"): it is validated, ``self.params`` follows and
+  :meth:`FlexFusionSlave.tuned` tells the model; errors reach the host's logger even without
+  debug logging;
 * get/set (and serialise) FMU state of the complete internal state, bit-exact;
 * every exception turned into an FMI error status with one clear log message (pythonfmu 0.7's
   native layer turns an exception into ``fmi2Fatal``, a ``do_step`` returning False into
@@ -224,7 +227,7 @@ class FlexFusionSlave(Fmi2Slave):
     def _declare_real_array(self, attr: str, size: int | None, causality: Fmi2Causality,
                             unit: str, description: str, start: float | Sequence[float],
                             variability: Fmi2Variability | None, initial: Fmi2Initial | None,
-                            on_set: Any = None) -> None:
+                            on_set: Any = None, after_set: Any = None) -> None:
         if size is None:
             setattr(self, attr, float(start))  # type: ignore[arg-type]
 
@@ -232,6 +235,8 @@ class FlexFusionSlave(Fmi2Slave):
                 if on_set:
                     on_set()          # first: a fixed parameter refuses the change
                 setattr(self, attr, float(v))
+                if after_set:
+                    after_set()
             if causality == Fmi2Causality.output:
                 self._output_vrs.add(len(self.vars))
             elif causality == Fmi2Causality.input:
@@ -255,6 +260,8 @@ class FlexFusionSlave(Fmi2Slave):
                 if on_set:
                     on_set()
                 values[i] = v
+                if after_set:
+                    after_set()
             self._register(Real(f"{attr}[{i + 1}]", causality=causality,
                                 description=f"{description} ({i + 1})", variability=variability,
                                 initial=initial, getter=getter, setter=setter), unit)
@@ -286,8 +293,8 @@ class FlexFusionSlave(Fmi2Slave):
             desc = meta.get("description", "") or f.name
             if meta.get("source"):
                 desc = f"{desc} [source: {meta['source']}]"
-            kw = dict(causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
-                      description=desc)
+            variability = Fmi2Variability.tunable if meta.get("tunable") else Fmi2Variability.fixed
+            kw = dict(causality=Fmi2Causality.parameter, variability=variability, description=desc)
             if isinstance(value, bool):
                 setattr(self, f.name, value)
                 self._register(Boolean(f.name, getter=lambda n=f.name: getattr(self, n),
@@ -303,12 +310,14 @@ class FlexFusionSlave(Fmi2Slave):
             else:
                 size = len(value) if isinstance(value, tuple) else None
                 self._declare_real_array(f.name, size, Fmi2Causality.parameter, meta.get("unit", "1"),
-                                         desc, value, Fmi2Variability.fixed, Fmi2Initial.exact,
-                                         on_set=partial(self._parameter_set, f.name))
+                                         desc, value, variability, Fmi2Initial.exact,
+                                         on_set=partial(self._parameter_set, f.name),
+                                         after_set=partial(self._retune, f.name))
 
     def _set_parameter(self, name: str, kind: type, value: Any) -> None:
         self._parameter_set(name)
         setattr(self, name, kind(value))
+        self._retune(name)
 
     def _collect_parameters(self) -> Any:
         values = {}
@@ -322,12 +331,35 @@ class FlexFusionSlave(Fmi2Slave):
         self._stale = True
 
     def _parameter_set(self, name: str) -> None:
-        if self._phase not in ("instantiated", "initialization"):
+        if self._phase in ("instantiated", "initialization"):
+            self._stale = True
+        elif not (self._phase == "stepping" and self._is_tunable(name)):
             msg = (f"{self.instance_name}: parameter '{name}' is fixed: it cannot change after "
                    "initialisation (FMI 2.0, variability \"fixed\")")
             self.log(msg, Fmi2Status.error)
             raise ValueError(msg)
-        self._stale = True
+
+    def _is_tunable(self, name: str) -> bool:
+        return any(f.name == name and f.metadata.get("tunable")
+                   for f in _parameters.fields(self.parameters_class))
+
+    def _retune(self, name: str) -> None:
+        """After a tunable parameter changed between steps: validate, then :meth:`tuned`; a bad
+        value is refused (an FMI error naming it) and the old one kept."""
+        if self._phase != "stepping":
+            return                          # before initialisation ends: setup() reads it
+        old = getattr(self.params, name)
+        try:
+            self.params = self._collect_parameters()
+            self.tuned(name)
+        except Exception as exc:  # noqa: BLE001 - every failure becomes an FMI error status
+            if name in self._arrays:
+                self._arrays[name][:] = old     # in place: the getters are bound to the array
+            else:
+                setattr(self, name, old)
+            self.params = self._collect_parameters()
+            self._fail(f"tunable parameter '{name}'", exc)
+            raise
 
     # ---- what a subclass implements ------------------------------------------------------
     def setup(self, params: Any) -> None:
@@ -339,6 +371,10 @@ class FlexFusionSlave(Fmi2Slave):
 
     def update_outputs(self) -> None:
         """Recompute outputs that depend directly on inputs (called after an input changed)."""
+
+    def tuned(self, name: str) -> None:
+        """A tunable parameter ``name`` changed between steps; ``self.params`` holds the new
+        value. Nothing to do for a model that reads ``self.params`` at every step."""
 
     # ---- FMI life cycle ------------------------------------------------------------------
     def _fail(self, where: str, exc: BaseException) -> None:

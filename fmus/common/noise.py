@@ -6,12 +6,24 @@ names give statistically independent generators for the same seed, so that e.g. 
 and the bias random walk of a sensor, or the accelerometer and the gyro of an IMU, never share
 random numbers, and changing one noise level does not shift the random numbers of another
 (common random numbers across a Monte Carlo or tuning study).
+
+**Reseeding** (issue 17: a Monte Carlo after a common warm-up, orchestration/fork.py). A sensor
+FMU has, besides its fixed ``seed``, a tunable parameter ``reseed`` (:func:`reseed_param`):
+``-1`` (default) never reseeds; setting it to ``s >= 0`` restarts every noise stream of the
+sensor at the current time from :func:`reseeded_rng` ``(s, stream)`` (set before initialisation
+ends, from the start). Its streams are not those of any ``seed`` (the stream name gets
+``"/reseed"``), so a fork never replays the numbers a run drew from its start, and the state the
+streams had (bias walk, filters, held sample) carries on: only the random numbers to come change.
+A run that never sets ``reseed`` draws exactly what it drew before the parameter existed.
 """
 from __future__ import annotations
 
 import zlib
+from typing import Any
 
 import numpy as np
+
+from .parameters import param
 
 
 def stream_key(stream: str) -> int:
@@ -44,6 +56,19 @@ def make_rng(seed: int, stream: str = "") -> np.random.Generator:
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed), stream_key(stream)])))
 
 
+def reseeded_rng(seed: int, stream: str = "") -> np.random.Generator:
+    """The generator of ``stream`` after a reseed to ``seed`` (module docstring): independent of
+    ``make_rng(s, stream)`` for every ``s``."""
+    return make_rng(seed, f"{stream}/reseed")
+
+
+def reseed_param() -> Any:
+    """The tunable ``reseed`` parameter of a sensor (module docstring)."""
+    return param(-1, "1", "restart the noise streams from this seed when set, also between steps "
+                 "(tunable; -1 = never): a fork's new noise after a common warm-up", low=-1,
+                 tunable=True, source="issue 17: a Monte Carlo after a common warm-up")
+
+
 def white_noise(rng: np.random.Generator, sigma: float | np.ndarray, n: int) -> np.ndarray:
     """``n`` zero-mean Gaussian samples with standard deviation ``sigma`` (scalar or per channel).
 
@@ -62,4 +87,4 @@ def random_walk_increment(rng: np.random.Generator, sigma_per_sqrt_s: float | np
     return np.asarray(sigma_per_sqrt_s, dtype=float) * np.sqrt(dt) * rng.standard_normal(n)
 
 
-__all__ = ["make_rng", "stream_key", "white_noise", "random_walk_increment"]
+__all__ = ["make_rng", "reseeded_rng", "reseed_param", "stream_key", "white_noise", "random_walk_increment"]

@@ -21,7 +21,7 @@ class ParameterError(ValueError):
 
 def param(default: Any, unit: str = "1", description: str = "", *, low: float | None = None,
           high: float | None = None, low_inclusive: bool = True, high_inclusive: bool = True,
-          choices: Sequence[str] | None = None, source: str = "") -> Any:
+          choices: Sequence[str] | None = None, source: str = "", tunable: bool = False) -> Any:
     """Declare a parameter field.
 
     Parameters
@@ -38,12 +38,15 @@ def param(default: Any, unit: str = "1", description: str = "", *, low: float | 
         Admissible values of a string parameter.
     source
         Where the default comes from (paper, data sheet, benchmark).
+    tunable
+        FMI variability ``tunable`` instead of ``fixed``: the host may change it between steps
+        (FMI 2.0, section 2.2.7); the FMU then calls its ``tuned(name)`` (fmus.common.fmi).
     """
     if isinstance(default, list):
         default = tuple(default)
     meta = dict(unit=unit, description=description, low=low, high=high,
                 low_inclusive=low_inclusive, high_inclusive=high_inclusive,
-                choices=tuple(choices) if choices else None, source=source)
+                choices=tuple(choices) if choices else None, source=source, tunable=tunable)
     return dataclasses.field(default=default, metadata=meta)
 
 

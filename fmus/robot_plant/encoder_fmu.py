@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fmus.common.fmi import FlexFusionSlave
 from fmus.robot_plant.sensor_model import (EncoderParameters, SensorChannels, T_TRUTH_DESCRIPTION,
-                                           UNSTAMPED, input_time)
+                                           UNSTAMPED, input_time, reseed)
 
 
 class Encoder(FlexFusionSlave):
@@ -18,7 +18,8 @@ class Encoder(FlexFusionSlave):
     noise-free reading of the initial input, stamped with ``t_truth`` or the start time. The
     check that the sample period is a multiple of the communication step happens at the first
     ``doStep`` (an FMU does not know its step before), which then fails with a message naming
-    ``sample_rate``.
+    ``sample_rate``. The tunable ``reseed`` restarts the noise streams from a new seed
+    (:mod:`fmus.common.noise`).
     """
 
     parameters_class = EncoderParameters
@@ -40,6 +41,11 @@ class Encoder(FlexFusionSlave):
             filter_order=p.filter_order)
         self.q_m_meas[:] = self.channels.initial(self.q_m, input_time(self._time, 0.0, self.t_truth))
         self.t_meas = self.channels.t_meas
+        self.tuned("reseed")
+
+    def tuned(self, name: str) -> None:
+        if name == "reseed":
+            reseed(self.params.reseed, self.channels)
 
     def step(self, t: float, dt: float) -> None:
         self.q_m_meas[:] = self.channels.step(self.q_m, dt, input_time(t, dt, self.t_truth))

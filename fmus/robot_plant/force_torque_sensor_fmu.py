@@ -5,7 +5,7 @@ from __future__ import annotations
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.frames import G
 from fmus.robot_plant.sensor_model import (ForceTorqueSensorParameters, SensorChannels,
-                                           force_sensor_reading, sensor_channels)
+                                           force_sensor_reading, reseed, sensor_channels)
 
 
 class ForceTorqueSensor(FlexFusionSlave):
@@ -15,7 +15,8 @@ class ForceTorqueSensor(FlexFusionSlave):
     No direct feedthrough: the reading at ``t + dt`` is the sample of the inputs held over
     ``[t, t + dt)``. Right after initialisation the output is the noise-free reading of the
     initial inputs (at rest in free space: ``m_tool g`` on sensor z). The sample-period and
-    cut-off checks need the communication step and so happen at the first ``doStep``.
+    cut-off checks need the communication step and so happen at the first ``doStep``. The
+    tunable ``reseed`` restarts the noise streams from a new seed (:mod:`fmus.common.noise`).
     """
 
     parameters_class = ForceTorqueSensorParameters
@@ -40,6 +41,11 @@ class ForceTorqueSensor(FlexFusionSlave):
         self.channels = sensor_channels(p)
         self.f_s[:] = self.channels.initial(self._ideal())
         self.saturated = float(self.channels.saturated.any())
+        self.tuned("reseed")
+
+    def tuned(self, name: str) -> None:
+        if name == "reseed":
+            reseed(self.params.reseed, self.channels)
 
     def step(self, t: float, dt: float) -> None:
         self.f_s[:] = self.channels.step(self._ideal(), dt)

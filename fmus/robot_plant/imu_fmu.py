@@ -8,7 +8,7 @@ import numpy as np
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.frames import G
 from fmus.robot_plant.sensor_model import (ImuParameters, SensorChannels, T_TRUTH_DESCRIPTION, UNSTAMPED,
-                                           imu_reading, input_time)
+                                           imu_reading, input_time, reseed)
 
 
 class Imu(FlexFusionSlave):
@@ -21,7 +21,9 @@ class Imu(FlexFusionSlave):
     (:func:`~fmus.robot_plant.sensor_model.input_time`; accelerometer and gyro sample together).
     Right after initialisation the outputs are the noise-free readings of the initial inputs
     (at rest: +g on sensor z), stamped with ``t_truth`` or the start time. The sample-period and
-    cut-off checks need the communication step and so happen at the first ``doStep``.
+    cut-off checks need the communication step and so happen at the first ``doStep``. The
+    tunable ``reseed`` restarts both sensors' noise streams from a new seed
+    (:mod:`fmus.common.noise`).
     """
 
     parameters_class = ImuParameters
@@ -59,6 +61,11 @@ class Imu(FlexFusionSlave):
         self.acc_s[:] = self.acc.initial(acc, t0)
         self.gyro_s[:] = self.gyro.initial(gyro, t0)
         self.t_meas = self.acc.t_meas
+        self.tuned("reseed")
+
+    def tuned(self, name: str) -> None:
+        if name == "reseed":
+            reseed(self.params.reseed, self.acc, self.gyro)
 
     def step(self, t: float, dt: float) -> None:
         acc, gyro = self._ideal()

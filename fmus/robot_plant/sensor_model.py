@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from fmus.common.frames import G, sensor_rotation
-from fmus.common.noise import make_rng, random_walk_increment, white_noise
+from fmus.common.noise import make_rng, random_walk_increment, reseed_param, reseeded_rng, white_noise
 from fmus.common.parameters import ParameterError, param
 from fmus.common.sample_time import UNSTAMPED, measurement_time
 
@@ -139,7 +139,8 @@ class SensorChannels:
     that was sampled (:func:`input_time` in the FMUs).
 
     Every parameter is a scalar or a length-``n`` array. The white noise and the random walk use
-    independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``.
+    independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``;
+    :meth:`reseed` restarts both from another seed (:mod:`fmus.common.noise`).
 
     Parameters
     ----------
@@ -164,6 +165,7 @@ class SensorChannels:
         self.names = {"sample_rate": "sample_rate", "cutoff": "cutoff", **(names or {})}
         if self.filter_order not in (1, 2):
             raise ValueError(f"filter order must be 1 or 2, got {filter_order}")
+        self.stream = stream
         self._rng_noise = _Normals(make_rng(seed, f"{stream}/noise"), n)
         self._rng_rw = _Normals(make_rng(seed, f"{stream}/bias_rw"), n)
         self._gain = 1.0 + self.scale
@@ -183,6 +185,12 @@ class SensorChannels:
         self._count = 0                          # steps since the last sample
 
     # -- pieces ------------------------------------------------------------------------------
+    def reseed(self, seed: int) -> None:
+        """Draw the noise and the bias walk from now on from ``seed``'s reseeded streams
+        (:func:`fmus.common.noise.reseeded_rng`); every other state carries on."""
+        self._rng_noise = _Normals(reseeded_rng(seed, f"{self.stream}/noise"), self.n)
+        self._rng_rw = _Normals(reseeded_rng(seed, f"{self.stream}/bias_rw"), self.n)
+
     def _limit(self) -> np.ndarray:
         """The largest representable magnitude (range rounded down to the resolution)."""
         lim = self.range.copy()
@@ -444,6 +452,7 @@ class EncoderParameters:
                                "multiple of the communication step", low=0.0,
                                source="2009 and 2012 papers: 2 kHz")
     seed: int = param(1, "1", "seed of the noise streams", low=0)
+    reseed: int = reseed_param()
 
 
 MEMS = ("16-bit MEMS IMU class (e.g. Bosch BMI160 / TDK ICM-20948 data sheets: +-16 g, "
@@ -501,6 +510,7 @@ class ImuParameters:
                                source="2009 and 2012 papers: 2 kHz")
     g: float = param(G, "m/s2", "gravity", low=0.0)
     seed: int = param(2, "1", "seed of the noise streams", low=0)
+    reseed: int = reseed_param()
 
 
 PAPER = "García, Robertsson, Gómez Ortega, Johansson (impedance paper)"
@@ -539,6 +549,15 @@ class ForceTorqueSensorParameters:
                                low=0.0)
     g: float = param(G, "m/s2", "gravity", low=0.0)
     seed: int = param(3, "1", "seed of the noise streams", low=0)
+    reseed: int = reseed_param()
+
+
+def reseed(seed: int, *sources: "SensorChannels") -> None:
+    """A sensor's tunable ``reseed`` applied to its noise sources (anything with ``reseed``):
+    nothing for ``-1``, the parameter's "never"."""
+    if seed >= 0:
+        for source in sources:
+            source.reseed(seed)
 
 
 def sensor_channels(p: ForceTorqueSensorParameters) -> SensorChannels:
@@ -594,4 +613,4 @@ class ContactEnvironmentParameters:
 
 __all__ = ["UNSTAMPED", "T_TRUTH_DESCRIPTION", "input_time", "SensorChannels", "butterworth_coefficients",
            "butterworth_magnitude", "quantise", "imu_reading",
-           "force_sensor_reading", "calibrate_tool", "penetration", "contact_force", "hammer_force", "EncoderParameters", "ImuParameters", "ForceTorqueSensorParameters", "sensor_channels", "calibration_readings", "ContactEnvironmentParameters"]
+           "force_sensor_reading", "calibrate_tool", "penetration", "contact_force", "hammer_force", "EncoderParameters", "ImuParameters", "ForceTorqueSensorParameters", "sensor_channels", "reseed", "calibration_readings", "ContactEnvironmentParameters"]

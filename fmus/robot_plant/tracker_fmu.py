@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from fmus.common.fmi import FlexFusionSlave
-from fmus.robot_plant.sensor_model import T_TRUTH_DESCRIPTION, UNSTAMPED, input_time
+from fmus.robot_plant.sensor_model import T_TRUTH_DESCRIPTION, UNSTAMPED, input_time, reseed
 from fmus.robot_plant.tracker_model import TrackerModel, TrackerParameters
 
 
@@ -17,7 +17,8 @@ class Tracker(FlexFusionSlave):
     :func:`~fmus.robot_plant.sensor_model.input_time`), which a Jacobi master (libcosim, which
     hands over the position at ``t``) makes one communication step too new. After
     initialisation the input is the position at ``t_truth`` or the start time.
-    No direct feedthrough.
+    No direct feedthrough. The tunable ``reseed`` restarts the noise stream from a new seed
+    (:mod:`fmus.common.noise`).
     """
 
     parameters_class = TrackerParameters
@@ -42,6 +43,11 @@ class Tracker(FlexFusionSlave):
         self.model = TrackerModel(p.noise, p.sample_rate, p.skew, seed=p.seed)
         self.model.start(input_time(self._time, 0.0, self.t_truth), self.p_tool)
         self._publish()
+        self.tuned("reseed")
+
+    def tuned(self, name: str) -> None:
+        if name == "reseed":
+            reseed(self.params.reseed, self.model)
 
     def step(self, t: float, dt: float) -> None:
         self.model.update(input_time(t, dt, self.t_truth), self.p_tool)

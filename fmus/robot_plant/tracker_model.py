@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fmus.common.noise import make_rng, white_noise
+from fmus.common.noise import make_rng, reseed_param, reseeded_rng, white_noise
 from fmus.common.parameters import param
 
 
@@ -55,12 +55,18 @@ class TrackerModel:
         if not skew >= 0.0:
             raise ValueError(f"skew must be >= 0, got {skew!r}")
         self.noise, self.period, self.skew = float(noise), 1.0 / float(sample_rate), float(skew)
+        self.stream = stream
         self._rng = make_rng(seed, stream)
         self._history: deque[tuple[float, np.ndarray]] = deque()
         self._t0 = 0.0
         self._k = 0                          # index of the next sample instant
         self.p_meas = np.zeros(2)
         self.t_meas = 0.0
+
+    def reseed(self, seed: int) -> None:
+        """Draw the noise from now on from ``seed``'s reseeded stream
+        (:func:`fmus.common.noise.reseeded_rng`)."""
+        self._rng = reseeded_rng(seed, self.stream)
 
     def _position(self, t: float) -> np.ndarray:
         """True position at ``t`` by linear interpolation in the history (held before it)."""
@@ -113,6 +119,7 @@ class TrackerParameters:
                         low=0.0, high=1.0, source="Axelsson et al. 2012, section 5.1: the tracker is "
                         "not synchronised with the robot's signals; assumed one 1 kHz sample")
     seed: int = param(4, "1", "seed of the noise stream", low=0)
+    reseed: int = reseed_param()
 
 
 __all__ = ["TrackerModel", "TrackerParameters"]

@@ -96,13 +96,13 @@ NOISY = {"Encoder": ({"noise": 1e-3, "bias_rw": 1e-3}, "q_m_meas", 2),
 
 
 @pytest.mark.parametrize("name", sorted(NOISY))
-def test_tunable_reseed_restarts_the_noise_between_steps(fmus, name) -> None:
+def test_tunable_reseed_restarts_the_noise_between_steps(every_fmu, name) -> None:
     params, output, size = NOISY[name]
-    md = read_model_description(str(fmus[name]))
+    md = read_model_description(str(every_fmu[name]))
     assert {v.name: v.variability for v in md.modelVariables}["reseed"] == "tunable"
 
     def run(reseeds: dict[int, int], at_start: dict | None = None) -> np.ndarray:
-        s = Slave(fmus[name], {**params, **(at_start or {})}, init=True, logging_on=False)
+        s = Slave(every_fmu[name], {**params, **(at_start or {})}, init=True, logging_on=False)
         rows = []
         for k in range(12):
             if k in reseeds:

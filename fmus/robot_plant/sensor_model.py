@@ -553,8 +553,8 @@ class ForceTorqueSensorParameters:
 
 
 def reseed(seed: int, *sources: "SensorChannels") -> None:
-    """A sensor's tunable ``reseed`` applied to its noise sources (anything with ``reseed``):
-    nothing for ``-1``, the parameter's "never"."""
+    """A sensor's tunable ``reseed`` parameter value ``seed`` applied to its noise ``sources``
+    (anything with ``reseed``): nothing for ``-1``, the parameter's "never"."""
     if seed >= 0:
         for source in sources:
             source.reseed(seed)

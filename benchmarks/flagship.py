@@ -149,13 +149,31 @@ def measure(seconds: float) -> dict:
 # ---- kernels, old (git) against new (this tree) ---------------------------------------------
 def _old_module(rev: str, path: str) -> types.ModuleType:
     """The module at ``path`` as it was in ``rev`` (it imports the rest from this tree)."""
-    src = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=REPO, check=True, capture_output=True,
-                         text=True).stdout
-    name = f"_old_{path.replace('/', '_')[:-3]}"
-    module = types.ModuleType(name)
-    sys.modules[name] = module           # dataclasses look their module up
-    exec(compile(src, f"{rev}:{path}", "exec"), module.__dict__)   # noqa: S102 - our own history
-    return module
+    return old_modules(rev, [path])[0]
+
+
+def old_modules(rev: str, paths: list[str]) -> list[types.ModuleType]:
+    """The modules at ``paths`` as they were in ``rev``, each importing the ones before it from
+    ``rev`` too (under their own names, while it loads) and the rest from this tree."""
+    loaded: dict[str, types.ModuleType] = {}
+    for path in paths:
+        src = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=REPO, check=True, capture_output=True,
+                             text=True).stdout
+        name = f"_old_{path.replace('/', '_')[:-3]}"
+        module = types.ModuleType(name)
+        sys.modules[name] = module           # dataclasses look their module up
+        saved = {real: sys.modules.get(real) for real in loaded}
+        sys.modules.update(loaded)
+        try:
+            exec(compile(src, f"{rev}:{path}", "exec"), module.__dict__)   # noqa: S102 - our own history
+        finally:
+            for real, m in saved.items():
+                if m is None:
+                    sys.modules.pop(real)
+                else:
+                    sys.modules[real] = m
+        loaded[path[:-3].replace("/", ".")] = module
+    return list(loaded.values())
 
 
 def _us(f, n: int = 3000) -> float:

@@ -13,7 +13,8 @@ is exported with ``git archive`` to a temporary folder and its FMUs built there)
   around it, the native bridge and ctypes) and the master's own loop (see :func:`_split`);
 * the **kernels**, old (the baseline's module, loaded from git) against new, in us per call:
   the rigid kinematics inversion with gravity compensation, an encoder's sensor channels and
-  an IMU's (bias walk, range and resolution on), and the plant's RK4 step (realistic plant).
+  an IMU's (bias walk, range and resolution on), the plant's RK4 step (realistic plant) and the
+  2012 EKF's update and prediction (its estimation model loaded from the baseline too).
 
 Every ratio is measured in this one run (the machine is shared: compare ratios, not runs).
 
@@ -176,6 +177,10 @@ def old_modules(rev: str, paths: list[str]) -> list[types.ModuleType]:
     return list(loaded.values())
 
 
+def _in_rev(rev: str, path: str) -> bool:
+    return subprocess.run(["git", "cat-file", "-e", f"{rev}:{path}"], cwd=REPO, capture_output=True).returncode == 0
+
+
 def _us(f, n: int = 3000) -> float:
     import timeit
     return min(timeit.repeat(f, number=n, repeat=5)) / n * 1e6
@@ -214,6 +219,17 @@ def kernels(rev: str) -> list[tuple[str, float, float]]:
         f(plant, (1.0, 2.0), (0.0, 0.0), 1e-3)
     rows.append((f"plant RK4 step (realistic, {plant.substeps} substeps)",
                  _us(lambda: step(old.FlexibleRobotModel.step)), _us(lambda: step(type(plant).step))))
+    paths = [f"fmus/estimators/{m}.py" for m in ("axelsson2012_model", "ekf_accelerometer_model")]
+    old = old_modules(rev, [path for path in paths if _in_rev(rev, path)])[-1]   # one module before
+    from fmus.estimators import ekf_accelerometer_model as em
+    filters = [m.EkfAccelerometerModel(m.EkfAccelerometerParameters()) for m in (old, em)]
+    y = filters[1].meas.h(filters[1].x) + 1e-3
+
+    def ekf_step(f):
+        f.update(y)
+        f.predict((0.1, -0.2), 1e-3)
+    rows.append(("2012 EKF update + predict (6 states)", _us(lambda: ekf_step(filters[0])),
+                 _us(lambda: ekf_step(filters[1]))))
     return rows
 
 

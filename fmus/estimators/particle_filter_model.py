@@ -342,7 +342,8 @@ def finite_rows(X: np.ndarray) -> np.ndarray:
     times faster than ``np.isfinite(X).all(axis=1)``; a NaN or an infinity makes the sum
     non-finite). A finite row whose sum overflows (entries near 1e308) counts as non-finite:
     such a particle's measurement overflows as well, and its weight is zero either way."""
-    return np.isfinite(X @ np.ones(X.shape[1]))
+    with np.errstate(invalid="ignore"):       # inf - inf: the NaN that flags the row
+        return np.isfinite(X @ np.ones(X.shape[1]))
 
 
 def effective_sample_size(w: np.ndarray) -> float:

@@ -275,50 +275,18 @@ class BatchMeasurementModel:
     def jacobian(self, X: np.ndarray, D: np.ndarray | None = None) -> np.ndarray:
         """``H = dh/dx`` (eq. 4c) for every row of ``X``, (N, m, n): ``r (I + K(D)^-1 d tau_a/dx)``
         for the motors, :meth:`specific_force_jacobian` for the accelerometer, identities for the
-        biases (as :meth:`MeasurementModel.jacobian`). ``D`` as in :meth:`h`.
-
-        The entries of :meth:`arm_torque_jacobian` and :meth:`specific_force_jacobian` (the same
-        expressions), written straight into ``H`` with their sines and cosines computed once: the
-        EKF proposal's hot path."""
+        biases (as :meth:`MeasurementModel.jacobian`). ``D`` as in :meth:`h`."""
         L = self.layout
-        N = X.shape[0]
-        H = np.zeros((N, L.m, L.n))
-        q1, q2, dq1, dq2, a1, a2 = X[:, 0], X[:, 1], X[:, 2], X[:, 3], X[:, 4], X[:, 5]
-        s2, c2 = np.sin(q2), np.cos(q2)
-        phi = q1 + q2
-        cp, sp = np.cos(phi), np.sin(phi)
-        # motor rows: r / k(D) times d tau_a / dx (arm_torque_jacobian), plus r at the angle
-        rk = self.r / dynamics.spring_stiffness(self.deflection(X) if D is None else D, self.p)
-        rk0, rk1 = rk[:, 0], rk[:, 1]
-        gs = self.g2 * sp
-        b, bd, bdd = -self.e * s2, -self.e * c2, self.e * s2
-        H[:, 0, 0] = rk0 * (-self.g1 * np.cos(q1) + gs) + self.r[0]
-        H[:, 1, 0] = rk1 * gs
-        H[:, 0, 1] = rk0 * (2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + gs)
-        H[:, 1, 1] = rk1 * (bd * a1 - bdd * dq1 * dq1 + gs) + self.r[1]
-        H[:, 0, 2] = rk0 * (2 * bd * dq2)
-        H[:, 0, 3] = rk0 * (2 * bd * (dq1 + dq2))
-        H[:, 1, 2] = rk1 * (-2 * bd * dq1)
-        H[:, 0, 4], H[:, 0, 5] = rk0 * (self.a + 2 * b), rk0 * (self.c + b)
-        H[:, 1, 4], H[:, 1, 5] = rk1 * (self.c + b), rk1 * self.c
+        H = np.zeros((X.shape[0], L.m, L.n))
+        k = dynamics.spring_stiffness(self.deflection(X) if D is None else D, self.p)
+        H[:, 0:2, 0:6] = (self.r / k)[:, :, None] * self.arm_torque_jacobian(X)
+        H[:, 0, 0] += self.r[0]
+        H[:, 1, 1] += self.r[1]
         if L.bias_m is not None:
             H[:, 0, L.bias_m.start] += 1.0
             H[:, 1, L.bias_m.start + 1] += 1.0
-        if L.use_accelerometer:            # specific_force_jacobian
-            dphi, u2 = dq1 + dq2, -dq1 * dq1
-            l1, v, Sv, g = self.l1, self.v, self.Sv, self.g
-            H[:, 2, 0] = -g * cp
-            H[:, 3, 0] = -g * sp
-            H[:, 2, 1] = -g * cp + l1 * (-s2 * a1 - c2 * u2)
-            H[:, 3, 1] = -g * sp + l1 * (c2 * a1 - s2 * u2)
-            H[:, 2, 2] = 2 * l1 * s2 * dq1 - 2 * v[0] * dphi
-            H[:, 3, 2] = -2 * l1 * c2 * dq1 - 2 * v[1] * dphi
-            H[:, 2, 3] = -2 * v[0] * dphi
-            H[:, 3, 3] = -2 * v[1] * dphi
-            H[:, 2, 4] = l1 * c2 + Sv[0]
-            H[:, 3, 4] = l1 * s2 + Sv[1]
-            H[:, 2, 5] = Sv[0]
-            H[:, 3, 5] = Sv[1]
+        if L.use_accelerometer:
+            H[:, 2:4, 0:6] = self.specific_force_jacobian(X)
             if L.bias_acc is not None:
                 H[:, 2, L.bias_acc.start] += 1.0
                 H[:, 3, L.bias_acc.start + 1] += 1.0

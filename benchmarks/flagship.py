@@ -179,7 +179,9 @@ def old_modules(rev: str, paths: list[str]) -> list[types.ModuleType]:
 
 
 def _in_rev(rev: str, path: str) -> bool:
-    return subprocess.run(["git", "cat-file", "-e", f"{rev}:{path}"], cwd=REPO, capture_output=True).returncode == 0
+    """Whether ``path`` exists in ``rev``."""
+    return subprocess.run(["git", "cat-file", "-e", f"{rev}:{path}"], cwd=REPO,
+                          capture_output=True).returncode == 0
 
 
 def _us(f, n: int = 3000) -> float:

@@ -13,7 +13,8 @@ is exported with ``git archive`` to a temporary folder and its FMUs built there)
   around it, the native bridge and ctypes) and the master's own loop (see :func:`_split`);
 * the **kernels**, old (the baseline's module, loaded from git) against new, in us per call:
   the rigid kinematics inversion with gravity compensation, an encoder's sensor channels and
-  an IMU's (bias walk, range and resolution on), and the plant's RK4 step (realistic plant).
+  an IMU's (bias walk, range and resolution on), the plant's RK4 step (realistic plant) and the
+  2012 EKF's update and prediction (its estimation model loaded from the baseline too).
 
 Every ratio is measured in this one run (the machine is shared: compare ratios, not runs).
 
@@ -41,23 +42,24 @@ BASELINE = "a611ae4"
 
 # ---- measurements inside one tree (run in a subprocess with that tree first on the path) -----
 def _startup() -> tuple[float, float]:
-    """CPU and wall seconds from the first import to the first step, in this (fresh) process."""
+    """CPU and wall seconds from the first import to the first step, in this (fresh) process
+    (a run long enough for the flagship's metric windows, which start at 0.5 s)."""
     t0, w0 = time.process_time(), time.perf_counter()
     from orchestration import master
     first: list[float] = []
     simulate = master.simulate
 
-    def timed(sc, sink, progress=None):
+    def timed(sc, sink, *rest):
         def row(t, values):
             if not first:
                 first.extend((time.process_time(), time.perf_counter()))
             sink(t, values)
-        return simulate(sc, row, progress)
+        return simulate(sc, row, *rest)
 
     master.simulate = timed
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        master.run(str(Path.cwd() / SCENARIO), ["scenario.stop_time=0.1"],
+        master.run(str(Path.cwd() / SCENARIO), ["scenario.stop_time=0.6"],
                    out_dir=tempfile.mkdtemp(prefix="ff_bench_"))
     return first[0] - t0, first[1] - w0
 
@@ -149,13 +151,37 @@ def measure(seconds: float) -> dict:
 # ---- kernels, old (git) against new (this tree) ---------------------------------------------
 def _old_module(rev: str, path: str) -> types.ModuleType:
     """The module at ``path`` as it was in ``rev`` (it imports the rest from this tree)."""
-    src = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=REPO, check=True, capture_output=True,
-                         text=True).stdout
-    name = f"_old_{path.replace('/', '_')[:-3]}"
-    module = types.ModuleType(name)
-    sys.modules[name] = module           # dataclasses look their module up
-    exec(compile(src, f"{rev}:{path}", "exec"), module.__dict__)   # noqa: S102 - our own history
-    return module
+    return old_modules(rev, [path])[0]
+
+
+def old_modules(rev: str, paths: list[str]) -> list[types.ModuleType]:
+    """The modules at ``paths`` as they were in ``rev``, each importing the ones before it from
+    ``rev`` too (under their own names, while it loads) and the rest from this tree."""
+    loaded: dict[str, types.ModuleType] = {}
+    for path in paths:
+        src = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=REPO, check=True, capture_output=True,
+                             text=True).stdout
+        name = f"_old_{path.replace('/', '_')[:-3]}"
+        module = types.ModuleType(name)
+        sys.modules[name] = module           # dataclasses look their module up
+        saved = {real: sys.modules.get(real) for real in loaded}
+        sys.modules.update(loaded)
+        try:
+            exec(compile(src, f"{rev}:{path}", "exec"), module.__dict__)   # noqa: S102 - our own history
+        finally:
+            for real, m in saved.items():
+                if m is None:
+                    sys.modules.pop(real)
+                else:
+                    sys.modules[real] = m
+        loaded[path[:-3].replace("/", ".")] = module
+    return list(loaded.values())
+
+
+def _in_rev(rev: str, path: str) -> bool:
+    """Whether ``path`` exists in ``rev``."""
+    return subprocess.run(["git", "cat-file", "-e", f"{rev}:{path}"], cwd=REPO,
+                          capture_output=True).returncode == 0
 
 
 def _us(f, n: int = 3000) -> float:
@@ -196,6 +222,17 @@ def kernels(rev: str) -> list[tuple[str, float, float]]:
         f(plant, (1.0, 2.0), (0.0, 0.0), 1e-3)
     rows.append((f"plant RK4 step (realistic, {plant.substeps} substeps)",
                  _us(lambda: step(old.FlexibleRobotModel.step)), _us(lambda: step(type(plant).step))))
+    paths = [f"fmus/estimators/{m}.py" for m in ("axelsson2012_model", "ekf_accelerometer_model")]
+    old = old_modules(rev, [path for path in paths if _in_rev(rev, path)])[-1]   # one module before
+    from fmus.estimators import ekf_accelerometer_model as em
+    filters = [m.EkfAccelerometerModel(m.EkfAccelerometerParameters()) for m in (old, em)]
+    y = filters[1].meas.h(filters[1].x) + 1e-3
+
+    def ekf_step(f):
+        f.update(y)
+        f.predict((0.1, -0.2), 1e-3)
+    rows.append(("2012 EKF update + predict (6 states)", _us(lambda: ekf_step(filters[0])),
+                 _us(lambda: ekf_step(filters[1]))))
     return rows
 
 

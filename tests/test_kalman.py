@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fmus.common.kalman import FilterDivergence, check_estimate, is_positive_definite
+from fmus.common.kalman import FilterDivergence, check_estimate, cholesky_lower, is_positive_definite, solve
 
 
 def test_positive_definiteness_agrees_with_the_eigenvalues() -> None:
@@ -29,3 +29,22 @@ def test_check_estimate_names_the_cause_and_the_place() -> None:
     with pytest.raises(FilterDivergence, match=r"not positive definite \(smallest eigenvalue -0.001\)"):
         check_estimate(x, indefinite, "here")
     check_estimate(x, indefinite, "here", definite=False)      # only finiteness asked
+
+
+def test_cholesky_and_solve_are_numpys_to_the_bit() -> None:
+    """The direct LAPACK calls of the filters' hot path give np.linalg's bits, transposed (strided)
+    operands and vector right-hand sides included; an indefinite matrix has no factor,
+    as np.linalg.cholesky raises for it."""
+    rng = np.random.default_rng(5)
+    for n, m in ((4, 6), (2, 10), (6, 1)):
+        A = rng.normal(size=(n, n))
+        S = A @ A.T + 0.1 * np.eye(n)
+        L = cholesky_lower(S)
+        assert np.array_equal(L, np.linalg.cholesky(S))
+        B, b = rng.normal(size=(n, m)), rng.normal(size=n)
+        assert np.array_equal(solve(L.T, B), np.linalg.solve(L.T, B))
+        assert np.array_equal(solve(L, b), np.linalg.solve(L, b))
+        assert cholesky_lower(S - 2 * np.linalg.eigvalsh(S).max() * np.eye(n)) is None
+        for bad in (np.nan, np.inf):         # numpy returns a non-finite factor (caught later)
+            S[0, 0] = bad
+            assert np.array_equal(cholesky_lower(S), np.linalg.cholesky(S), equal_nan=True)

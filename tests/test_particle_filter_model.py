@@ -461,3 +461,15 @@ def test_bandwidth_is_checked_and_zero_is_plain_algorithm_1() -> None:
     assert_array_equal(s[0.0].x, s[1.0].x)           # the same draws and weights: same estimate
     # plain: the resampled particles are copies of the weighted ones; with the kernel all differ
     assert len(np.unique(s[0.0].X[:, 0])) < 300 and len(np.unique(s[1.0].X[:, 0])) == 300
+
+
+def test_finite_rows_flags_every_nan_and_infinity() -> None:
+    """The row-sum test of the hot path agrees with np.isfinite(...).all(axis=1), also for rows
+    holding +inf and -inf together (their sum is NaN)."""
+    rng = np.random.default_rng(2)
+    X = rng.normal(size=(200, 6))
+    for v in (np.nan, np.inf, -np.inf):
+        X[rng.integers(0, 200, 15), rng.integers(0, 6, 15)] = v
+    X[7] = (np.inf, -np.inf, 1.0, 2.0, 3.0, 4.0)     # a sum of NaN, no NaN entry
+    assert_array_equal(pm.finite_rows(X), np.isfinite(X).all(axis=1))
+    assert not pm.finite_rows(X)[7] and pm.finite_rows(X).any()

@@ -226,6 +226,7 @@ class MeasurementModel:
         self.v = np.array([p.l2 + p.sensor_offset[0], p.sensor_offset[1]], float)   # mount, tool frame
         self.Sv = np.array([self.v[1], -self.v[0]])
         self.r = np.asarray(p.gear_ratio, float)
+        self._v, self._Sv, self._r = (tuple(map(float, a)) for a in (self.v, self.Sv, self.r))
         self._k_hi = tuple(map(float, p.k_hi))
         self._k_soft = tuple(float(h - lo) for h, lo in zip(p.k_hi, p.k_lo))
         self._delta = tuple(map(float, p.delta))
@@ -237,29 +238,23 @@ class MeasurementModel:
 
     def arm_torque_jacobian(self, q, dq, ddq) -> np.ndarray:
         """``d tau_a / d(q, dq, ddq)``, (2, 6), analytic."""
-        q1, q2 = float(q[0]), float(q[1])
-        dq1, dq2 = float(dq[0]), float(dq[1])
-        a1, a2 = float(ddq[0]), float(ddq[1])
+        return np.array(self._arm_torque_jacobian(float(q[0]), float(q[1]), float(dq[0]), float(dq[1]),
+                                                  float(ddq[0]), float(ddq[1])))
+
+    def _arm_torque_jacobian(self, q1, q2, dq1, dq2, a1, a2) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """:meth:`arm_torque_jacobian` on scalars, as two rows (the filter's hot path)."""
         s2, c2 = math.sin(q2), math.cos(q2)
         sp = math.sin(q1 + q2)
         b = -self.e * s2
         bd = -self.e * c2
         bdd = self.e * s2
-        J = np.zeros((2, 6))
-        # d/dq1: gravity only (G1 = -g1 sin q1 - g2 cos phi, G2 = -g2 cos phi)
-        J[0, 0] = -self.g1 * math.cos(q1) + self.g2 * sp
-        J[1, 0] = self.g2 * sp
-        # d/dq2: M'(q2) ddq + C' + G'
-        J[0, 1] = 2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + self.g2 * sp
-        J[1, 1] = bd * a1 - bdd * dq1 * dq1 + self.g2 * sp
-        # d/d dq: Coriolis
-        J[0, 2] = 2 * bd * dq2
-        J[0, 3] = 2 * bd * (dq1 + dq2)
-        J[1, 2] = -2 * bd * dq1
-        # d/d ddq: M
-        J[0, 4], J[0, 5] = self.a + 2 * b, self.c + b
-        J[1, 4], J[1, 5] = self.c + b, self.c
-        return J
+        gsp = self.g2 * sp
+        # d/dq1: gravity only (G1 = -g1 sin q1 - g2 cos phi, G2 = -g2 cos phi); d/dq2: M'(q2) ddq
+        # + C' + G'; d/d dq: Coriolis; d/d ddq: M
+        return ((-self.g1 * math.cos(q1) + gsp,
+                 2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + gsp,
+                 2 * bd * dq2, 2 * bd * (dq1 + dq2), self.a + 2 * b, self.c + b),
+                (gsp, bd * a1 - bdd * dq1 * dq1 + gsp, -2 * bd * dq1, 0.0, self.c + b, self.c))
 
     # -- eq. 16: motor angles
     def motor_angles(self, x) -> np.ndarray:
@@ -282,23 +277,22 @@ class MeasurementModel:
 
     def specific_force_jacobian(self, x) -> np.ndarray:
         """``d f / d(q, dq, ddq)``, (2, 6), analytic."""
-        q1, q2 = float(x[0]), float(x[1])
-        dq1, dphi = float(x[2]), float(x[2]) + float(x[3])
-        a1 = float(x[4])
+        return np.array(self._specific_force_jacobian(float(x[0]), float(x[1]), float(x[2]), float(x[3]),
+                                                      float(x[4])))
+
+    def _specific_force_jacobian(self, q1, q2, dq1, dq2, a1) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """:meth:`specific_force_jacobian` on scalars, as two rows (the filter's hot path)."""
+        dphi = dq1 + dq2
         c2, s2 = math.cos(q2), math.sin(q2)
         phi = q1 + q2
         cp, sp = math.cos(phi), math.sin(phi)
         u1, u2 = a1, -dq1 * dq1
-        l1, v, Sv, g = self.l1, self.v, self.Sv, self.g
-        J = np.zeros((2, 6))
-        dg = np.array([-g * cp, -g * sp])                  # d/dphi of g (-sin phi, cos phi)
-        J[:, 0] = dg
-        J[:, 1] = dg + l1 * np.array([-s2 * u1 - c2 * u2, c2 * u1 - s2 * u2])
-        J[:, 2] = l1 * np.array([s2 * 2 * dq1, -c2 * 2 * dq1]) - 2 * v * dphi
-        J[:, 3] = -2 * v * dphi
-        J[:, 4] = l1 * np.array([c2, s2]) + Sv
-        J[:, 5] = Sv
-        return J
+        l1, (v0, v1), (Sv0, Sv1), g = self.l1, self._v, self._Sv, self.g
+        dg0, dg1 = -g * cp, -g * sp                     # d/dphi of g (-sin phi, cos phi)
+        return ((dg0, dg0 + l1 * (-s2 * u1 - c2 * u2), l1 * (s2 * 2 * dq1) - 2 * v0 * dphi,
+                 -2 * v0 * dphi, l1 * c2 + Sv0, Sv0),
+                (dg1, dg1 + l1 * (c2 * u1 - s2 * u2), l1 * (-c2 * 2 * dq1) - 2 * v1 * dphi,
+                 -2 * v1 * dphi, l1 * s2 + Sv1, Sv1))
 
     # -- eqs. 11 and 16 on scalars: the filter's hot path
     def _torque_deflection(self, x) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -325,24 +319,27 @@ class MeasurementModel:
         return tau, (D[0], D[1])
 
     def h_and_jacobian(self, x) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`h` and :meth:`jacobian` at ``x`` in one pass (one torque and one spring
-        inversion instead of two; the filter calls this once per update)."""
+        """:meth:`h` and :meth:`jacobian` at ``x`` in one pass and in scalar arithmetic (one
+        torque and one spring inversion instead of two, no numpy call per entry: the filter
+        calls this once per update; the same numbers as :meth:`h` and :meth:`jacobian`)."""
         L = self.layout
+        q1, q2, dq1, dq2, a1, a2 = (float(v) for v in x[0:6])
         _, D = self._torque_deflection(x)
-        y = np.empty(L.m)
+        Jt = self._arm_torque_jacobian(q1, q2, dq1, dq2, a1, a2)
         H = np.zeros((L.m, L.n))
-        Jt = self.arm_torque_jacobian(x[Q_], x[DQ_], x[DDQ_])
+        y = np.empty(L.m)
         for i in range(2):
             k = self._k_hi[i] - self._k_soft[i] * (1.0 - math.tanh(D[i] / self._delta[i]) ** 2)
-            y[i] = self.r[i] * (float(x[i]) + D[i])
-            H[i, 0:6] = (self.r[i] / k) * Jt[i]
-            H[i, i] += self.r[i]
+            r, rk = self._r[i], self._r[i] / k
+            y[i] = r * ((q1, q2)[i] + D[i])
+            H[i, 0:6] = [rk * j for j in Jt[i]]
+            H[i, i] += r
         if L.bias_m is not None:
             y[0:2] += x[L.bias_m]
             H[0:2, L.bias_m] = np.eye(2)
         if L.use_accelerometer:
             y[2:4] = self.specific_force(x)
-            H[2:4, 0:6] = self.specific_force_jacobian(x)
+            H[2:4, 0:6] = self._specific_force_jacobian(q1, q2, dq1, dq2, a1)
             if L.bias_acc is not None:
                 y[2:4] += x[L.bias_acc]
                 H[2:4, L.bias_acc] = np.eye(2)

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from fmus.common import kinematics
-from fmus.common.kalman import FilterDivergence, check_estimate
+from fmus.common.kalman import FilterDivergence, check_estimate, cholesky_lower, solve
 from fmus.estimators.axelsson2012_model import (Q_, EkfAccelerometerParameters, Layout, MeasurementModel,
                                                 initial_covariance, measurement_noise, process_noise,
                                                 transition_matrices)
@@ -43,6 +43,7 @@ class EkfAccelerometerModel:
         self.x[Q_] = p.initial_angles()
         self.P = initial_covariance(p, self.layout)
         self._T: float | None = None
+        self._I = np.eye(self.layout.n)
         self.innovation_norm = 0.0
 
     def _matrices(self, T: float) -> None:
@@ -76,18 +77,17 @@ class EkfAccelerometerModel:
         hx, H = self.meas.h_and_jacobian(x)
         nu = y - hx
         S = H @ P @ H.T + self.R
-        try:
-            Sc = np.linalg.cholesky(S)
-        except np.linalg.LinAlgError:
+        Sc = cholesky_lower(S)
+        if Sc is None:
             raise FilterDivergence("EKF diverged in the measurement update: the innovation covariance "
-                                   "is not positive definite") from None
+                                   "is not positive definite")
         PHt = P @ H.T
-        K = np.linalg.solve(Sc.T, np.linalg.solve(Sc, PHt.T)).T
+        K = solve(Sc.T, solve(Sc, PHt.T)).T
         xf = x + K @ nu
-        IKH = np.eye(self.layout.n) - K @ H
+        IKH = self._I - K @ H
         Pf = IKH @ P @ IKH.T + K @ self.R @ K.T      # Joseph form of P - K H P
         Pf = 0.5 * (Pf + Pf.T)
-        z = np.linalg.solve(Sc, nu)
+        z = solve(Sc, nu)
         check_estimate(xf, Pf, "EKF diverged in the measurement update")
         return xf, Pf, float(math.sqrt(z @ z))
 

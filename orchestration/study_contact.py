@@ -49,6 +49,7 @@ import numpy as np
 
 from fmus.common.parameters import replace
 from fmus.force_observer import impedance_math as imp
+from orchestration.results import json_safe
 
 REPO = Path(__file__).resolve().parent.parent
 SCENARIOS = REPO / "orchestration" / "scenarios"
@@ -610,16 +611,8 @@ def run_study(out_dir: Path, overrides: tuple[str, ...] = (), workers: int | Non
     main = {fb: series[k] for k, (fb, _) in cases.items() if k.startswith(f"{structures[0]}/") and k.endswith("/m+0%")}
     if plots and main:
         metrics["figures"] = [f.name for f in plot_contact(main, setup, out_dir)]
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json_default) + "\n")
+    (out_dir / "metrics.json").write_text(json.dumps(json_safe(metrics), indent=2) + "\n")
     return metrics
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def real_time_factor(kinds: tuple[str, ...] = ("observer", "raw"), overrides: tuple[str, ...] = ()

@@ -49,6 +49,7 @@ import numpy as np
 
 from fmus.common.parameters import replace
 from fmus.force_observer import impedance_math as imp
+from orchestration.metrics import rmse
 from orchestration.results import json_safe
 
 REPO = Path(__file__).resolve().parent.parent
@@ -66,11 +67,6 @@ class ContactSetup:
     F_d: float = 0.0                           # desired force bias (N)
     free_window: tuple[float, float] = (0.0, 1.0)     # free-space acceleration phase (s)
     steady_window: tuple[float, float] = (0.0, 1.0)   # stationary contact (s)
-
-
-def _rms(v: np.ndarray) -> float:
-    v = np.asarray(v, dtype=float)
-    return float(np.sqrt(np.mean(np.sum(v.reshape(len(v), -1) ** 2, axis=1))))
 
 
 def contact_losses(F_normal: np.ndarray, threshold: float = 0.0) -> tuple[int, int | None]:
@@ -119,8 +115,8 @@ def contact_metrics(series: dict[str, np.ndarray], setup: ContactSetup) -> dict[
     sw = (t >= setup.steady_window[0]) & (t <= setup.steady_window[1])
     out: dict[str, Any] = {}
     out["free_max_true"] = float(np.max(np.abs(Ft[fw]))) if fw.any() else float("nan")
-    out["free_rms_hat"] = _rms(Fh[fw])
-    out["free_rms_raw"] = _rms(Fr[fw])
+    out["free_rms_hat"] = rmse(Fh[fw], 0.0)
+    out["free_rms_raw"] = rmse(Fr[fw], 0.0)
     out["free_ratio"] = out["free_rms_hat"] / out["free_rms_raw"]
     Fn_true = Ft @ n
     Fn_hat = Fh @ n

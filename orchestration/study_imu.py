@@ -39,6 +39,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .metrics import rmse
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
 
 REPO = Path(__file__).resolve().parent.parent
@@ -84,8 +85,7 @@ def table1(runs: dict[str, Any], after: float = AFTER) -> dict[str, dict[str, fl
         truth = np.asarray(r["plant.p_tool"])[keep]
         row = {}
         for key, var in ESTIMATES.items():
-            e = error_norm(np.asarray(r[var])[keep], truth)
-            row[key] = float(np.sqrt(np.mean(e * e)))
+            row[key] = rmse(np.asarray(r[var])[keep], truth)
         out[path] = row
     return out
 

@@ -47,6 +47,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .metrics import bandpass
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
@@ -417,13 +418,6 @@ def markdown(table: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _bandpass(x: np.ndarray, fs: float) -> np.ndarray:
-    from scipy.signal import butter, filtfilt
-    b, a = butter(4, [3.0, 30.0], btype="bandpass", fs=fs)
-    padlen = min(len(x) - 1, int(np.ceil(3 * fs / 3.0)))
-    return filtfilt(b, a, x, axis=0, padlen=padlen)
-
-
 def figures(table: dict[str, Any], out: Path) -> list[Path]:
     """Figs. 4-6 (band-passed x-position in a window with a hammer strike) and Fig. 3 (all
     frequencies, nominal case) as PNG."""
@@ -448,12 +442,12 @@ def figures(table: dict[str, Any], out: Path) -> list[Path]:
         fname, title = names.get(key, (f"fig_{key}.png", key))
         fig, (ax, ax2) = plt.subplots(2, 1, figsize=(9, 7), sharex=True,
                                       gridspec_kw={"height_ratios": [3, 2]})
-        truth_bp = _bandpass(s["truth"], fs)
+        truth_bp = bandpass(s["truth"], fs)
         ax.plot(t[w], 1e3 * truth_bp[w, 0], "k", lw=2.0, label="true position")
         for label, est in s.items():
             if label in ("time", "truth"):
                 continue
-            est_bp = _bandpass(est, fs)
+            est_bp = bandpass(est, fs)
             line, = ax.plot(t[w], 1e3 * est_bp[w, 0], lw=1.0, label=label)
             ax2.plot(t[w], 1e3 * (est_bp - truth_bp)[w, 0], lw=1.0, color=line.get_color())
         ax2.set_xlabel("time (s)")

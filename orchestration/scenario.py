@@ -544,20 +544,9 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
     if not isinstance(includes, list) or not all(isinstance(i, str) and i for i in includes):
         raise ScenarioError(f"{label}: [scenario] include must be a file name or a list of file "
                             f"names, got {includes!r}")
+    doc["parameter_sets"] = sets
     for inc in includes:
-        inc_path = base_dir / inc
-        inc_doc = _read_toml(inc_path)
-        _check_keys(str(inc_path), inc_doc, {"components", "parameter_sets"})
-        for sname, table in _parameter_sets(str(inc_path), inc_doc.get("parameter_sets", {}),
-                                            inc_path.resolve().parent).items():
-            sets.setdefault(sname, {}).update(table)
-        for cname, ctab in _table(f"{inc_path}: [components]", inc_doc.get("components", {})).items():
-            if cname not in comps_doc:
-                raise ScenarioError(f"{inc_path}: unknown component '{cname}' (not in {label})")
-            _check_keys(f"{inc_path}: [components.{cname}]", ctab, {"parameters"})
-            params = dict(_table(f"{inc_path}: [components.{cname}.parameters]", ctab.get("parameters", {})))
-            resolve_file_parameters(params, inc_path.resolve().parent)
-            comps_doc[cname].setdefault("parameters", {}).update(params)
+        merge_include(doc, base_dir / inc, label)
 
     # overrides
     for text in overrides:
@@ -593,8 +582,38 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
             params[f"{pname}[{index}]"] = value
     head.pop("include", None)
     doc["scenario"] = head
-    doc["parameter_sets"] = sets
     return doc, path, label, base_dir
+
+
+def merge_include(doc: dict[str, Any], inc_path: Path, label: str = "<scenario>", *,
+                  skip_unknown: bool = False) -> None:
+    """Merge the include file ``inc_path`` over the scenario document ``doc`` (in place): its
+    ``[components.X.parameters]`` update X's parameters, its ``[parameter_sets.S]`` update set S
+    (``*_file`` values relative to the include file).
+
+    Raises
+    ------
+    ScenarioError
+        An unreadable file, a key other than those two tables, or a component ``doc`` does not
+        have (unless ``skip_unknown``: a tuned file may name estimators a scenario lacks).
+    """
+    inc_path = Path(inc_path)
+    inc_doc = _read_toml(inc_path)
+    _check_keys(str(inc_path), inc_doc, {"components", "parameter_sets"})
+    sets = doc.setdefault("parameter_sets", {})
+    for sname, table in _parameter_sets(str(inc_path), inc_doc.get("parameter_sets", {}),
+                                        inc_path.resolve().parent).items():
+        sets.setdefault(sname, {}).update(table)
+    comps_doc = doc["components"]
+    for cname, ctab in _table(f"{inc_path}: [components]", inc_doc.get("components", {})).items():
+        if cname not in comps_doc:
+            if skip_unknown:
+                continue
+            raise ScenarioError(f"{inc_path}: unknown component '{cname}' (not in {label})")
+        _check_keys(f"{inc_path}: [components.{cname}]", ctab, {"parameters"})
+        params = dict(_table(f"{inc_path}: [components.{cname}.parameters]", ctab.get("parameters", {})))
+        resolve_file_parameters(params, inc_path.resolve().parent)
+        comps_doc[cname].setdefault("parameters", {}).update(params)
 
 
 _COMPONENT_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -947,5 +966,5 @@ def _deepcopy(doc: Any) -> Any:
 
 
 __all__ = ["ScenarioError", "Scenario", "Component", "Connection", "MetricSpec", "VariableInfo",
-           "load_scenario", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
+           "load_scenario", "merge_include", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
            "connection_key", "check_metric_windows", "MAX_STEPS"]

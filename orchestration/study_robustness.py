@@ -40,7 +40,6 @@ from __future__ import annotations
 import argparse
 import json
 import time
-import tomllib
 from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any, Sequence
@@ -103,16 +102,14 @@ FIG_WINDOWS = {"nominal": (1.3, 2.5), "tuning": (1.0, 2.2), "model_errors": (1.3
 # cases
 # ---------------------------------------------------------------------------------------------
 def _load(path: Path, tuned: Sequence[str | Path]) -> dict[str, Any]:
+    from .scenario import ScenarioError, merge_include
     from .study_tune import load_document
     doc = load_document(path)
     for f in tuned:
         try:
-            inc = tomllib.loads(Path(f).read_text())
-        except (OSError, tomllib.TOMLDecodeError) as exc:
+            merge_include(doc, Path(f), str(path), skip_unknown=True)
+        except ScenarioError as exc:
             raise StudyError(f"cannot read tuned parameters {f}: {exc}") from None
-        for cname, ctab in inc.get("components", {}).items():
-            if cname in doc["components"]:
-                doc["components"][cname].setdefault("parameters", {}).update(ctab.get("parameters", {}))
     return doc
 
 

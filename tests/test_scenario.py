@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from orchestration.scenario import (ScenarioError, load_scenario, parse_override, parse_value,
-                                    stable_seed)
+from orchestration.scenario import (ScenarioError, load_scenario, merge_include, parse_override,
+                                    parse_value, stable_seed)
 from toys import write
 
 
@@ -93,6 +93,21 @@ def test_include_merges_parameters(tmp_path):
     write(tmp_path / "tuned", '[components.nope.parameters]\ngain = 7.0\n', "t.toml")
     with pytest.raises(ScenarioError, match=r"t\.toml: unknown component 'nope'"):
         load_scenario(tmp_path / "s.toml")
+
+
+def test_merge_include_updates_parameters_and_sets_of_a_document(tmp_path):
+    write(tmp_path, '[components.g.parameters]\ngain = 7.0\n[components.other.parameters]\nk = 1\n'
+          '[parameter_sets.robot]\nm = 2.0\n', "inc.toml")
+    doc = {"components": {"g": {"parameters": {"gain": 1.0, "bias": 0.5}}},
+           "parameter_sets": {"robot": {"m": 1.0, "k": 3.0}}}
+    with pytest.raises(ScenarioError, match=r"inc\.toml: unknown component 'other' \(not in s\.toml\)"):
+        merge_include(doc, tmp_path / "inc.toml", "s.toml")
+    merge_include(doc, tmp_path / "inc.toml", skip_unknown=True)
+    assert doc == {"components": {"g": {"parameters": {"gain": 7.0, "bias": 0.5}}},
+                   "parameter_sets": {"robot": {"m": 2.0, "k": 3.0}}}
+    write(tmp_path, '[scenario]\nname = "x"\n', "bad.toml")
+    with pytest.raises(ScenarioError, match="unknown key"):
+        merge_include(doc, tmp_path / "bad.toml")
 
 
 def test_fmu_given_as_path_relative_to_the_scenario(tmp_path, toy_dir):

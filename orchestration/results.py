@@ -243,9 +243,11 @@ class Result:
 
     ``result["plant.p_tool[1]"]`` gives one column; a scalar variable gives an (n,) array.
     ``status`` is ``"ok"`` only for a run that ended ok with all its rows; otherwise
-    ``error`` says why (and :meth:`load` warns).
+    ``error`` says why (and :meth:`load` warns). The one container of a run's results: read
+    from a run folder (:meth:`load`) or kept in memory (:func:`orchestration.study.simulate`:
+    ``out_dir`` None, ``wall_time`` the seconds the stepping took).
     """
-    out_dir: Path
+    out_dir: Path | None
     time: np.ndarray
     columns: list[str]
     data: np.ndarray                      # (n, len(columns))
@@ -255,6 +257,7 @@ class Result:
     status: str = "ok"
     error: str | None = None
     warnings: list[str] = field(default_factory=list)
+    wall_time: float = float("nan")
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "time":

@@ -362,7 +362,7 @@ def contact_motion_window(path: Path) -> tuple[float, float]:
 
 def series_from_run(run: Any, feedback: str) -> dict[str, np.ndarray]:
     """The series of :func:`contact_metrics` / :func:`plot_contact` from a contact scenario run
-    (:class:`orchestration.study.RunArrays` or :class:`orchestration.results.Result`)."""
+    (an :class:`orchestration.results.Result`)."""
     return dict(t=np.asarray(run.time), F_true=-np.asarray(run["contact.f_ext"]),
                 F_hat=np.asarray(run["observer.f_contact_hat"]), F_raw=np.asarray(run["observer.f_raw"]),
                 F_fb=np.asarray(run[FEEDBACK[feedback]]), p_tool=np.asarray(run["plant.p_tool"]),

@@ -77,7 +77,7 @@ def error_norm(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 def table1(runs: dict[str, Any], after: float = AFTER) -> dict[str, dict[str, float]]:
     """RMSE (m) of every estimate per path, from runs with ``time`` and the recorded variables
-    (a :class:`~orchestration.study.RunArrays` or a dict of arrays)."""
+    (a :class:`~orchestration.results.Result` or a dict of arrays)."""
     out: dict[str, dict[str, float]] = {}
     for path, r in runs.items():
         t = np.asarray(r["time"])

@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from .scenario import Component, Scenario, ScenarioError, check_metric_windows
+from .scenario import Component, Overrides, Scenario, ScenarioError, check_metric_windows
 
 if TYPE_CHECKING:
     from .results import Result
@@ -591,7 +591,7 @@ def _check_nan(s: _Slot, values: np.ndarray, t: float) -> None:
 # ---------------------------------------------------------------------------------------------
 # the public entry point
 # ---------------------------------------------------------------------------------------------
-def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[str] = (),
+def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Overrides = (),
         out_dir: str | Path | None = None, progress: bool = False, force: bool = False,
         hook: Any = None) -> "Result":
     """Run a scenario and write its results.
@@ -601,7 +601,8 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     scenario
         A scenario file, a parsed TOML document, or a loaded :class:`Scenario`.
     overrides
-        ``comp.param=value``, ``comp.param[i]=value``, ``scenario.seed=3`` ... strings.
+        ``comp.param=value``, ``comp.param[i]=value``, ``scenario.seed=3`` ... strings, or a
+        mapping ``{("ekf", "stiffness_scale"): 0.5}`` (:func:`~orchestration.scenario.override_strings`).
     out_dir
         Folder for ``results.csv``, ``metrics.json``, ``run.json`` (created, and owned by this
         run: :func:`orchestration.results.own_folder`); default: a new temporary folder.
@@ -634,9 +635,9 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     exception's ``out_dir`` is the folder.
     """
     from .results import OutputError, own_folder
-    from .scenario import load_scenario
+    from .scenario import load_scenario, override_strings
 
-    overrides = tuple(overrides)
+    overrides = override_strings(overrides)
     if isinstance(scenario, Scenario):
         sc = load_scenario(scenario.path, scenario.overrides + overrides) if (overrides and scenario.path) else scenario
         if overrides and not scenario.path:

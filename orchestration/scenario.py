@@ -81,15 +81,19 @@ component's list of sets with ``comp.parameter_sets=["S"]``.
 """
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
 import tomllib
 import warnings
 import zlib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Union
+
+import numpy as np
 
 from . import roles
 
@@ -311,6 +315,54 @@ def parse_override(text: str) -> tuple[str, str, int | None, Any]:
     return comp, name, int(index) if index else None, parse_value(value)
 
 
+#: Overrides as ``comp.param=value`` strings (the command line's ``--set``) or as a mapping
+#: ``{("ekf", "stiffness_scale"): 0.5, ("plant", "q0", 2): 0.1, ("scenario", "seed"): 3}``.
+Overrides = Union[Iterable[str], Mapping[tuple, Any]]
+
+
+def toml_value(v: Any) -> str:
+    """``v`` (a number, bool, string, list or dict; numpy scalars too) as TOML text that reads
+    back to the same value (floats by ``repr``, the shortest text that round-trips)."""
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{json.dumps(str(k))} = {toml_value(x)}" for k, x in v.items()) + "}"
+    if isinstance(v, str):
+        return json.dumps(v)
+    return repr(float(v))
+
+
+def override_strings(overrides: Overrides) -> tuple[str, ...]:
+    """The ``comp.param=value`` strings of ``overrides``: strings as given, a mapping's
+    ``(component, parameter[, index]) -> value`` items written as such strings (so that a run
+    records and :func:`parse_override` reads both forms the same way).
+
+    Raises
+    ------
+    ScenarioError
+        A mapping key that is not ``(component, parameter)`` or ``(component, parameter, index)``.
+    """
+    if isinstance(overrides, str):
+        raise ScenarioError(f"overrides must be a list of strings or a mapping, not the string {overrides!r}")
+    if not isinstance(overrides, Mapping):
+        return tuple(overrides)
+    out = []
+    for key, value in overrides.items():
+        if not (isinstance(key, tuple) and len(key) in (2, 3) and all(isinstance(k, str) for k in key[:2])
+                and (len(key) == 2 or isinstance(key[2], int))):
+            raise ScenarioError(f"override key {key!r}: expected (component, parameter) or "
+                                "(component, parameter, index)")
+        index = f"[{key[2]}]" if len(key) == 3 else ""
+        out.append(f"{key[0]}.{key[1]}{index}={toml_value(value)}")
+    return tuple(out)
+
+
 # ---------------------------------------------------------------------------------------------
 # loading
 # ---------------------------------------------------------------------------------------------
@@ -495,7 +547,7 @@ def _check_keys(where: str, table: Any, allowed: Iterable[str]) -> None:
                             f"(allowed: {', '.join(sorted(allowed))})")
 
 
-def scenario_document(source: str | Path | dict[str, Any], overrides: Iterable[str] = ()) -> dict[str, Any]:
+def scenario_document(source: str | Path | dict[str, Any], overrides: Overrides = ()) -> dict[str, Any]:
     """The scenario as one self-contained TOML document: includes merged in, overrides applied,
     relative FMU paths and ``*_file`` parameters made absolute (no FMU is read).
 
@@ -504,7 +556,7 @@ def scenario_document(source: str | Path | dict[str, Any], overrides: Iterable[s
     ScenarioError
         An unreadable file, an unknown component in an include or an override.
     """
-    doc, path, _, base_dir = _document(source, tuple(overrides))
+    doc, path, _, base_dir = _document(source, override_strings(overrides))
     doc["scenario"].setdefault("name", path.stem if path else "scenario")
     for ctab in doc["components"].values():
         fmu = ctab.get("fmu") if isinstance(ctab, dict) else None
@@ -674,7 +726,7 @@ def _check_set_keys(label: str, sets: dict[str, dict[str, Any]], users: dict[str
                                 f"({', '.join(c.name for c in comps)})")
 
 
-def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] = ()) -> Scenario:
+def load_scenario(source: str | Path | dict[str, Any], overrides: Overrides = ()) -> Scenario:
     """Load, resolve and validate a scenario.
 
     Parameters
@@ -682,14 +734,15 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     source
         Path of a TOML file, or an already parsed document (paths then relative to the cwd).
     overrides
-        ``comp.param=value`` / ``comp.param[i]=value`` / ``scenario.key=value`` strings.
+        ``comp.param=value`` / ``comp.param[i]=value`` / ``scenario.key=value`` strings, or a
+        mapping ``{(comp, param): value, (comp, param, i): value}`` (:func:`override_strings`).
 
     Raises
     ------
     ScenarioError
         One message naming the file, the component and the variable.
     """
-    overrides = tuple(overrides)
+    overrides = override_strings(overrides)
     doc, path, label, base_dir = _document(source, overrides)
     head = doc["scenario"]
     comps_doc = doc["components"]
@@ -966,5 +1019,5 @@ def _deepcopy(doc: Any) -> Any:
 
 
 __all__ = ["ScenarioError", "Scenario", "Component", "Connection", "MetricSpec", "VariableInfo",
-           "load_scenario", "merge_include", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
+           "load_scenario", "merge_include", "Overrides", "override_strings", "toml_value", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
            "connection_key", "check_metric_windows", "MAX_STEPS"]

@@ -37,12 +37,15 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from contextvars import ContextVar
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .results import Result
 from .safe_io import FolderLock, FolderLockedError, atomic_write_bytes, atomic_write_json
+
+if TYPE_CHECKING:
+    from .scenario import Overrides
 
 
 class StudyError(RuntimeError):
@@ -62,7 +65,7 @@ class StudyError(RuntimeError):
 RunArrays = Result
 
 
-def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (),
+def simulate(scenario: str | Path | dict[str, Any], overrides: Overrides = (),
              variables: Sequence[str] | None = None) -> Result:
     """Run a scenario in memory (no files) and return its recorded signals and metrics as a
     :class:`~orchestration.results.Result` with no ``out_dir`` and the stepping's ``wall_time``.
@@ -72,7 +75,8 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (
     scenario
         A scenario file or a parsed TOML document.
     overrides
-        ``comp.param=value`` and ``scenario.seed=N`` strings (see :mod:`orchestration.scenario`).
+        ``comp.param=value`` and ``scenario.seed=N`` strings, or a mapping
+        ``{("ekf", "stiffness_scale"): 0.5}`` (see :mod:`orchestration.scenario`).
     variables
         Keep only these recorded variables (``comp.var``); default all.
 
@@ -86,7 +90,7 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (
     from .master import simulate as _simulate
     from .scenario import ScenarioError, load_scenario
 
-    sc = load_scenario(scenario, tuple(overrides))
+    sc = load_scenario(scenario, overrides)
     columns = sc.record_columns()
     missing = unrecorded(sc, variables or ())
     if missing:                                  # before the run, not after it

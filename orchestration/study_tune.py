@@ -48,7 +48,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .scenario import connection_key
+from .scenario import connection_key, toml_value
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
 
 #: Default search ranges per estimator FMU type (model identifier), used when no --param is
@@ -443,16 +443,6 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
 # ---------------------------------------------------------------------------------------------
 # output
 # ---------------------------------------------------------------------------------------------
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, str):
-        return json.dumps(v)
-    return repr(float(v))
-
-
 def _collapse(params: dict[str, float]) -> dict[str, Any]:
     """``name[1..n]`` given completely -> ``name = [..]``; other keys unchanged."""
     out: dict[str, Any] = {}
@@ -485,7 +475,7 @@ def write_include(path: str | Path, component: str | Sequence[str], params: dict
         lines.append(f"[components.{comp}.parameters]")
         for k, v in _collapse(params).items():
             key = k if k.replace("_", "").isalnum() else json.dumps(k)
-            lines.append(f"{key} = {_toml_value(v)}")
+            lines.append(f"{key} = {toml_value(v)}")
         lines.append("")
     path.write_text("\n".join(lines))
     return path

@@ -2,10 +2,11 @@
 from __future__ import annotations
 
 
+import numpy as np
 import pytest
 
-from orchestration.scenario import (ScenarioError, load_scenario, merge_include, parse_override,
-                                    parse_value, stable_seed)
+from orchestration.scenario import (ScenarioError, load_scenario, merge_include, override_strings,
+                                    parse_override, parse_value, stable_seed, toml_value)
 from toys import write
 
 
@@ -80,6 +81,30 @@ def test_overrides(tmp_path):
     assert sc.components["src"].parameters["offset[1]"] == 1.0
     assert parse_override(" a.b[2] = [1, 2] ") == ("a", "b", 2, [1, 2])
     assert parse_value('"x"') == "x" and parse_value("true") is True
+
+
+def test_structured_overrides_load_like_their_strings(tmp_path):
+    path = write(tmp_path, BASE)
+    texts = ["src.slope=0.30000000000000004", "src.offset[2]=9.5", "src.label=\"a b\"", "scenario.seed=3",
+             "g.gain=[1.5, 2]"]
+    mapping = {("src", "slope"): 0.1 + 0.2, ("src", "offset", 2): np.float64(9.5), ("src", "label"): "a b",
+               ("scenario", "seed"): 3, ("g", "gain"): (1.5, 2)}
+    assert override_strings(mapping) == tuple(texts)
+    assert override_strings(texts) == tuple(texts)
+    sc = load_scenario(path, {k: v for k, v in mapping.items() if k[1] != "gain"})
+    assert sc.overrides == tuple(texts[:4])               # recorded as strings, as --set gives them
+    assert sc.components["src"].parameters == load_scenario(path, texts[:4]).components["src"].parameters
+    assert sc.components["src"].parameters["slope"] == 0.1 + 0.2 and sc.seed == 3
+    with pytest.raises(ScenarioError, match=r"override key 'src.slope': expected \(component, parameter\)"):
+        override_strings({"src.slope": 1.0})
+    with pytest.raises(ScenarioError, match="not the string"):
+        override_strings("src.slope=1")
+
+
+@pytest.mark.parametrize("value", [0.1 + 0.2, -1e-300, float("inf"), 3, True, "x \"q\" \\ é",
+                                   [1.5, [2, 3]], {"m": 2.0, "n": [1, 2]}])
+def test_toml_value_reads_back_to_the_same_value(value):
+    assert parse_value(toml_value(value)) == value
 
 
 def test_include_merges_parameters(tmp_path):

@@ -600,41 +600,47 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
     for inc in includes:
         merge_include(doc, base_dir / inc, label)
 
-    # overrides
     for text in overrides:
-        cname, pname, index, value = parse_override(text)
-        where = f"override {text.strip()!r}"
-        if cname == "scenario":
-            if pname not in _SCENARIO_KEYS - {"include"} or index is not None:
-                raise ScenarioError(f"{where}: unknown scenario key '{pname}' (allowed: "
-                                    "seed, stop_time, base_step, name, description)")
-            head[pname] = value
-            continue
-        if cname == "parameter_sets":
-            sname, _, key = pname.partition(".")
-            if sname not in sets:
-                raise ScenarioError(f"{where}: unknown parameter set '{sname}' (defined: "
-                                    f"{', '.join(sets) or 'none'})")
-            if not key:
-                sets[sname] = _parameter_sets(where, {sname: value}, base_dir)[sname]
-            else:
-                sets[sname][key if index is None else f"{key}[{index}]"] = value
-            continue
-        if cname not in comps_doc:
-            raise ScenarioError(f"{where}: unknown component '{cname}' (components: "
-                                f"{', '.join(comps_doc)})")
-        if pname == "parameter_sets" and index is None:
-            comps_doc[cname]["parameter_sets"] = value
-            continue
-        params = _table(f"{label}: [components.{cname}.parameters]",
-                        comps_doc[cname].setdefault("parameters", {}))
-        if index is None:
-            params[pname] = value
-        else:
-            params[f"{pname}[{index}]"] = value
+        _apply_override(text, head, doc["parameter_sets"], comps_doc, label, base_dir)
     head.pop("include", None)
     doc["scenario"] = head
     return doc, path, label, base_dir
+
+
+def _apply_override(text: str, head: dict[str, Any], sets: dict[str, dict[str, Any]],
+                    comps_doc: dict[str, Any], label: str, base_dir: Path) -> None:
+    """Apply the override ``text`` (``comp.param[i]=value``, ``scenario.key=value`` or
+    ``parameter_sets.S.key=value``) to the document's parts."""
+    cname, pname, index, value = parse_override(text)
+    where = f"override {text.strip()!r}"
+    if cname == "scenario":
+        if pname not in _SCENARIO_KEYS - {"include"} or index is not None:
+            raise ScenarioError(f"{where}: unknown scenario key '{pname}' (allowed: "
+                                "seed, stop_time, base_step, name, description)")
+        head[pname] = value
+        return
+    if cname == "parameter_sets":
+        sname, _, key = pname.partition(".")
+        if sname not in sets:
+            raise ScenarioError(f"{where}: unknown parameter set '{sname}' (defined: "
+                                f"{', '.join(sets) or 'none'})")
+        if not key:
+            sets[sname] = _parameter_sets(where, {sname: value}, base_dir)[sname]
+        else:
+            sets[sname][key if index is None else f"{key}[{index}]"] = value
+        return
+    if cname not in comps_doc:
+        raise ScenarioError(f"{where}: unknown component '{cname}' (components: "
+                            f"{', '.join(comps_doc)})")
+    if pname == "parameter_sets" and index is None:
+        comps_doc[cname]["parameter_sets"] = value
+        return
+    params = _table(f"{label}: [components.{cname}.parameters]",
+                    comps_doc[cname].setdefault("parameters", {}))
+    if index is None:
+        params[pname] = value
+    else:
+        params[f"{pname}[{index}]"] = value
 
 
 def merge_include(doc: dict[str, Any], inc_path: Path, label: str = "<scenario>", *,
@@ -726,26 +732,8 @@ def _check_set_keys(label: str, sets: dict[str, dict[str, Any]], users: dict[str
                                 f"({', '.join(c.name for c in comps)})")
 
 
-def load_scenario(source: str | Path | dict[str, Any], overrides: Overrides = ()) -> Scenario:
-    """Load, resolve and validate a scenario.
-
-    Parameters
-    ----------
-    source
-        Path of a TOML file, or an already parsed document (paths then relative to the cwd).
-    overrides
-        ``comp.param=value`` / ``comp.param[i]=value`` / ``scenario.key=value`` strings, or a
-        mapping ``{(comp, param): value, (comp, param, i): value}`` (:func:`override_strings`).
-
-    Raises
-    ------
-    ScenarioError
-        One message naming the file, the component and the variable.
-    """
-    overrides = override_strings(overrides)
-    doc, path, label, base_dir = _document(source, overrides)
-    head = doc["scenario"]
-    comps_doc = doc["components"]
+def _head(label: str, head: dict[str, Any], path: Path | None) -> tuple[str, str, float, float, int]:
+    """``(name, description, stop_time, base_step, seed)`` of the ``[scenario]`` table."""
     name = head.get("name", path.stem if path else "scenario")
     if not isinstance(name, str):
         raise ScenarioError(f"{label}: [scenario] name must be a string")
@@ -763,8 +751,13 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Overrides = ()
     seed = head.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ScenarioError(f"{label}: [scenario] seed must be an integer, got {seed!r}")
+    return name, description, stop_time, base_step, seed
 
-    sets = doc["parameter_sets"]
+
+def _components(label: str, comps_doc: dict[str, Any], sets: dict[str, dict[str, Any]], base_dir: Path,
+                base_step: float, seed: int) -> dict[str, Component]:
+    """The components, their FMUs read and their parameters resolved: parameter sets first,
+    then the component's own, and a stable per-component ``seed`` unless one is given."""
     set_users: dict[str, list[Component]] = {}
     components: dict[str, Component] = {}
     for cname, ctab in comps_doc.items():
@@ -796,9 +789,12 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Overrides = ()
                                               stable_seed(seed, cname))
         components[cname] = comp
     _check_set_keys(label, sets, set_users)
+    return components
 
-    # connections
-    conn_doc = doc.get("connections", [])
+
+def _connections(label: str, conn_doc: Any, components: dict[str, Component]) -> list[Connection]:
+    """The ``a.x -> b.y`` connections: output to input, Real, same size and unit, each input
+    driven once."""
     if not isinstance(conn_doc, list):
         raise ScenarioError(f"{label}: 'connections' must be a list of \"a.x -> b.y\" strings "
                             "(put it before the first [table])")
@@ -840,11 +836,12 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Overrides = ()
             driven[key] = text
         connections.append(Connection(sc.name, svar, dc.name, dvar,
                                       tuple(zip(sgroup, dgroup)), text))
-    oracles = _check_honest_signals(label, doc.get("oracles", []), connections, components)
-    delays = _marked_connections(label, "delays", doc.get("delays", []), connections)
+    return connections
 
-    # record
-    rec = doc.get("record", {})
+
+def _record(label: str, rec: Any, components: dict[str, Component], connections: list[Connection],
+            base_step: float) -> tuple[list[str], float]:
+    """``(recorded variables, interval)`` of ``[record]`` (default: every connected output)."""
     _check_keys(f"{label}: [record]", rec, {"variables", "interval"})
     if "variables" in rec:
         if not isinstance(rec["variables"], list):
@@ -859,84 +856,119 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Overrides = ()
         record = list(dict.fromkeys(f"{c.src}.{c.src_var}" for c in connections))
     interval = _number(f"{label}: [record] interval", rec.get("interval", base_step))
     _multiple(f"{label}: [record] interval", interval, base_step)
+    return record, interval
 
-    # metrics
-    metrics_doc = doc.get("metrics", [])
+
+def _metrics(label: str, metrics_doc: Any, components: dict[str, Component], record: list[str],
+             interval: float) -> list[MetricSpec]:
+    """The ``[[metrics]]``, checked; what they read is added to ``record``."""
     if not isinstance(metrics_doc, list):
         raise ScenarioError(f"{label}: metrics must be given as [[metrics]] tables")
     metrics: list[MetricSpec] = []
     for i, m in enumerate(metrics_doc):
-        where = f"{label}: [[metrics]] #{i + 1}"
-        _check_keys(where, m, {"kind", "name", "estimate", "truth", "truth_time", "after", "low", "high",
-                               "order", "covariance", "dof"})
-        if "kind" not in m:
-            raise ScenarioError(f"{where}: 'kind' is missing")
-        if m["kind"] not in ("rmse", "bandpass", "max", "nees", "nis"):
-            raise ScenarioError(f"{where}: unknown kind {m.get('kind')!r} (rmse, bandpass, max, nees, nis)")
-        needed = {"nis": ("estimate", "dof"), "nees": ("estimate", "truth", "covariance")}.get(
-            m["kind"], ("estimate", "truth"))
-        for key in needed:
-            if key not in m:
-                raise ScenarioError(f"{where}: '{key}' is missing (kind {m['kind']!r})")
-        mname = m.get("name", f"{m['kind']}_{m['estimate']}")
-        where = f"{label}: metric '{mname}'"
-        sizes = []
-        for key in ("estimate", "truth", "covariance"):
-            if key not in m:
-                continue
-            comp, var, group = _lookup(f"{where}: {key}", components, m[key])
-            sizes.append(len(group))
-            ref = f"{comp.name}.{var}"
-            if ref not in record:
-                record.append(ref)
-        dof = m.get("dof", sizes[0])
-        if m["kind"] == "nees" and dof != sizes[0]:
-            raise ScenarioError(f"{where}: the NEES of {sizes[0]} states has {sizes[0]} degrees of "
-                                f"freedom, got dof = {dof!r}")
-        if m["kind"] == "nis" and sizes[0] != 1:
-            raise ScenarioError(f"{where}: estimate {m['estimate']!r} must be a scalar (the filter's "
-                                "nis or innovation_norm output)")
-        if m["kind"] in ("nees", "nis") and (isinstance(dof, bool) or not isinstance(dof, int) or dof < 1):
-            raise ScenarioError(f"{where}: dof must be a positive integer, got {dof!r}")
-        if m["kind"] == "nees":
-            from .metrics import packed_dimension
-            n = packed_dimension(sizes[2])
-            if n is None or n < sizes[0]:
-                raise ScenarioError(f"{where}: covariance {m['covariance']!r} has {sizes[2]} elements: "
-                                    f"not a packed covariance (n (n + 1) / 2 elements) of at least the "
-                                    f"{sizes[0]} states of the estimate")
-        if len(sizes) > 1 and sizes[0] != sizes[1]:
-            raise ScenarioError(f"{where}: size mismatch: estimate {m['estimate']!r} has {sizes[0]} "
-                                f"element(s), truth {m['truth']!r} has {sizes[1]}")
-        truth_time = m.get("truth_time")
-        if truth_time is not None:
-            comp, var, group = _lookup(f"{where}: truth_time", components, truth_time)
-            if len(group) != 1 or comp.variables[group[0]].unit not in (None, "s"):
-                raise ScenarioError(f"{where}: truth_time {truth_time!r} must be a scalar time (s), "
-                                    "the sample time of the truth (e.g. tracker.t_meas)")
-            if f"{comp.name}.{var}" not in record:
-                record.append(f"{comp.name}.{var}")
-        after = _number(f"{where}: after", m.get("after", 0.0), positive=False)
-        low = _number(f"{where}: low", m.get("low", 3.0))
-        high = _number(f"{where}: high", m.get("high", 30.0))
-        order = m.get("order", 4)
-        if m["kind"] == "bandpass":
-            nyq = 0.5 / interval
-            if not low < high < nyq:
-                raise ScenarioError(f"{where}: need low < high < Nyquist frequency {nyq:g} Hz "
-                                    f"of the record interval, got low={low:g}, high={high:g}")
-        if isinstance(order, bool) or not isinstance(order, int) or order < 1:
-            raise ScenarioError(f"{where}: order must be a positive integer")
-        against = (roles.against(components[_split_ref(where, m["truth"])[0]]) if "truth" in m
-                   else "innovations")      # nis: the filter's innovations against its own S
-        metrics.append(MetricSpec(m["kind"], mname, m["estimate"], m.get("truth", ""), after, low, high,
-                                  order, against, truth_time, m.get("covariance"),
-                                  dof if m["kind"] in ("nees", "nis") else None))
+        metrics.append(_metric(f"{label}: [[metrics]] #{i + 1}", label, m, components, record, interval))
     names = [m.name for m in metrics]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise ScenarioError(f"{label}: duplicate metric name(s) {', '.join(sorted(dup))}")
+    return metrics
 
+
+def _metric(where: str, label: str, m: Any, components: dict[str, Component], record: list[str],
+            interval: float) -> MetricSpec:
+    """One ``[[metrics]]`` table (``where`` names it until its name is known)."""
+    _check_keys(where, m, {"kind", "name", "estimate", "truth", "truth_time", "after", "low", "high",
+                           "order", "covariance", "dof"})
+    if "kind" not in m:
+        raise ScenarioError(f"{where}: 'kind' is missing")
+    if m["kind"] not in ("rmse", "bandpass", "max", "nees", "nis"):
+        raise ScenarioError(f"{where}: unknown kind {m.get('kind')!r} (rmse, bandpass, max, nees, nis)")
+    needed = {"nis": ("estimate", "dof"), "nees": ("estimate", "truth", "covariance")}.get(
+        m["kind"], ("estimate", "truth"))
+    for key in needed:
+        if key not in m:
+            raise ScenarioError(f"{where}: '{key}' is missing (kind {m['kind']!r})")
+    mname = m.get("name", f"{m['kind']}_{m['estimate']}")
+    where = f"{label}: metric '{mname}'"
+    sizes = []
+    for key in ("estimate", "truth", "covariance"):
+        if key not in m:
+            continue
+        comp, var, group = _lookup(f"{where}: {key}", components, m[key])
+        sizes.append(len(group))
+        ref = f"{comp.name}.{var}"
+        if ref not in record:
+            record.append(ref)
+    dof = m.get("dof", sizes[0])
+    if m["kind"] == "nees" and dof != sizes[0]:
+        raise ScenarioError(f"{where}: the NEES of {sizes[0]} states has {sizes[0]} degrees of "
+                            f"freedom, got dof = {dof!r}")
+    if m["kind"] == "nis" and sizes[0] != 1:
+        raise ScenarioError(f"{where}: estimate {m['estimate']!r} must be a scalar (the filter's "
+                            "nis or innovation_norm output)")
+    if m["kind"] in ("nees", "nis") and (isinstance(dof, bool) or not isinstance(dof, int) or dof < 1):
+        raise ScenarioError(f"{where}: dof must be a positive integer, got {dof!r}")
+    if m["kind"] == "nees":
+        from .metrics import packed_dimension
+        n = packed_dimension(sizes[2])
+        if n is None or n < sizes[0]:
+            raise ScenarioError(f"{where}: covariance {m['covariance']!r} has {sizes[2]} elements: "
+                                f"not a packed covariance (n (n + 1) / 2 elements) of at least the "
+                                f"{sizes[0]} states of the estimate")
+    if len(sizes) > 1 and sizes[0] != sizes[1]:
+        raise ScenarioError(f"{where}: size mismatch: estimate {m['estimate']!r} has {sizes[0]} "
+                            f"element(s), truth {m['truth']!r} has {sizes[1]}")
+    truth_time = m.get("truth_time")
+    if truth_time is not None:
+        comp, var, group = _lookup(f"{where}: truth_time", components, truth_time)
+        if len(group) != 1 or comp.variables[group[0]].unit not in (None, "s"):
+            raise ScenarioError(f"{where}: truth_time {truth_time!r} must be a scalar time (s), "
+                                "the sample time of the truth (e.g. tracker.t_meas)")
+        if f"{comp.name}.{var}" not in record:
+            record.append(f"{comp.name}.{var}")
+    after = _number(f"{where}: after", m.get("after", 0.0), positive=False)
+    low = _number(f"{where}: low", m.get("low", 3.0))
+    high = _number(f"{where}: high", m.get("high", 30.0))
+    order = m.get("order", 4)
+    if m["kind"] == "bandpass":
+        nyq = 0.5 / interval
+        if not low < high < nyq:
+            raise ScenarioError(f"{where}: need low < high < Nyquist frequency {nyq:g} Hz "
+                                f"of the record interval, got low={low:g}, high={high:g}")
+    if isinstance(order, bool) or not isinstance(order, int) or order < 1:
+        raise ScenarioError(f"{where}: order must be a positive integer")
+    against = (roles.against(components[_split_ref(where, m["truth"])[0]]) if "truth" in m
+               else "innovations")      # nis: the filter's innovations against its own S
+    return MetricSpec(m["kind"], mname, m["estimate"], m.get("truth", ""), after, low, high,
+                      order, against, truth_time, m.get("covariance"),
+                      dof if m["kind"] in ("nees", "nis") else None)
+
+
+def load_scenario(source: str | Path | dict[str, Any], overrides: Overrides = ()) -> Scenario:
+    """Load, resolve and validate a scenario.
+
+    Parameters
+    ----------
+    source
+        Path of a TOML file, or an already parsed document (paths then relative to the cwd).
+    overrides
+        ``comp.param=value`` / ``comp.param[i]=value`` / ``scenario.key=value`` strings, or a
+        mapping ``{(comp, param): value, (comp, param, i): value}`` (:func:`override_strings`).
+
+    Raises
+    ------
+    ScenarioError
+        One message naming the file, the component and the variable.
+    """
+    overrides = override_strings(overrides)
+    doc, path, label, base_dir = _document(source, overrides)
+    name, description, stop_time, base_step, seed = _head(label, doc["scenario"], path)
+    components = _components(label, doc["components"], doc["parameter_sets"], base_dir, base_step, seed)
+    connections = _connections(label, doc.get("connections", []), components)
+    oracles = _check_honest_signals(label, doc.get("oracles", []), connections, components)
+    delays = _marked_connections(label, "delays", doc.get("delays", []), connections)
+    record, interval = _record(label, doc.get("record", {}), components, connections, base_step)
+    metrics = _metrics(label, doc.get("metrics", []), components, record, interval)
     _check_run_length(label, stop_time, base_step, components)
     return Scenario(path=path, name=name, description=description, stop_time=stop_time,
                     base_step=base_step, seed=int(seed), components=components,

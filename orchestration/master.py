@@ -750,24 +750,11 @@ def _run_into(sc: Scenario, overrides: tuple[str, ...], out: Path, progress: boo
         if bar is not None:
             bar.close()
     wall = time.perf_counter() - t0
-    from . import metrics as _metrics        # after the run: a failed run never needs it
     with warnings.catch_warnings():     # it still says "running": the status comes below
         warnings.simplefilter("ignore", ResultWarning)
         result = Result.load(out)
-    values: dict[str, float] = {}
-    described: dict[str, dict[str, Any]] = {}
     try:
-        for spec in sc.metrics:
-            try:
-                computed = _metrics.compute(spec, result.time, result[spec.estimate],
-                                            result[spec.truth] if spec.truth else None,
-                                            result[spec.truth_time] if spec.truth_time else None,
-                                            result[spec.covariance] if spec.covariance else None)
-            except ValueError as exc:
-                raise ScenarioError(f"metric '{spec.name}': {exc}") from None
-            values.update(computed)
-            unit = metric_unit(sc, spec.estimate)
-            described.update({k: {**e, "unit": unit} for k, e in _metrics.entries(spec, computed).items()})
+        described = evaluate_metrics(sc, result)
         write_json(out / METRICS_NAME, described)
         info.update(status="ok", wall_time_s=wall, real_time_factor=sc.stop_time / wall if wall > 0 else None,
                     warnings=notes)
@@ -783,11 +770,34 @@ def _run_into(sc: Scenario, overrides: tuple[str, ...], out: Path, progress: boo
         raise
     result.status = "ok"
     result.error = None
-    result.metrics = values
-    result.units = {name: e["unit"] for name, e in described.items()}
-    result.against = {name: e["against"] for name, e in described.items()}
+    result.set_metrics(described)
     result.warnings = notes
     return result
+
+
+def evaluate_metrics(sc: Scenario, result: "Result") -> dict[str, dict[str, Any]]:
+    """The scenario's metrics on a run's recorded signals, as ``metrics.json`` holds them:
+    ``{name: {"value", "unit", "against", ...}}`` (:func:`orchestration.metrics.entries`).
+    The one evaluation of both run paths (:func:`run` and :func:`orchestration.study.simulate`).
+
+    Raises
+    ------
+    ScenarioError
+        A metric that cannot be computed on these signals (e.g. no sample after ``after``).
+    """
+    from . import metrics as _metrics        # after the run: a failed run never needs it
+    described: dict[str, dict[str, Any]] = {}
+    for spec in sc.metrics:
+        try:
+            computed = _metrics.compute(spec, result.time, result[spec.estimate],
+                                        result[spec.truth] if spec.truth else None,
+                                        result[spec.truth_time] if spec.truth_time else None,
+                                        result[spec.covariance] if spec.covariance else None)
+        except ValueError as exc:
+            raise ScenarioError(f"{sc.name}: metric '{spec.name}': {exc}") from None
+        unit = metric_unit(sc, spec.estimate)
+        described.update({k: {**e, "unit": unit} for k, e in _metrics.entries(spec, computed).items()})
+    return described
 
 
 def metric_unit(sc: Scenario, ref: str) -> str:
@@ -798,4 +808,4 @@ def metric_unit(sc: Scenario, ref: str) -> str:
 
 
 __all__ = ["RunError", "CouplingWarning", "Interrupted", "stop_on_signals", "metric_unit", "Plan", "plan",
-           "find_algebraic_loop", "simulate", "run"]
+           "find_algebraic_loop", "simulate", "run", "evaluate_metrics"]

@@ -271,6 +271,12 @@ class Result:
         idx.sort(key=lambda i: int(self.columns[i][len(name) + 1:-1]))
         return self.data[:, idx]
 
+    def set_metrics(self, described: dict[str, dict[str, Any]]) -> None:
+        """Take the ``metrics.json`` entries ``{name: {"value", "unit", "against", ...}}``."""
+        self.metrics = {name: e["value"] for name, e in described.items()}
+        self.units = {name: e.get("unit", "") for name, e in described.items()}
+        self.against = {name: e["against"] for name, e in described.items()}
+
     def __contains__(self, name: str) -> bool:
         try:
             self[name]

@@ -85,8 +85,7 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Overrides = (),
     ScenarioError, RunError
         As :func:`orchestration.master.run`.
     """
-    from . import metrics as _metrics
-    from .master import CouplingWarning
+    from .master import CouplingWarning, evaluate_metrics
     from .master import simulate as _simulate
     from .scenario import ScenarioError, load_scenario
 
@@ -109,12 +108,7 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Overrides = (),
     wall = time.perf_counter() - t0
     data = np.array(rows).reshape(len(rows), len(columns))
     run = Result(None, np.array(times), columns, data, warnings=notes, wall_time=wall)
-    for spec in sc.metrics:
-        try:
-            run.metrics.update(_metrics.compute(spec, run.time, run[spec.estimate], run[spec.truth],
-                                                run[spec.truth_time] if spec.truth_time else None))
-        except (ValueError, KeyError) as exc:
-            raise ScenarioError(f"{sc.name}: metric '{spec.name}': {exc}") from None
+    run.set_metrics(evaluate_metrics(sc, run))
     if variables is not None:
         keep = [i for i, c in enumerate(columns) if c.split("[", 1)[0] in set(variables)]
         run.columns = [columns[i] for i in keep]

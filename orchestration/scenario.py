@@ -569,7 +569,7 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
               ) -> tuple[dict[str, Any], Path | None, str, Path]:
     """``(document, path, label, base_dir)``: the TOML with includes and overrides applied."""
     if isinstance(source, dict):
-        path, doc, label, base_dir = None, _deepcopy(source), "<scenario>", Path.cwd()
+        path, doc, label, base_dir = None, copy_document(source), "<scenario>", Path.cwd()
     else:
         path = Path(source)
         doc = _read_toml(path)
@@ -1042,14 +1042,15 @@ def _article(word: str) -> str:
     return "an" if word[0] in "aeiou" else "a"
 
 
-def _deepcopy(doc: Any) -> Any:
+def copy_document(doc: Any) -> Any:
+    """A deep copy of a TOML document (its tables and arrays; the values are immutable)."""
     if isinstance(doc, dict):
-        return {k: _deepcopy(v) for k, v in doc.items()}
+        return {k: copy_document(v) for k, v in doc.items()}
     if isinstance(doc, list):
-        return [_deepcopy(v) for v in doc]
+        return [copy_document(v) for v in doc]
     return doc
 
 
 __all__ = ["ScenarioError", "Scenario", "Component", "Connection", "MetricSpec", "VariableInfo",
-           "load_scenario", "merge_include", "Overrides", "override_strings", "toml_value", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
+           "load_scenario", "copy_document", "merge_include", "Overrides", "override_strings", "toml_value", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
            "connection_key", "check_metric_windows", "MAX_STEPS"]

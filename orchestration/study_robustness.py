@@ -47,6 +47,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .metrics import bandpass
+from .scenario import copy_document
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
@@ -161,7 +162,7 @@ def model_error_factors(kind: str, model: dict[str, Any]) -> dict[str, Any]:
 def with_model_error(doc: dict[str, Any], kind: str) -> dict[str, Any]:
     """A copy of ``doc`` whose estimators take :data:`MODEL_SET` with the model error ``kind``
     (as a new set ``<MODEL_SET>_<kind>``); other components (the controller) keep theirs."""
-    doc = json.loads(json.dumps(doc))
+    doc = copy_document(doc)
     if not kind:
         return doc
     model = doc.get("parameter_sets", {}).get(MODEL_SET)

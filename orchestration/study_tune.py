@@ -48,7 +48,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .scenario import connection_key, toml_value
+from .scenario import connection_key, copy_document, toml_value
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
 
 #: Default search ranges per estimator FMU type (model identifier), used when no --param is
@@ -132,7 +132,7 @@ def load_document(scenario: str | Path | dict[str, Any]) -> dict[str, Any]:
 def prune(doc: dict[str, Any], keep_refs: Sequence[str]) -> dict[str, Any]:
     """A copy of ``doc`` with only the components the variables ``keep_refs`` (``comp.var``)
     depend on through the connections; no metrics; those variables recorded."""
-    doc = json.loads(json.dumps(doc))
+    doc = copy_document(doc)
     conns = [c for c in doc.get("connections", []) if isinstance(c, str) and "->" in c]
     edges = [(_component_of(a.strip()), _component_of(b.strip())) for a, b in (c.split("->") for c in conns)]
     need = {_component_of(r) for r in keep_refs}

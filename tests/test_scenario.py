@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from orchestration.scenario import (ScenarioError, load_scenario, merge_include, override_strings,
-                                    parse_override, parse_value, stable_seed, toml_value)
+from orchestration.scenario import (ScenarioError, copy_document, load_scenario, merge_include,
+                                    override_strings, parse_override, parse_value, stable_seed,
+                                    toml_value)
 from toys import write
 
 
@@ -203,3 +204,12 @@ def test_missing_scenario_file(tmp_path):
 def test_bad_overrides(tmp_path, override, message):
     with pytest.raises(ScenarioError, match=message):
         load_scenario(write(tmp_path, BASE), [override])
+
+
+def test_copy_document_shares_no_table_or_array():
+    doc = {"components": {"g": {"parameters": {"v": [1.0, [2.0]]}}}, "connections": ["a.x -> b.y"]}
+    copy = copy_document(doc)
+    assert copy == doc
+    copy["components"]["g"]["parameters"]["v"][1].append(3.0)
+    copy["connections"].clear()
+    assert doc == {"components": {"g": {"parameters": {"v": [1.0, [2.0]]}}}, "connections": ["a.x -> b.y"]}

@@ -78,6 +78,16 @@ dof = 1
     assert_allclose(mem.metrics["gap"], np.sqrt(np.mean((mem["a.x"][keep] - mem["b.x"][keep]) ** 2)))
 
 
+def test_structured_overrides_run_like_strings_and_are_recorded_as_strings(tmp_path):
+    path = write(tmp_path, MASS_SPRING)
+    mem = study.simulate(path, {("a", "k"): 9.0, ("scenario", "stop_time"): 0.5})
+    assert_array_equal(mem["a.x"], study.simulate(path, ["a.k=9.0", "scenario.stop_time=0.5"])["a.x"])
+    disk = run(path, {("a", "k"): 9.0, ("scenario", "stop_time"): 0.5}, out_dir=tmp_path / "out")
+    assert_array_equal(disk["a.x"], mem["a.x"])
+    assert json.loads((tmp_path / "out" / "run.json").read_text())["overrides"] == ["a.k=9.0",
+                                                                                "scenario.stop_time=0.5"]
+
+
 def test_simulate_keeps_the_variables_asked_for(tmp_path):
     path = write(tmp_path, MASS_SPRING)
     r = study.simulate(path, variables=["b.x"])

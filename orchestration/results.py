@@ -186,7 +186,7 @@ def read_results_csv(path: Path) -> tuple[list[str], np.ndarray, bool]:
 
 
 def json_safe(x: Any) -> Any:
-    """``x`` as plain JSON data: the one sanitiser of every JSON file the project writes.
+    """``x`` as plain JSON data: the one sanitiser of the JSON files with numbers from a run.
 
     Dict keys become strings, tuples and numpy arrays lists, numpy scalars Python numbers, paths
     strings; a NaN becomes ``null`` and an infinity ``"inf"``/``"-inf"`` (strict JSON has

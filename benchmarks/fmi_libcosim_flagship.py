@@ -5,7 +5,7 @@ about 0.35 mm, do not hide a timing error).
 
 Usage: ``python benchmarks/fmi_libcosim_flagship.py [STOP_TIME]`` (default 11 s, about 3 min
 for both cases; the FMUs of ``dist/fmus`` or ``$FLEXFUSION_FMU_DIR``). libcosim runs in a
-subprocess (``tests/cosim_runner.py``): pythonfmu FMUs run in the host's interpreter.
+subprocess (``orchestration/cosim_runner.py``): pythonfmu FMUs run in the host's interpreter.
 
 Measured, issue 13, ideal plant and nominal model, 11 s: our master 0.108 mm throughout;
 libcosim 42.6 mm while outputs read as zero in Initialization Mode, 0.384 mm with that fixed
@@ -39,6 +39,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from orchestration.cli import export_ssp  # noqa: E402
+from orchestration.cosim_runner import RUNNER  # noqa: E402
 from orchestration.master import run  # noqa: E402
 from orchestration.metrics import rmse  # noqa: E402
 
@@ -70,7 +71,7 @@ def compare(stop: float, out: Path, extra: list[str]) -> None:
     e_ours = rmse(ours["ekf.p_tool_hat"][keep], ours["plant.p_tool"][keep])
     print(f"our master: EKF tool RMS error {e_ours * 1e3:.4f} mm ({time.perf_counter() - t0:.0f} s)")
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, str(REPO / "tests" / "cosim_runner.py"), str(ssp),
+    subprocess.run([sys.executable, str(RUNNER), str(ssp),
                     str(int(round(STEP * 1e9))), str(int(round(stop / STEP))), str(out / "cosim.json"),
                     *COLUMNS], cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)), check=False)
     data = json.loads((out / "cosim.json").read_text())

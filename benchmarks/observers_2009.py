@@ -101,8 +101,7 @@ def _vector_refs(vr: dict, name: str) -> list[int]:
 
 def time_case(case: Case, fmu_dir: Path, seconds: float = 2.0) -> dict:
     """Run ``case`` for ``seconds`` of 2 kHz data; returns timing figures."""
-    sys.path.insert(0, str(REPO / "tests"))
-    from fmu_host import Slave                                   # noqa: E402 - test helper host
+    from orchestration.fmu_host import Slave
 
     s = Slave(fmu_dir / f"{case.fmu}.fmu", case.params)
     n = int(round(seconds * RATE))

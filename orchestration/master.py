@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from .scenario import Component, Scenario, ScenarioError, check_metric_windows
+from .scenario import Component, Overrides, Scenario, ScenarioError, check_metric_windows
 
 if TYPE_CHECKING:
     from .results import Result
@@ -381,6 +381,95 @@ class _Slot:
     last_k: int              # the base step of its last step (the next would pass the stop time)
 
 
+@dataclass
+class _Layout:
+    """Where every value a run reads lives: one shared buffer ``values`` (a ctypes array and
+    its numpy view) holding, per component in plan order, its connected outputs first, then
+    the ones only recorded; ``offsets[(comp, var)]`` indexes it."""
+    needed: dict[str, list[str]]           # the scalars read from each component, in buffer order
+    connected: dict[str, int]              # how many of them are connected (checked for NaN)
+    starts: dict[str, int]                 # each component's first slot in the buffer
+    offsets: dict[tuple[str, str], int]
+    inputs: dict[str, list[tuple[str, str, str]]]   # per component: (dst var, src comp, src var)
+    values_c: Any
+    values: np.ndarray
+    record_idx: np.ndarray                 # the recorded columns' slots
+
+    @classmethod
+    def of(cls, scenario: Scenario, order: list[str]) -> "_Layout":
+        comps = scenario.components
+        needed: dict[str, list[str]] = {n: [] for n in comps}
+        for c in scenario.connections:
+            for s, _ in c.pairs:
+                if s not in needed[c.src]:
+                    needed[c.src].append(s)
+        connected = {n: len(needed[n]) for n in comps}
+        for col in scenario.record_columns():
+            cname, var = col.split(".", 1)
+            if var not in needed[cname]:
+                needed[cname].append(var)
+        offsets: dict[tuple[str, str], int] = {}
+        starts = {}
+        total = 0
+        for n in order:
+            starts[n] = total
+            for var in needed[n]:
+                offsets[(n, var)] = total
+                total += 1
+        values_c = (ctypes.c_double * (total + 1))()   # + 1: a component reading nothing points at the end
+        values = np.ctypeslib.as_array(values_c)
+        values[:] = 0.0
+        record_idx = np.array([offsets[tuple(col.split(".", 1))] for col in scenario.record_columns()],
+                              dtype=np.intp)
+        return cls(needed, connected, starts, offsets, wiring(scenario), values_c, values, record_idx)
+
+    def slot(self, inst: _Instance, scenario: Scenario) -> _Slot:
+        """The stepping loop's data of the component of ``inst``: its input and output value
+        references and buffers (its outputs written straight into ``values``)."""
+        n = inst.name
+        comp = scenario.components[n]
+        ins, needed = self.inputs[n], self.needed[n]
+        in_vr = (ctypes.c_uint * max(len(ins), 1))(*[comp.variables[d].value_reference for d, _, _ in ins])
+        in_buf = (ctypes.c_double * max(len(ins), 1))()
+        out_vr = (ctypes.c_uint * max(len(needed), 1))(*[comp.variables[v].value_reference for v in needed])
+        out_ptr = (ctypes.c_double * max(len(needed), 1)).from_buffer(self.values_c, 8 * self.starts[n])
+        return _Slot(inst, comp.ratio, comp.step, len(ins), in_vr, in_buf, np.ctypeslib.as_array(in_buf),
+                     np.array([self.offsets[(s, v)] for _, s, v in ins], dtype=np.intp),
+                     len(needed), out_vr, out_ptr, self.starts[n], self.connected[n],
+                     needed, scenario.n_steps - comp.ratio)
+
+
+def _instantiate(comp: Component) -> _Instance:
+    """An instance of the component's FMU, or a :class:`RunError` saying why there is none."""
+    from fmpy.fmi1 import FMICallException
+
+    n = comp.name
+    try:
+        inst = _Instance(comp, _extracted(comp))
+    except FMICallException as exc:
+        raise RunError(f"component '{n}' ({comp.fmu.name}): instantiate failed: {exc}", 0.0, n) from None
+    except Exception as exc:  # noqa: BLE001 - a library that does not load
+        raise RunError(f"component '{n}' ({comp.fmu.name}): cannot load the FMU: "
+                       f"{type(exc).__name__}: {exc}", 0.0, n) from None
+    if inst.handle is None:
+        raise RunError(f"component '{n}' ({comp.fmu.name}): fmi2Instantiate failed; FMU log: "
+                       + inst.log_text(), 0.0, n)
+    return inst
+
+
+def _exchange_initial_values(s: _Slot, values: np.ndarray, leave_initialisation: bool) -> None:
+    """Set the slot's inputs from ``values``, leave initialisation mode if asked, and read its
+    outputs into ``values`` (checked for NaN)."""
+    if s.n_in:
+        np.take(values, s.in_idx, out=s.in_view)
+        s.inst.fmu.fmi2SetReal(s.inst.handle, s.in_vr, s.n_in, s.in_buf)
+    if leave_initialisation:
+        s.inst.fmu.exitInitializationMode()
+    if s.n_out:
+        s.inst.fmu.fmi2GetReal(s.inst.handle, s.out_vr, s.n_out, s.out_ptr)
+        _check_nan(s, values, 0.0)
+
+
 def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | None = None,
              hook: Any = None) -> list[str]:
     """Run the scenario; ``sink(t, values)`` gets every recorded row (values in
@@ -400,45 +489,15 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
     from fmpy.fmi1 import FMICallException
 
     p = plan(scenario)
-    notes = []
-    for text in (t for t in p.broken_text if t not in scenario.delays):
-        msg = (f"{scenario.name}: connection '{text}' is in a cycle; it uses the previous step's "
-               "value (Jacobi)")
+    notes = [f"{scenario.name}: connection '{text}' is in a cycle; it uses the previous step's "
+             "value (Jacobi)" for text in p.broken_text if text not in scenario.delays]
+    for msg in notes:
         warnings.warn(msg, CouplingWarning, stacklevel=2)
-        notes.append(msg)
 
-    comps = scenario.components
-    # which scalars of each component are read: connected outputs first, then recorded ones
-    needed: dict[str, list[str]] = {n: [] for n in comps}
-    connected: dict[str, int] = {}
-    for c in scenario.connections:
-        for s, _ in c.pairs:
-            if s not in needed[c.src]:
-                needed[c.src].append(s)
-    for n in comps:
-        connected[n] = len(needed[n])
-    for col in scenario.record_columns():
-        cname, var = col.split(".", 1)
-        if var not in needed[cname]:
-            needed[cname].append(var)
-    # one shared buffer of every read value
-    offsets: dict[tuple[str, str], int] = {}
-    total = 0
-    starts = {}
-    for n in p.order:
-        starts[n] = total
-        for var in needed[n]:
-            offsets[(n, var)] = total
-            total += 1
-    values_c = (ctypes.c_double * (total + 1))()   # + 1: a component reading nothing points at the end
-    values = np.ctypeslib.as_array(values_c)
-    values[:] = 0.0
-    record_idx = np.array([offsets[tuple(col.split(".", 1))] for col in scenario.record_columns()],
-                          dtype=np.intp)
-    inputs = wiring(scenario)
+    layout = _Layout.of(scenario, p.order)
+    values = layout.values
 
     instances: list[_Instance] = []
-    slots: list[_Slot] = []
     _ACTIVE_RUNS[0] += 1
     h = scenario.base_step
     t_now = 0.0
@@ -446,19 +505,8 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
     try:
         # ---- instantiate, parameters -----------------------------------------------------
         for n in p.order:
-            comp = comps[n]
             current = None
-            try:
-                inst = _Instance(comp, _extracted(comp))
-            except FMICallException as exc:
-                raise RunError(f"component '{n}' ({comp.fmu.name}): instantiate failed: {exc}",
-                               0.0, n) from None
-            except Exception as exc:  # noqa: BLE001 - a library that does not load
-                raise RunError(f"component '{n}' ({comp.fmu.name}): cannot load the FMU: "
-                               f"{type(exc).__name__}: {exc}", 0.0, n) from None
-            if inst.handle is None:
-                raise RunError(f"component '{n}' ({comp.fmu.name}): fmi2Instantiate failed; FMU log: "
-                               + inst.log_text(), 0.0, n)
+            inst = _instantiate(scenario.components[n])
             instances.append(inst)
             current = inst
             inst.fmu.setupExperiment(startTime=0.0, stopTime=scenario.stop_time)
@@ -467,43 +515,21 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
             _set_parameters(inst)
 
         by_name = {i.name: i for i in instances}
-        for n in p.order:
-            inst = by_name[n]
-            ins = inputs[n]
-            in_vr = (ctypes.c_uint * max(len(ins), 1))(*[comps[n].variables[d].value_reference for d, _, _ in ins])
-            in_buf = (ctypes.c_double * max(len(ins), 1))()
-            out_vr = (ctypes.c_uint * max(len(needed[n]), 1))(
-                *[comps[n].variables[v].value_reference for v in needed[n]])
-            out_ptr = (ctypes.c_double * max(len(needed[n]), 1)).from_buffer(values_c, 8 * starts[n])
-            slots.append(_Slot(inst, comps[n].ratio, comps[n].step, len(ins), in_vr, in_buf,
-                               np.ctypeslib.as_array(in_buf),
-                               np.array([offsets[(s, v)] for _, s, v in ins], dtype=np.intp),
-                               len(needed[n]), out_vr, out_ptr, starts[n], connected[n],
-                               needed[n], scenario.n_steps - comps[n].ratio))
+        slots = [layout.slot(by_name[n], scenario) for n in p.order]
 
         # ---- initialisation in dependency order ------------------------------------------
         for s in slots:
             current = s.inst
-            if s.n_in:
-                np.take(values, s.in_idx, out=s.in_view)
-                s.inst.fmu.fmi2SetReal(s.inst.handle, s.in_vr, s.n_in, s.in_buf)
-            s.inst.fmu.exitInitializationMode()
-            if s.n_out:
-                s.inst.fmu.fmi2GetReal(s.inst.handle, s.out_vr, s.n_out, s.out_ptr)
-                _check_nan(s, values, 0.0)
+            _exchange_initial_values(s, values, leave_initialisation=True)
         if p.broken:
             # a consumer on a broken edge saw its producer's start value: one more Gauss–Seidel
             # pass (step mode, before the first step) gives every input its initial value
             for s in slots:
                 current = s.inst
-                if s.n_in:
-                    np.take(values, s.in_idx, out=s.in_view)
-                    s.inst.fmu.fmi2SetReal(s.inst.handle, s.in_vr, s.n_in, s.in_buf)
-                if s.n_out:
-                    s.inst.fmu.fmi2GetReal(s.inst.handle, s.out_vr, s.n_out, s.out_ptr)
-                    _check_nan(s, values, 0.0)
+                _exchange_initial_values(s, values, leave_initialisation=False)
         current = None
-        k0 = hook.start(by_name, values, offsets) if hook is not None else 0
+        k0 = hook.start(by_name, values, layout.offsets) if hook is not None else 0
+        record_idx = layout.record_idx
         sink(round(k0 * h, 12), values[record_idx])
 
         # ---- stepping --------------------------------------------------------------------
@@ -538,7 +564,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
             if (k + 1) % every == 0:
                 sink(round((k + 1) * h, 12), values[record_idx])
             if k + 1 == save_at:
-                hook.save(k + 1, by_name, values, offsets)
+                hook.save(k + 1, by_name, values, layout.offsets)
             if (k + 1) % tick == 0:
                 if _STOP[0]:
                     raise Interrupted(_STOP[0], round((k + 1) * h, 12))
@@ -611,7 +637,7 @@ def _check_nan(s: _Slot, values: np.ndarray, t: float) -> None:
 # ---------------------------------------------------------------------------------------------
 # the public entry point
 # ---------------------------------------------------------------------------------------------
-def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[str] = (),
+def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Overrides = (),
         out_dir: str | Path | None = None, progress: bool = False, force: bool = False,
         hook: Any = None) -> "Result":
     """Run a scenario and write its results.
@@ -621,7 +647,8 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     scenario
         A scenario file, a parsed TOML document, or a loaded :class:`Scenario`.
     overrides
-        ``comp.param=value``, ``comp.param[i]=value``, ``scenario.seed=3`` ... strings.
+        ``comp.param=value``, ``comp.param[i]=value``, ``scenario.seed=3`` ... strings, or a
+        mapping ``{("ekf", "stiffness_scale"): 0.5}`` (:func:`~orchestration.scenario.override_strings`).
     out_dir
         Folder for ``results.csv``, ``metrics.json``, ``run.json`` (created, and owned by this
         run: :func:`orchestration.results.own_folder`); default: a new temporary folder.
@@ -654,9 +681,9 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Iterable[st
     exception's ``out_dir`` is the folder.
     """
     from .results import OutputError, own_folder
-    from .scenario import load_scenario
+    from .scenario import load_scenario, override_strings
 
-    overrides = tuple(overrides)
+    overrides = override_strings(overrides)
     if isinstance(scenario, Scenario):
         sc = load_scenario(scenario.path, scenario.overrides + overrides) if (overrides and scenario.path) else scenario
         if overrides and not scenario.path:
@@ -742,24 +769,11 @@ def _run_into(sc: Scenario, overrides: tuple[str, ...], out: Path, progress: boo
         if bar is not None:
             bar.close()
     wall = time.perf_counter() - t0
-    from . import metrics as _metrics        # after the run: a failed run never needs it
     with warnings.catch_warnings():     # it still says "running": the status comes below
         warnings.simplefilter("ignore", ResultWarning)
         result = Result.load(out)
-    values: dict[str, float] = {}
-    described: dict[str, dict[str, Any]] = {}
     try:
-        for spec in sc.metrics:
-            try:
-                computed = _metrics.compute(spec, result.time, result[spec.estimate],
-                                            result[spec.truth] if spec.truth else None,
-                                            result[spec.truth_time] if spec.truth_time else None,
-                                            result[spec.covariance] if spec.covariance else None)
-            except ValueError as exc:
-                raise ScenarioError(f"metric '{spec.name}': {exc}") from None
-            values.update(computed)
-            unit = metric_unit(sc, spec.estimate)
-            described.update({k: {**e, "unit": unit} for k, e in _metrics.entries(spec, computed).items()})
+        described = evaluate_metrics(sc, result)
         write_json(out / METRICS_NAME, described)
         info.update(status="ok", wall_time_s=wall, real_time_factor=sc.stop_time / wall if wall > 0 else None,
                     warnings=notes)
@@ -775,11 +789,34 @@ def _run_into(sc: Scenario, overrides: tuple[str, ...], out: Path, progress: boo
         raise
     result.status = "ok"
     result.error = None
-    result.metrics = values
-    result.units = {name: e["unit"] for name, e in described.items()}
-    result.against = {name: e["against"] for name, e in described.items()}
+    result.set_metrics(described)
     result.warnings = notes
     return result
+
+
+def evaluate_metrics(sc: Scenario, result: "Result") -> dict[str, dict[str, Any]]:
+    """The scenario's metrics on a run's recorded signals, as ``metrics.json`` holds them:
+    ``{name: {"value", "unit", "against", ...}}`` (:func:`orchestration.metrics.entries`).
+    The one evaluation of both run paths (:func:`run` and :func:`orchestration.study.simulate`).
+
+    Raises
+    ------
+    ScenarioError
+        A metric that cannot be computed on these signals (e.g. no sample after ``after``).
+    """
+    from . import metrics as _metrics        # after the run: a failed run never needs it
+    described: dict[str, dict[str, Any]] = {}
+    for spec in sc.metrics:
+        try:
+            computed = _metrics.compute(spec, result.time, result[spec.estimate],
+                                        result[spec.truth] if spec.truth else None,
+                                        result[spec.truth_time] if spec.truth_time else None,
+                                        result[spec.covariance] if spec.covariance else None)
+        except ValueError as exc:
+            raise ScenarioError(f"{sc.name}: metric '{spec.name}': {exc}") from None
+        unit = metric_unit(sc, spec.estimate)
+        described.update({k: {**e, "unit": unit} for k, e in _metrics.entries(spec, computed).items()})
+    return described
 
 
 def metric_unit(sc: Scenario, ref: str) -> str:
@@ -790,4 +827,4 @@ def metric_unit(sc: Scenario, ref: str) -> str:
 
 
 __all__ = ["RunError", "CouplingWarning", "Interrupted", "stop_on_signals", "metric_unit", "Plan", "plan", "wiring", "due",
-           "find_algebraic_loop", "simulate", "run"]
+           "find_algebraic_loop", "simulate", "run", "evaluate_metrics"]

@@ -185,13 +185,22 @@ def read_results_csv(path: Path) -> tuple[list[str], np.ndarray, bool]:
     return names[1:], data, torn
 
 
-def _json_safe(x: Any) -> Any:
+def json_safe(x: Any) -> Any:
+    """``x`` as plain JSON data: the one sanitiser of the JSON files with numbers from a run.
+
+    Dict keys become strings, tuples and numpy arrays lists, numpy scalars Python numbers, paths
+    strings; a NaN becomes ``null`` and an infinity ``"inf"``/``"-inf"`` (strict JSON has
+    neither, and an infinite bound or error is information worth keeping)."""
+    if isinstance(x, np.ndarray):
+        x = x.tolist()
+    elif isinstance(x, np.generic):
+        x = x.item()
     if isinstance(x, float) and not math.isfinite(x):
         return None if math.isnan(x) else ("inf" if x > 0 else "-inf")
     if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
+        return {str(k): json_safe(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
+        return [json_safe(v) for v in x]
     if isinstance(x, Path):
         return str(x)
     return x
@@ -204,7 +213,7 @@ def write_json(path: Path, data: Any) -> None:
     On a full disk the temporary file may find no free block while the old file holds some:
     then the old file is overwritten in place (truncating it frees its blocks first), so that a
     run's final status still reaches ``run.json``."""
-    text = json.dumps(_json_safe(data), indent=2, sort_keys=False) + "\n"
+    text = json.dumps(json_safe(data), indent=2, sort_keys=False) + "\n"
     try:
         atomic_write_text(path, text)
     except OSError as exc:
@@ -234,9 +243,11 @@ class Result:
 
     ``result["plant.p_tool[1]"]`` gives one column; a scalar variable gives an (n,) array.
     ``status`` is ``"ok"`` only for a run that ended ok with all its rows; otherwise
-    ``error`` says why (and :meth:`load` warns).
+    ``error`` says why (and :meth:`load` warns). The one container of a run's results: read
+    from a run folder (:meth:`load`) or kept in memory (:func:`orchestration.study.simulate`:
+    ``out_dir`` None, ``wall_time`` the seconds the stepping took).
     """
-    out_dir: Path
+    out_dir: Path | None
     time: np.ndarray
     columns: list[str]
     data: np.ndarray                      # (n, len(columns))
@@ -246,6 +257,7 @@ class Result:
     status: str = "ok"
     error: str | None = None
     warnings: list[str] = field(default_factory=list)
+    wall_time: float = float("nan")
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "time":
@@ -258,6 +270,12 @@ class Result:
             raise KeyError(f"{name!r} was not recorded (recorded: {', '.join(self.variables())})")
         idx.sort(key=lambda i: int(self.columns[i][len(name) + 1:-1]))
         return self.data[:, idx]
+
+    def set_metrics(self, described: dict[str, dict[str, Any]]) -> None:
+        """Take the ``metrics.json`` entries ``{name: {"value", "unit", "against", ...}}``."""
+        self.metrics = {name: e["value"] for name, e in described.items()}
+        self.units = {name: e.get("unit", "") for name, e in described.items()}
+        self.against = {name: e["against"] for name, e in described.items()}
 
     def __contains__(self, name: str) -> bool:
         try:
@@ -318,4 +336,4 @@ class Result:
 
 
 __all__ = ["CsvWriter", "Result", "ResultWarning", "OutputError", "own_folder", "read_results_csv",
-           "write_json", "versions", "CSV_NAME", "METRICS_NAME", "RUN_NAME", "LOCK_NAME", "RESULT_FILES"]
+           "write_json", "json_safe", "versions", "CSV_NAME", "METRICS_NAME", "RUN_NAME", "LOCK_NAME", "RESULT_FILES"]

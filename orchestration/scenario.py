@@ -81,15 +81,19 @@ component's list of sets with ``comp.parameter_sets=["S"]``.
 """
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
 import tomllib
 import warnings
 import zlib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Union
+
+import numpy as np
 
 from . import roles
 
@@ -311,6 +315,54 @@ def parse_override(text: str) -> tuple[str, str, int | None, Any]:
     return comp, name, int(index) if index else None, parse_value(value)
 
 
+#: Overrides as ``comp.param=value`` strings (the command line's ``--set``) or as a mapping
+#: ``{("ekf", "stiffness_scale"): 0.5, ("plant", "q0", 2): 0.1, ("scenario", "seed"): 3}``.
+Overrides = Union[Iterable[str], Mapping[tuple, Any]]
+
+
+def toml_value(v: Any) -> str:
+    """``v`` (a number, bool, string, list or dict; numpy scalars too) as TOML text that reads
+    back to the same value (floats by ``repr``, the shortest text that round-trips)."""
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{json.dumps(str(k))} = {toml_value(x)}" for k, x in v.items()) + "}"
+    if isinstance(v, str):
+        return json.dumps(v)
+    return repr(float(v))
+
+
+def override_strings(overrides: Overrides) -> tuple[str, ...]:
+    """The ``comp.param=value`` strings of ``overrides``: strings as given, a mapping's
+    ``(component, parameter[, index]) -> value`` items written as such strings (so that a run
+    records and :func:`parse_override` reads both forms the same way).
+
+    Raises
+    ------
+    ScenarioError
+        A mapping key that is not ``(component, parameter)`` or ``(component, parameter, index)``.
+    """
+    if isinstance(overrides, str):
+        raise ScenarioError(f"overrides must be a list of strings or a mapping, not the string {overrides!r}")
+    if not isinstance(overrides, Mapping):
+        return tuple(overrides)
+    out = []
+    for key, value in overrides.items():
+        if not (isinstance(key, tuple) and len(key) in (2, 3) and all(isinstance(k, str) for k in key[:2])
+                and (len(key) == 2 or isinstance(key[2], int))):
+            raise ScenarioError(f"override key {key!r}: expected (component, parameter) or "
+                                "(component, parameter, index)")
+        index = f"[{key[2]}]" if len(key) == 3 else ""
+        out.append(f"{key[0]}.{key[1]}{index}={toml_value(value)}")
+    return tuple(out)
+
+
 # ---------------------------------------------------------------------------------------------
 # loading
 # ---------------------------------------------------------------------------------------------
@@ -495,7 +547,7 @@ def _check_keys(where: str, table: Any, allowed: Iterable[str]) -> None:
                             f"(allowed: {', '.join(sorted(allowed))})")
 
 
-def scenario_document(source: str | Path | dict[str, Any], overrides: Iterable[str] = ()) -> dict[str, Any]:
+def scenario_document(source: str | Path | dict[str, Any], overrides: Overrides = ()) -> dict[str, Any]:
     """The scenario as one self-contained TOML document: includes merged in, overrides applied,
     relative FMU paths and ``*_file`` parameters made absolute (no FMU is read).
 
@@ -504,7 +556,7 @@ def scenario_document(source: str | Path | dict[str, Any], overrides: Iterable[s
     ScenarioError
         An unreadable file, an unknown component in an include or an override.
     """
-    doc, path, _, base_dir = _document(source, tuple(overrides))
+    doc, path, _, base_dir = _document(source, override_strings(overrides))
     doc["scenario"].setdefault("name", path.stem if path else "scenario")
     for ctab in doc["components"].values():
         fmu = ctab.get("fmu") if isinstance(ctab, dict) else None
@@ -517,7 +569,7 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
               ) -> tuple[dict[str, Any], Path | None, str, Path]:
     """``(document, path, label, base_dir)``: the TOML with includes and overrides applied."""
     if isinstance(source, dict):
-        path, doc, label, base_dir = None, _deepcopy(source), "<scenario>", Path.cwd()
+        path, doc, label, base_dir = None, copy_document(source), "<scenario>", Path.cwd()
     else:
         path = Path(source)
         doc = _read_toml(path)
@@ -544,57 +596,82 @@ def _document(source: str | Path | dict[str, Any], overrides: tuple[str, ...]
     if not isinstance(includes, list) or not all(isinstance(i, str) and i for i in includes):
         raise ScenarioError(f"{label}: [scenario] include must be a file name or a list of file "
                             f"names, got {includes!r}")
+    doc["parameter_sets"] = sets
     for inc in includes:
-        inc_path = base_dir / inc
-        inc_doc = _read_toml(inc_path)
-        _check_keys(str(inc_path), inc_doc, {"components", "parameter_sets"})
-        for sname, table in _parameter_sets(str(inc_path), inc_doc.get("parameter_sets", {}),
-                                            inc_path.resolve().parent).items():
-            sets.setdefault(sname, {}).update(table)
-        for cname, ctab in _table(f"{inc_path}: [components]", inc_doc.get("components", {})).items():
-            if cname not in comps_doc:
-                raise ScenarioError(f"{inc_path}: unknown component '{cname}' (not in {label})")
-            _check_keys(f"{inc_path}: [components.{cname}]", ctab, {"parameters"})
-            params = dict(_table(f"{inc_path}: [components.{cname}.parameters]", ctab.get("parameters", {})))
-            resolve_file_parameters(params, inc_path.resolve().parent)
-            comps_doc[cname].setdefault("parameters", {}).update(params)
+        merge_include(doc, base_dir / inc, label)
 
-    # overrides
     for text in overrides:
-        cname, pname, index, value = parse_override(text)
-        where = f"override {text.strip()!r}"
-        if cname == "scenario":
-            if pname not in _SCENARIO_KEYS - {"include"} or index is not None:
-                raise ScenarioError(f"{where}: unknown scenario key '{pname}' (allowed: "
-                                    "seed, stop_time, base_step, name, description)")
-            head[pname] = value
-            continue
-        if cname == "parameter_sets":
-            sname, _, key = pname.partition(".")
-            if sname not in sets:
-                raise ScenarioError(f"{where}: unknown parameter set '{sname}' (defined: "
-                                    f"{', '.join(sets) or 'none'})")
-            if not key:
-                sets[sname] = _parameter_sets(where, {sname: value}, base_dir)[sname]
-            else:
-                sets[sname][key if index is None else f"{key}[{index}]"] = value
-            continue
-        if cname not in comps_doc:
-            raise ScenarioError(f"{where}: unknown component '{cname}' (components: "
-                                f"{', '.join(comps_doc)})")
-        if pname == "parameter_sets" and index is None:
-            comps_doc[cname]["parameter_sets"] = value
-            continue
-        params = _table(f"{label}: [components.{cname}.parameters]",
-                        comps_doc[cname].setdefault("parameters", {}))
-        if index is None:
-            params[pname] = value
-        else:
-            params[f"{pname}[{index}]"] = value
+        _apply_override(text, head, doc["parameter_sets"], comps_doc, label, base_dir)
     head.pop("include", None)
     doc["scenario"] = head
-    doc["parameter_sets"] = sets
     return doc, path, label, base_dir
+
+
+def _apply_override(text: str, head: dict[str, Any], sets: dict[str, dict[str, Any]],
+                    comps_doc: dict[str, Any], label: str, base_dir: Path) -> None:
+    """Apply the override ``text`` (``comp.param[i]=value``, ``scenario.key=value`` or
+    ``parameter_sets.S.key=value``) to the document's parts."""
+    cname, pname, index, value = parse_override(text)
+    where = f"override {text.strip()!r}"
+    if cname == "scenario":
+        if pname not in _SCENARIO_KEYS - {"include"} or index is not None:
+            raise ScenarioError(f"{where}: unknown scenario key '{pname}' (allowed: "
+                                "seed, stop_time, base_step, name, description)")
+        head[pname] = value
+        return
+    if cname == "parameter_sets":
+        sname, _, key = pname.partition(".")
+        if sname not in sets:
+            raise ScenarioError(f"{where}: unknown parameter set '{sname}' (defined: "
+                                f"{', '.join(sets) or 'none'})")
+        if not key:
+            sets[sname] = _parameter_sets(where, {sname: value}, base_dir)[sname]
+        else:
+            sets[sname][key if index is None else f"{key}[{index}]"] = value
+        return
+    if cname not in comps_doc:
+        raise ScenarioError(f"{where}: unknown component '{cname}' (components: "
+                            f"{', '.join(comps_doc)})")
+    if pname == "parameter_sets" and index is None:
+        comps_doc[cname]["parameter_sets"] = value
+        return
+    params = _table(f"{label}: [components.{cname}.parameters]",
+                    comps_doc[cname].setdefault("parameters", {}))
+    if index is None:
+        params[pname] = value
+    else:
+        params[f"{pname}[{index}]"] = value
+
+
+def merge_include(doc: dict[str, Any], inc_path: Path, label: str = "<scenario>", *,
+                  skip_unknown: bool = False) -> None:
+    """Merge the include file ``inc_path`` over the scenario document ``doc`` (in place): its
+    ``[components.X.parameters]`` update X's parameters, its ``[parameter_sets.S]`` update set S
+    (``*_file`` values relative to the include file).
+
+    Raises
+    ------
+    ScenarioError
+        An unreadable file, a key other than those two tables, or a component ``doc`` does not
+        have (unless ``skip_unknown``: a tuned file may name estimators a scenario lacks).
+    """
+    inc_path = Path(inc_path)
+    inc_doc = _read_toml(inc_path)
+    _check_keys(str(inc_path), inc_doc, {"components", "parameter_sets"})
+    sets = doc.setdefault("parameter_sets", {})
+    for sname, table in _parameter_sets(str(inc_path), inc_doc.get("parameter_sets", {}),
+                                        inc_path.resolve().parent).items():
+        sets.setdefault(sname, {}).update(table)
+    comps_doc = doc["components"]
+    for cname, ctab in _table(f"{inc_path}: [components]", inc_doc.get("components", {})).items():
+        if cname not in comps_doc:
+            if skip_unknown:
+                continue
+            raise ScenarioError(f"{inc_path}: unknown component '{cname}' (not in {label})")
+        _check_keys(f"{inc_path}: [components.{cname}]", ctab, {"parameters"})
+        params = dict(_table(f"{inc_path}: [components.{cname}.parameters]", ctab.get("parameters", {})))
+        resolve_file_parameters(params, inc_path.resolve().parent)
+        comps_doc[cname].setdefault("parameters", {}).update(params)
 
 
 _COMPONENT_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -655,25 +732,8 @@ def _check_set_keys(label: str, sets: dict[str, dict[str, Any]], users: dict[str
                                 f"({', '.join(c.name for c in comps)})")
 
 
-def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] = ()) -> Scenario:
-    """Load, resolve and validate a scenario.
-
-    Parameters
-    ----------
-    source
-        Path of a TOML file, or an already parsed document (paths then relative to the cwd).
-    overrides
-        ``comp.param=value`` / ``comp.param[i]=value`` / ``scenario.key=value`` strings.
-
-    Raises
-    ------
-    ScenarioError
-        One message naming the file, the component and the variable.
-    """
-    overrides = tuple(overrides)
-    doc, path, label, base_dir = _document(source, overrides)
-    head = doc["scenario"]
-    comps_doc = doc["components"]
+def _head(label: str, head: dict[str, Any], path: Path | None) -> tuple[str, str, float, float, int]:
+    """``(name, description, stop_time, base_step, seed)`` of the ``[scenario]`` table."""
     name = head.get("name", path.stem if path else "scenario")
     if not isinstance(name, str):
         raise ScenarioError(f"{label}: [scenario] name must be a string")
@@ -691,8 +751,13 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
     seed = head.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ScenarioError(f"{label}: [scenario] seed must be an integer, got {seed!r}")
+    return name, description, stop_time, base_step, seed
 
-    sets = doc["parameter_sets"]
+
+def _components(label: str, comps_doc: dict[str, Any], sets: dict[str, dict[str, Any]], base_dir: Path,
+                base_step: float, seed: int) -> dict[str, Component]:
+    """The components, their FMUs read and their parameters resolved: parameter sets first,
+    then the component's own, and a stable per-component ``seed`` unless one is given."""
     set_users: dict[str, list[Component]] = {}
     components: dict[str, Component] = {}
     for cname, ctab in comps_doc.items():
@@ -724,9 +789,12 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
                                               stable_seed(seed, cname))
         components[cname] = comp
     _check_set_keys(label, sets, set_users)
+    return components
 
-    # connections
-    conn_doc = doc.get("connections", [])
+
+def _connections(label: str, conn_doc: Any, components: dict[str, Component]) -> list[Connection]:
+    """The ``a.x -> b.y`` connections: output to input, Real, same size and unit, each input
+    driven once."""
     if not isinstance(conn_doc, list):
         raise ScenarioError(f"{label}: 'connections' must be a list of \"a.x -> b.y\" strings "
                             "(put it before the first [table])")
@@ -768,11 +836,12 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
             driven[key] = text
         connections.append(Connection(sc.name, svar, dc.name, dvar,
                                       tuple(zip(sgroup, dgroup)), text))
-    oracles = _check_honest_signals(label, doc.get("oracles", []), connections, components)
-    delays = _marked_connections(label, "delays", doc.get("delays", []), connections)
+    return connections
 
-    # record
-    rec = doc.get("record", {})
+
+def _record(label: str, rec: Any, components: dict[str, Component], connections: list[Connection],
+            base_step: float) -> tuple[list[str], float]:
+    """``(recorded variables, interval)`` of ``[record]`` (default: every connected output)."""
     _check_keys(f"{label}: [record]", rec, {"variables", "interval"})
     if "variables" in rec:
         if not isinstance(rec["variables"], list):
@@ -787,84 +856,119 @@ def load_scenario(source: str | Path | dict[str, Any], overrides: Iterable[str] 
         record = list(dict.fromkeys(f"{c.src}.{c.src_var}" for c in connections))
     interval = _number(f"{label}: [record] interval", rec.get("interval", base_step))
     _multiple(f"{label}: [record] interval", interval, base_step)
+    return record, interval
 
-    # metrics
-    metrics_doc = doc.get("metrics", [])
+
+def _metrics(label: str, metrics_doc: Any, components: dict[str, Component], record: list[str],
+             interval: float) -> list[MetricSpec]:
+    """The ``[[metrics]]``, checked; what they read is added to ``record``."""
     if not isinstance(metrics_doc, list):
         raise ScenarioError(f"{label}: metrics must be given as [[metrics]] tables")
     metrics: list[MetricSpec] = []
     for i, m in enumerate(metrics_doc):
-        where = f"{label}: [[metrics]] #{i + 1}"
-        _check_keys(where, m, {"kind", "name", "estimate", "truth", "truth_time", "after", "low", "high",
-                               "order", "covariance", "dof"})
-        if "kind" not in m:
-            raise ScenarioError(f"{where}: 'kind' is missing")
-        if m["kind"] not in ("rmse", "bandpass", "max", "nees", "nis"):
-            raise ScenarioError(f"{where}: unknown kind {m.get('kind')!r} (rmse, bandpass, max, nees, nis)")
-        needed = {"nis": ("estimate", "dof"), "nees": ("estimate", "truth", "covariance")}.get(
-            m["kind"], ("estimate", "truth"))
-        for key in needed:
-            if key not in m:
-                raise ScenarioError(f"{where}: '{key}' is missing (kind {m['kind']!r})")
-        mname = m.get("name", f"{m['kind']}_{m['estimate']}")
-        where = f"{label}: metric '{mname}'"
-        sizes = []
-        for key in ("estimate", "truth", "covariance"):
-            if key not in m:
-                continue
-            comp, var, group = _lookup(f"{where}: {key}", components, m[key])
-            sizes.append(len(group))
-            ref = f"{comp.name}.{var}"
-            if ref not in record:
-                record.append(ref)
-        dof = m.get("dof", sizes[0])
-        if m["kind"] == "nees" and dof != sizes[0]:
-            raise ScenarioError(f"{where}: the NEES of {sizes[0]} states has {sizes[0]} degrees of "
-                                f"freedom, got dof = {dof!r}")
-        if m["kind"] == "nis" and sizes[0] != 1:
-            raise ScenarioError(f"{where}: estimate {m['estimate']!r} must be a scalar (the filter's "
-                                "nis or innovation_norm output)")
-        if m["kind"] in ("nees", "nis") and (isinstance(dof, bool) or not isinstance(dof, int) or dof < 1):
-            raise ScenarioError(f"{where}: dof must be a positive integer, got {dof!r}")
-        if m["kind"] == "nees":
-            from .metrics import packed_dimension
-            n = packed_dimension(sizes[2])
-            if n is None or n < sizes[0]:
-                raise ScenarioError(f"{where}: covariance {m['covariance']!r} has {sizes[2]} elements: "
-                                    f"not a packed covariance (n (n + 1) / 2 elements) of at least the "
-                                    f"{sizes[0]} states of the estimate")
-        if len(sizes) > 1 and sizes[0] != sizes[1]:
-            raise ScenarioError(f"{where}: size mismatch: estimate {m['estimate']!r} has {sizes[0]} "
-                                f"element(s), truth {m['truth']!r} has {sizes[1]}")
-        truth_time = m.get("truth_time")
-        if truth_time is not None:
-            comp, var, group = _lookup(f"{where}: truth_time", components, truth_time)
-            if len(group) != 1 or comp.variables[group[0]].unit not in (None, "s"):
-                raise ScenarioError(f"{where}: truth_time {truth_time!r} must be a scalar time (s), "
-                                    "the sample time of the truth (e.g. tracker.t_meas)")
-            if f"{comp.name}.{var}" not in record:
-                record.append(f"{comp.name}.{var}")
-        after = _number(f"{where}: after", m.get("after", 0.0), positive=False)
-        low = _number(f"{where}: low", m.get("low", 3.0))
-        high = _number(f"{where}: high", m.get("high", 30.0))
-        order = m.get("order", 4)
-        if m["kind"] == "bandpass":
-            nyq = 0.5 / interval
-            if not low < high < nyq:
-                raise ScenarioError(f"{where}: need low < high < Nyquist frequency {nyq:g} Hz "
-                                    f"of the record interval, got low={low:g}, high={high:g}")
-        if isinstance(order, bool) or not isinstance(order, int) or order < 1:
-            raise ScenarioError(f"{where}: order must be a positive integer")
-        against = (roles.against(components[_split_ref(where, m["truth"])[0]]) if "truth" in m
-                   else "innovations")      # nis: the filter's innovations against its own S
-        metrics.append(MetricSpec(m["kind"], mname, m["estimate"], m.get("truth", ""), after, low, high,
-                                  order, against, truth_time, m.get("covariance"),
-                                  dof if m["kind"] in ("nees", "nis") else None))
+        metrics.append(_metric(f"{label}: [[metrics]] #{i + 1}", label, m, components, record, interval))
     names = [m.name for m in metrics]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise ScenarioError(f"{label}: duplicate metric name(s) {', '.join(sorted(dup))}")
+    return metrics
 
+
+def _metric(where: str, label: str, m: Any, components: dict[str, Component], record: list[str],
+            interval: float) -> MetricSpec:
+    """One ``[[metrics]]`` table (``where`` names it until its name is known)."""
+    _check_keys(where, m, {"kind", "name", "estimate", "truth", "truth_time", "after", "low", "high",
+                           "order", "covariance", "dof"})
+    if "kind" not in m:
+        raise ScenarioError(f"{where}: 'kind' is missing")
+    if m["kind"] not in ("rmse", "bandpass", "max", "nees", "nis"):
+        raise ScenarioError(f"{where}: unknown kind {m.get('kind')!r} (rmse, bandpass, max, nees, nis)")
+    needed = {"nis": ("estimate", "dof"), "nees": ("estimate", "truth", "covariance")}.get(
+        m["kind"], ("estimate", "truth"))
+    for key in needed:
+        if key not in m:
+            raise ScenarioError(f"{where}: '{key}' is missing (kind {m['kind']!r})")
+    mname = m.get("name", f"{m['kind']}_{m['estimate']}")
+    where = f"{label}: metric '{mname}'"
+    sizes = []
+    for key in ("estimate", "truth", "covariance"):
+        if key not in m:
+            continue
+        comp, var, group = _lookup(f"{where}: {key}", components, m[key])
+        sizes.append(len(group))
+        ref = f"{comp.name}.{var}"
+        if ref not in record:
+            record.append(ref)
+    dof = m.get("dof", sizes[0])
+    if m["kind"] == "nees" and dof != sizes[0]:
+        raise ScenarioError(f"{where}: the NEES of {sizes[0]} states has {sizes[0]} degrees of "
+                            f"freedom, got dof = {dof!r}")
+    if m["kind"] == "nis" and sizes[0] != 1:
+        raise ScenarioError(f"{where}: estimate {m['estimate']!r} must be a scalar (the filter's "
+                            "nis or innovation_norm output)")
+    if m["kind"] in ("nees", "nis") and (isinstance(dof, bool) or not isinstance(dof, int) or dof < 1):
+        raise ScenarioError(f"{where}: dof must be a positive integer, got {dof!r}")
+    if m["kind"] == "nees":
+        from .metrics import packed_dimension
+        n = packed_dimension(sizes[2])
+        if n is None or n < sizes[0]:
+            raise ScenarioError(f"{where}: covariance {m['covariance']!r} has {sizes[2]} elements: "
+                                f"not a packed covariance (n (n + 1) / 2 elements) of at least the "
+                                f"{sizes[0]} states of the estimate")
+    if len(sizes) > 1 and sizes[0] != sizes[1]:
+        raise ScenarioError(f"{where}: size mismatch: estimate {m['estimate']!r} has {sizes[0]} "
+                            f"element(s), truth {m['truth']!r} has {sizes[1]}")
+    truth_time = m.get("truth_time")
+    if truth_time is not None:
+        comp, var, group = _lookup(f"{where}: truth_time", components, truth_time)
+        if len(group) != 1 or comp.variables[group[0]].unit not in (None, "s"):
+            raise ScenarioError(f"{where}: truth_time {truth_time!r} must be a scalar time (s), "
+                                "the sample time of the truth (e.g. tracker.t_meas)")
+        if f"{comp.name}.{var}" not in record:
+            record.append(f"{comp.name}.{var}")
+    after = _number(f"{where}: after", m.get("after", 0.0), positive=False)
+    low = _number(f"{where}: low", m.get("low", 3.0))
+    high = _number(f"{where}: high", m.get("high", 30.0))
+    order = m.get("order", 4)
+    if m["kind"] == "bandpass":
+        nyq = 0.5 / interval
+        if not low < high < nyq:
+            raise ScenarioError(f"{where}: need low < high < Nyquist frequency {nyq:g} Hz "
+                                f"of the record interval, got low={low:g}, high={high:g}")
+    if isinstance(order, bool) or not isinstance(order, int) or order < 1:
+        raise ScenarioError(f"{where}: order must be a positive integer")
+    against = (roles.against(components[_split_ref(where, m["truth"])[0]]) if "truth" in m
+               else "innovations")      # nis: the filter's innovations against its own S
+    return MetricSpec(m["kind"], mname, m["estimate"], m.get("truth", ""), after, low, high,
+                      order, against, truth_time, m.get("covariance"),
+                      dof if m["kind"] in ("nees", "nis") else None)
+
+
+def load_scenario(source: str | Path | dict[str, Any], overrides: Overrides = ()) -> Scenario:
+    """Load, resolve and validate a scenario.
+
+    Parameters
+    ----------
+    source
+        Path of a TOML file, or an already parsed document (paths then relative to the cwd).
+    overrides
+        ``comp.param=value`` / ``comp.param[i]=value`` / ``scenario.key=value`` strings, or a
+        mapping ``{(comp, param): value, (comp, param, i): value}`` (:func:`override_strings`).
+
+    Raises
+    ------
+    ScenarioError
+        One message naming the file, the component and the variable.
+    """
+    overrides = override_strings(overrides)
+    doc, path, label, base_dir = _document(source, overrides)
+    name, description, stop_time, base_step, seed = _head(label, doc["scenario"], path)
+    components = _components(label, doc["components"], doc["parameter_sets"], base_dir, base_step, seed)
+    connections = _connections(label, doc.get("connections", []), components)
+    oracles = _check_honest_signals(label, doc.get("oracles", []), connections, components)
+    delays = _marked_connections(label, "delays", doc.get("delays", []), connections)
+    record, interval = _record(label, doc.get("record", {}), components, connections, base_step)
+    metrics = _metrics(label, doc.get("metrics", []), components, record, interval)
     _check_run_length(label, stop_time, base_step, components)
     return Scenario(path=path, name=name, description=description, stop_time=stop_time,
                     base_step=base_step, seed=int(seed), components=components,
@@ -938,14 +1042,15 @@ def _article(word: str) -> str:
     return "an" if word[0] in "aeiou" else "a"
 
 
-def _deepcopy(doc: Any) -> Any:
+def copy_document(doc: Any) -> Any:
+    """A deep copy of a TOML document (its tables and arrays; the values are immutable)."""
     if isinstance(doc, dict):
-        return {k: _deepcopy(v) for k, v in doc.items()}
+        return {k: copy_document(v) for k, v in doc.items()}
     if isinstance(doc, list):
-        return [_deepcopy(v) for v in doc]
+        return [copy_document(v) for v in doc]
     return doc
 
 
 __all__ = ["ScenarioError", "Scenario", "Component", "Connection", "MetricSpec", "VariableInfo",
-           "load_scenario", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
+           "load_scenario", "copy_document", "merge_include", "Overrides", "override_strings", "toml_value", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
            "connection_key", "check_metric_windows", "MAX_STEPS"]

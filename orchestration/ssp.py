@@ -61,7 +61,8 @@ from xml.etree.ElementTree import Element, ParseError, SubElement, parse, regist
 
 import numpy as np
 
-from .scenario import ParamValue, Scenario, ScenarioError, load_scenario, read_variables, stable_seed
+from .scenario import (Overrides, ParamValue, Scenario, ScenarioError, load_scenario, read_variables,
+                       stable_seed)
 
 NS = {
     "ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
@@ -572,7 +573,7 @@ def _read_flexfusion(el: Element, doc: dict[str, Any], declared: dict[str, dict[
                       for m in _children(el, "ff", "Metric")]
 
 
-def load_ssp(path: str | Path, ssd: Path, overrides: Iterable[str] = ()) -> Scenario:
+def load_ssp(path: str | Path, ssd: Path, overrides: Overrides = ()) -> Scenario:
     """The scenario of an SSP: ``ssd`` is its ``SystemStructure.ssd`` (from :func:`opened`),
     ``path`` the package named in messages. Overrides as for a scenario file.
 

@@ -37,11 +37,15 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from contextvars import ContextVar
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .results import Result
 from .safe_io import FolderLock, FolderLockedError, atomic_write_bytes, atomic_write_json
+
+if TYPE_CHECKING:
+    from .scenario import Overrides
 
 
 class StudyError(RuntimeError):
@@ -56,53 +60,23 @@ class StudyError(RuntimeError):
 # ---------------------------------------------------------------------------------------------
 # one job: a scenario run kept in memory
 # ---------------------------------------------------------------------------------------------
-class RunArrays:
-    """A run's recorded signals in memory: ``r.time`` (n,), ``r["plant.p_tool"]`` -> (n, 2),
-    ``r["plant.p_tool[1]"]`` or a scalar variable -> (n,); ``r.metrics`` the scenario's metrics."""
-
-    def __init__(self, time: np.ndarray, columns: list[str], data: np.ndarray,
-                 metrics: dict[str, float], wall_time: float, warnings: list[str]) -> None:
-        self.time = time
-        self.columns = columns
-        self.data = data
-        self.metrics = metrics
-        self.wall_time = wall_time
-        self.warnings = warnings
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        if name == "time":
-            return self.time
-        if name in self.columns:
-            return self.data[:, self.columns.index(name)]
-        prefix = name + "["
-        idx = [i for i, c in enumerate(self.columns) if c.startswith(prefix)]
-        if not idx:
-            raise KeyError(f"{name!r} was not recorded (recorded: {', '.join(self.variables())})")
-        idx.sort(key=lambda i: int(self.columns[i][len(prefix):-1]))
-        return self.data[:, idx]
-
-    def __contains__(self, name: str) -> bool:
-        try:
-            self[name]
-        except KeyError:
-            return False
-        return True
-
-    def variables(self) -> list[str]:
-        """Recorded whole variables (``comp.var``), in column order."""
-        return list(dict.fromkeys(c.split("[", 1)[0] for c in self.columns))
+#: The former name of the in-memory result: a run is one :class:`~orchestration.results.Result`
+#: whether it went to a folder or stayed in memory (``out_dir`` None).
+RunArrays = Result
 
 
-def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (),
-             variables: Sequence[str] | None = None) -> RunArrays:
-    """Run a scenario in memory (no files) and return its recorded signals and metrics.
+def simulate(scenario: str | Path | dict[str, Any], overrides: Overrides = (),
+             variables: Sequence[str] | None = None) -> Result:
+    """Run a scenario in memory (no files) and return its recorded signals and metrics as a
+    :class:`~orchestration.results.Result` with no ``out_dir`` and the stepping's ``wall_time``.
 
     Parameters
     ----------
     scenario
         A scenario file or a parsed TOML document.
     overrides
-        ``comp.param=value`` and ``scenario.seed=N`` strings (see :mod:`orchestration.scenario`).
+        ``comp.param=value`` and ``scenario.seed=N`` strings, or a mapping
+        ``{("ekf", "stiffness_scale"): 0.5}`` (see :mod:`orchestration.scenario`).
     variables
         Keep only these recorded variables (``comp.var``); default all.
 
@@ -111,12 +85,11 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (
     ScenarioError, RunError
         As :func:`orchestration.master.run`.
     """
-    from . import metrics as _metrics
-    from .master import CouplingWarning
+    from .master import CouplingWarning, evaluate_metrics
     from .master import simulate as _simulate
     from .scenario import ScenarioError, load_scenario
 
-    sc = load_scenario(scenario, tuple(overrides))
+    sc = load_scenario(scenario, overrides)
     columns = sc.record_columns()
     missing = unrecorded(sc, variables or ())
     if missing:                                  # before the run, not after it
@@ -129,18 +102,13 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Sequence[str] = (
         rows.append(np.array(values, dtype=float))
 
     t0 = time.perf_counter()
-    with warnings.catch_warnings():      # returned on RunArrays.warnings, not printed per run
+    with warnings.catch_warnings():      # returned on Result.warnings, not printed per run
         warnings.simplefilter("ignore", CouplingWarning)
         notes = _simulate(sc, sink)
     wall = time.perf_counter() - t0
     data = np.array(rows).reshape(len(rows), len(columns))
-    run = RunArrays(np.array(times), columns, data, {}, wall, notes)
-    for spec in sc.metrics:
-        try:
-            run.metrics.update(_metrics.compute(spec, run.time, run[spec.estimate], run[spec.truth],
-                                                run[spec.truth_time] if spec.truth_time else None))
-        except (ValueError, KeyError) as exc:
-            raise ScenarioError(f"{sc.name}: metric '{spec.name}': {exc}") from None
+    run = Result(None, np.array(times), columns, data, warnings=notes, wall_time=wall)
+    run.set_metrics(evaluate_metrics(sc, run))
     if variables is not None:
         keep = [i for i, c in enumerate(columns) if c.split("[", 1)[0] in set(variables)]
         run.columns = [columns[i] for i in keep]

@@ -49,6 +49,8 @@ import numpy as np
 
 from fmus.common.parameters import replace
 from fmus.force_observer import impedance_math as imp
+from orchestration.metrics import rmse
+from orchestration.results import json_safe
 
 REPO = Path(__file__).resolve().parent.parent
 SCENARIOS = REPO / "orchestration" / "scenarios"
@@ -65,11 +67,6 @@ class ContactSetup:
     F_d: float = 0.0                           # desired force bias (N)
     free_window: tuple[float, float] = (0.0, 1.0)     # free-space acceleration phase (s)
     steady_window: tuple[float, float] = (0.0, 1.0)   # stationary contact (s)
-
-
-def _rms(v: np.ndarray) -> float:
-    v = np.asarray(v, dtype=float)
-    return float(np.sqrt(np.mean(np.sum(v.reshape(len(v), -1) ** 2, axis=1))))
 
 
 def contact_losses(F_normal: np.ndarray, threshold: float = 0.0) -> tuple[int, int | None]:
@@ -118,8 +115,8 @@ def contact_metrics(series: dict[str, np.ndarray], setup: ContactSetup) -> dict[
     sw = (t >= setup.steady_window[0]) & (t <= setup.steady_window[1])
     out: dict[str, Any] = {}
     out["free_max_true"] = float(np.max(np.abs(Ft[fw]))) if fw.any() else float("nan")
-    out["free_rms_hat"] = _rms(Fh[fw])
-    out["free_rms_raw"] = _rms(Fr[fw])
+    out["free_rms_hat"] = rmse(Fh[fw], 0.0)
+    out["free_rms_raw"] = rmse(Fr[fw], 0.0)
     out["free_ratio"] = out["free_rms_hat"] / out["free_rms_raw"]
     Fn_true = Ft @ n
     Fn_hat = Fh @ n
@@ -365,7 +362,7 @@ def contact_motion_window(path: Path) -> tuple[float, float]:
 
 def series_from_run(run: Any, feedback: str) -> dict[str, np.ndarray]:
     """The series of :func:`contact_metrics` / :func:`plot_contact` from a contact scenario run
-    (:class:`orchestration.study.RunArrays` or :class:`orchestration.results.Result`)."""
+    (an :class:`orchestration.results.Result`)."""
     return dict(t=np.asarray(run.time), F_true=-np.asarray(run["contact.f_ext"]),
                 F_hat=np.asarray(run["observer.f_contact_hat"]), F_raw=np.asarray(run["observer.f_raw"]),
                 F_fb=np.asarray(run[FEEDBACK[feedback]]), p_tool=np.asarray(run["plant.p_tool"]),
@@ -610,16 +607,8 @@ def run_study(out_dir: Path, overrides: tuple[str, ...] = (), workers: int | Non
     main = {fb: series[k] for k, (fb, _) in cases.items() if k.startswith(f"{structures[0]}/") and k.endswith("/m+0%")}
     if plots and main:
         metrics["figures"] = [f.name for f in plot_contact(main, setup, out_dir)]
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json_default) + "\n")
+    (out_dir / "metrics.json").write_text(json.dumps(json_safe(metrics), indent=2) + "\n")
     return metrics
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def real_time_factor(kinds: tuple[str, ...] = ("observer", "raw"), overrides: tuple[str, ...] = ()

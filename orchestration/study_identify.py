@@ -53,6 +53,7 @@ from typing import Any, Sequence
 from fmus.common.parameters import ParameterError, validate
 
 from . import identification as ident
+from .scenario import override_strings
 from .study import (StudyError, add_executor_arguments, dataclass_from_scalars, map_jobs,
                     open_executor, require_recorded, simulate)
 
@@ -83,19 +84,16 @@ RESOLUTION = 1e-6         #: ... if it also exceeds the optimiser's resolution (
 # ---------------------------------------------------------------------------------------------
 # experiments
 # ---------------------------------------------------------------------------------------------
-def _vector(value: Sequence[float]) -> str:
-    return "[" + ", ".join(repr(float(v)) for v in value) + "]"
-
-
 def experiment_overrides(k: int, point: Sequence[float], amplitude: float | None, controller: str = "controller",
                          plant: str = "plant") -> list[str]:
     """Overrides of experiment ``k`` at the working point ``point``: path start, initial pose,
     its own excitation seed and noise seed (``controller``, ``plant``: component names)."""
-    out = [f"{controller}.path_start={_vector(point)}", f"{plant}.p_tool0={_vector(point)}",
-           f"{controller}.excitation_seed={k}", f"scenario.seed={k + 1}"]
+    point = [float(v) for v in point]
+    out = {(controller, "path_start"): point, (plant, "p_tool0"): point,
+           (controller, "excitation_seed"): k, ("scenario", "seed"): k + 1}
     if amplitude is not None:
-        out.append(f"{controller}.excitation_amplitude={_vector((amplitude, amplitude))}")
-    return out
+        out[(controller, "excitation_amplitude")] = [float(amplitude)] * 2
+    return list(override_strings(out))
 
 
 def recorded(sc: Any) -> list[str]:
@@ -249,13 +247,13 @@ def _correlated(corr: Any, limit: float = 0.9) -> list[list[Any]]:
 
 def write_include(path: Path, fit: ident.Fit, header: str) -> Path:
     """The identified parameters as ``[parameter_sets.identified_robot]`` of an include file."""
-    from .study_tune import _toml_value
+    from .scenario import toml_value
     lines = [f"# {line}".rstrip() for line in header.splitlines()]
     lines.append(f"[parameter_sets.{SET_NAME}]")
     fitted = {n.split("[")[0] for n in ident.NAMES} | {"c1", "c2", "I1", "I2"}
     for name, value in ident.physical_parameters(fit.robot).items():
         note = "identified" if name in fitted else "nominal (fixed)"
-        lines.append(f"{name} = {_toml_value(value)}   # {note}")
+        lines.append(f"{name} = {toml_value(value)}   # {note}")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")
     return path

@@ -40,6 +40,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .metrics import rmse
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
 from .study_tune import DEFAULT_BOUNDS
 
@@ -82,7 +83,7 @@ def error_norm(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 def table1(runs: dict[str, Any], after: float = AFTER) -> dict[str, dict[str, float]]:
     """RMSE (m) of every estimate per path, from runs with ``time`` and the recorded variables
-    (a :class:`~orchestration.study.RunArrays` or a dict of arrays)."""
+    (a :class:`~orchestration.results.Result` or a dict of arrays)."""
     out: dict[str, dict[str, float]] = {}
     for path, r in runs.items():
         t = np.asarray(r["time"])
@@ -90,8 +91,7 @@ def table1(runs: dict[str, Any], after: float = AFTER) -> dict[str, dict[str, fl
         truth = np.asarray(r["plant.p_tool"])[keep]
         row = {}
         for key, var in ESTIMATES.items():
-            e = error_norm(np.asarray(r[var])[keep], truth)
-            row[key] = float(np.sqrt(np.mean(e * e)))
+            row[key] = rmse(np.asarray(r[var])[keep], truth)
         out[path] = row
     return out
 

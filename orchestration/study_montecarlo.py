@@ -71,6 +71,7 @@ import numpy as np
 
 from . import study
 from .metrics import monte_carlo_consistency, nees   # NEES e^T P^-1 e of the packed P_x
+from .results import json_safe as _jsonable
 
 FILTER_FMUS = ("EkfAccelerometer", "ParticleFilter")
 PLANT_FMU = "FlexibleRobot2DOF"
@@ -663,23 +664,6 @@ def _controller_path(sc: Any) -> str:
     """The path of the scenario's MotionController (the validation case follows its reference)."""
     return next((str(c.parameters.get("path", "square")) for c in sc.components.values()
                  if c.model_identifier == "MotionController"), "square")
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return [_jsonable(v) for v in x.tolist()]
-    if isinstance(x, (np.floating, float)):
-        v = float(x)
-        return v if math.isfinite(v) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, (np.bool_,)):
-        return bool(x)
-    return x
 
 
 def _plots(out: Path, data: dict[str, Any], filters: Sequence[FilterInfo]) -> None:

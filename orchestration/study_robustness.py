@@ -41,13 +41,14 @@ import argparse
 import json
 import os
 import time
-import tomllib
 from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from .metrics import bandpass
+from .scenario import copy_document
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
@@ -103,16 +104,14 @@ FIG_WINDOWS = {"nominal": (1.3, 2.5), "tuning": (1.0, 2.2), "model_errors": (1.3
 # cases
 # ---------------------------------------------------------------------------------------------
 def _load(path: Path, tuned: Sequence[str | Path]) -> dict[str, Any]:
+    from .scenario import ScenarioError, merge_include
     from .study_tune import load_document
     doc = load_document(path)
     for f in tuned:
         try:
-            inc = tomllib.loads(Path(f).read_text())
-        except (OSError, tomllib.TOMLDecodeError) as exc:
+            merge_include(doc, Path(f), str(path), skip_unknown=True)
+        except ScenarioError as exc:
             raise StudyError(f"cannot read tuned parameters {f}: {exc}") from None
-        for cname, ctab in inc.get("components", {}).items():
-            if cname in doc["components"]:
-                doc["components"][cname].setdefault("parameters", {}).update(ctab.get("parameters", {}))
     return doc
 
 
@@ -164,7 +163,7 @@ def model_error_factors(kind: str, model: dict[str, Any]) -> dict[str, Any]:
 def with_model_error(doc: dict[str, Any], kind: str) -> dict[str, Any]:
     """A copy of ``doc`` whose estimators take :data:`MODEL_SET` with the model error ``kind``
     (as a new set ``<MODEL_SET>_<kind>``); other components (the controller) keep theirs."""
-    doc = json.loads(json.dumps(doc))
+    doc = copy_document(doc)
     if not kind:
         return doc
     model = doc.get("parameter_sets", {}).get(MODEL_SET)
@@ -421,13 +420,6 @@ def markdown(table: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _bandpass(x: np.ndarray, fs: float) -> np.ndarray:
-    from scipy.signal import butter, filtfilt
-    b, a = butter(4, [3.0, 30.0], btype="bandpass", fs=fs)
-    padlen = min(len(x) - 1, int(np.ceil(3 * fs / 3.0)))
-    return filtfilt(b, a, x, axis=0, padlen=padlen)
-
-
 def figures(table: dict[str, Any], out: Path) -> list[Path]:
     """Figs. 4-6 (band-passed x-position in a window with a hammer strike) and Fig. 3 (all
     frequencies, nominal case) as PNG."""
@@ -452,12 +444,12 @@ def figures(table: dict[str, Any], out: Path) -> list[Path]:
         fname, title = names.get(key, (f"fig_{key}.png", key))
         fig, (ax, ax2) = plt.subplots(2, 1, figsize=(9, 7), sharex=True,
                                       gridspec_kw={"height_ratios": [3, 2]})
-        truth_bp = _bandpass(s["truth"], fs)
+        truth_bp = bandpass(s["truth"], fs)
         ax.plot(t[w], 1e3 * truth_bp[w, 0], "k", lw=2.0, label="true position")
         for label, est in s.items():
             if label in ("time", "truth"):
                 continue
-            est_bp = _bandpass(est, fs)
+            est_bp = bandpass(est, fs)
             line, = ax.plot(t[w], 1e3 * est_bp[w, 0], lw=1.0, label=label)
             ax2.plot(t[w], 1e3 * (est_bp - truth_bp)[w, 0], lw=1.0, color=line.get_color())
         ax2.set_xlabel("time (s)")

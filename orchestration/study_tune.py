@@ -48,7 +48,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .scenario import connection_key
+from .scenario import connection_key, copy_document, toml_value
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
 
 #: Default search ranges per estimator FMU type (model identifier), used when no --param is
@@ -139,7 +139,7 @@ def load_document(scenario: str | Path | dict[str, Any]) -> dict[str, Any]:
 def prune(doc: dict[str, Any], keep_refs: Sequence[str]) -> dict[str, Any]:
     """A copy of ``doc`` with only the components the variables ``keep_refs`` (``comp.var``)
     depend on through the connections; no metrics; those variables recorded."""
-    doc = json.loads(json.dumps(doc))
+    doc = copy_document(doc)
     conns = [c for c in doc.get("connections", []) if isinstance(c, str) and "->" in c]
     edges = [(_component_of(a.strip()), _component_of(b.strip())) for a, b in (c.split("->") for c in conns)]
     need = {_component_of(r) for r in keep_refs}
@@ -450,16 +450,6 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
 # ---------------------------------------------------------------------------------------------
 # output
 # ---------------------------------------------------------------------------------------------
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, str):
-        return json.dumps(v)
-    return repr(float(v))
-
-
 def _collapse(params: dict[str, float]) -> dict[str, Any]:
     """``name[1..n]`` given completely -> ``name = [..]``; other keys unchanged."""
     out: dict[str, Any] = {}
@@ -492,7 +482,7 @@ def write_include(path: str | Path, component: str | Sequence[str], params: dict
         lines.append(f"[components.{comp}.parameters]")
         for k, v in _collapse(params).items():
             key = k if k.replace("_", "").isalnum() else json.dumps(k)
-            lines.append(f"{key} = {_toml_value(v)}")
+            lines.append(f"{key} = {toml_value(v)}")
         lines.append("")
     path.write_text("\n".join(lines))
     return path

@@ -53,6 +53,21 @@ def test_orchestration_never_imports_test_code() -> None:
     assert not bad, "\n".join(bad)
 
 
+def test_benchmarks_never_use_test_code() -> None:
+    """Neither an import of a test module nor a test module's file name (a script run from
+    tests/). The toy FMUs of tests/fmus they build are data, not test code."""
+    tests = {p.stem for p in (ROOT / "tests").glob("*.py")} | {"tests"}
+    bad = [f"{path.relative_to(ROOT)}:{line}: {module}"
+           for path in sorted((ROOT / "benchmarks").glob("*.py"))
+           for line, module in imports(path) if module.split(".")[0] in tests]
+    bad += [f"{path.relative_to(ROOT)}:{node.lineno}: {node.value!r}"
+            for path in sorted((ROOT / "benchmarks").glob("*.py"))
+            for node in ast.walk(ast.parse(path.read_text(), str(path)))
+            if isinstance(node, ast.Constant) and isinstance(node.value, str)
+            and Path(node.value).suffix == ".py" and Path(node.value).stem in tests]
+    assert not bad, "\n".join(bad)
+
+
 def test_the_rules_catch_a_violation() -> None:
     """The checker itself: an estimator importing the plant or orchestration is refused, a
     shared piece or its own wing is fine."""

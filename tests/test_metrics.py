@@ -15,6 +15,21 @@ def test_rmse_is_root_mean_squared_euclidean_error():
     assert_allclose(m.rmse(est, truth), np.sqrt((25 + 0 + 1 + 1) / 4))   # eq. 27
     assert_allclose(m.rmse(np.array([1.0, -1.0]), np.zeros(2)), 1.0)     # 1-D
     assert_allclose(m.max_error(est, truth), 5.0)
+    assert_allclose(m.rmse(est, 0.0), m.rmse(est, truth))               # RMS of a signal
+
+
+def test_bandpass_halves_a_sine_at_a_corner_and_keeps_the_shape():
+    # a Butterworth band-pass has gain 1/sqrt(2) at either corner; forwards and backwards squares it
+    fs = 1000.0
+    t = np.arange(0, 8.0, 1 / fs)
+    mid = (t > 3.0) & (t < 5.0)
+    for f in (3.0, 30.0):
+        y = m.bandpass(np.sin(2 * np.pi * f * t), fs)
+        assert y.shape == t.shape
+        assert_allclose(np.max(np.abs(y[mid])), 0.5, rtol=0.02)
+    assert_allclose(np.max(np.abs(m.bandpass(np.sin(2 * np.pi * 10 * t), fs)[mid])), 1.0, rtol=0.01)
+    with pytest.raises(ValueError, match="more than"):
+        m.bandpass(np.zeros(20), fs)
 
 
 def test_bandpass_keeps_the_pass_band_and_removes_the_rest():

@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 
+import numpy as np
 import pytest
 
-from orchestration.scenario import (ScenarioError, load_scenario, parse_override, parse_value,
-                                    stable_seed)
+from orchestration.scenario import (ScenarioError, copy_document, load_scenario, merge_include,
+                                    override_strings, parse_override, parse_value, stable_seed,
+                                    toml_value)
 from toys import write
 
 
@@ -82,6 +84,30 @@ def test_overrides(tmp_path):
     assert parse_value('"x"') == "x" and parse_value("true") is True
 
 
+def test_structured_overrides_load_like_their_strings(tmp_path):
+    path = write(tmp_path, BASE)
+    texts = ["src.slope=0.30000000000000004", "src.offset[2]=9.5", "src.label=\"a b\"", "scenario.seed=3",
+             "g.gain=[1.5, 2]"]
+    mapping = {("src", "slope"): 0.1 + 0.2, ("src", "offset", 2): np.float64(9.5), ("src", "label"): "a b",
+               ("scenario", "seed"): 3, ("g", "gain"): (1.5, 2)}
+    assert override_strings(mapping) == tuple(texts)
+    assert override_strings(texts) == tuple(texts)
+    sc = load_scenario(path, {k: v for k, v in mapping.items() if k[1] != "gain"})
+    assert sc.overrides == tuple(texts[:4])               # recorded as strings, as --set gives them
+    assert sc.components["src"].parameters == load_scenario(path, texts[:4]).components["src"].parameters
+    assert sc.components["src"].parameters["slope"] == 0.1 + 0.2 and sc.seed == 3
+    with pytest.raises(ScenarioError, match=r"override key 'src.slope': expected \(component, parameter\)"):
+        override_strings({"src.slope": 1.0})
+    with pytest.raises(ScenarioError, match="not the string"):
+        override_strings("src.slope=1")
+
+
+@pytest.mark.parametrize("value", [0.1 + 0.2, -1e-300, float("inf"), 3, True, "x \"q\" \\ é",
+                                   [1.5, [2, 3]], {"m": 2.0, "n": [1, 2]}])
+def test_toml_value_reads_back_to_the_same_value(value):
+    assert parse_value(toml_value(value)) == value
+
+
 def test_include_merges_parameters(tmp_path):
     (tmp_path / "tuned").mkdir()
     write(tmp_path / "tuned", '[components.g.parameters]\ngain = 7.0\noffset = 1.5\n', "t.toml")
@@ -93,6 +119,21 @@ def test_include_merges_parameters(tmp_path):
     write(tmp_path / "tuned", '[components.nope.parameters]\ngain = 7.0\n', "t.toml")
     with pytest.raises(ScenarioError, match=r"t\.toml: unknown component 'nope'"):
         load_scenario(tmp_path / "s.toml")
+
+
+def test_merge_include_updates_parameters_and_sets_of_a_document(tmp_path):
+    write(tmp_path, '[components.g.parameters]\ngain = 7.0\n[components.other.parameters]\nk = 1\n'
+          '[parameter_sets.robot]\nm = 2.0\n', "inc.toml")
+    doc = {"components": {"g": {"parameters": {"gain": 1.0, "bias": 0.5}}},
+           "parameter_sets": {"robot": {"m": 1.0, "k": 3.0}}}
+    with pytest.raises(ScenarioError, match=r"inc\.toml: unknown component 'other' \(not in s\.toml\)"):
+        merge_include(doc, tmp_path / "inc.toml", "s.toml")
+    merge_include(doc, tmp_path / "inc.toml", skip_unknown=True)
+    assert doc == {"components": {"g": {"parameters": {"gain": 7.0, "bias": 0.5}}},
+                   "parameter_sets": {"robot": {"m": 2.0, "k": 3.0}}}
+    write(tmp_path, '[scenario]\nname = "x"\n', "bad.toml")
+    with pytest.raises(ScenarioError, match="unknown key"):
+        merge_include(doc, tmp_path / "bad.toml")
 
 
 def test_fmu_given_as_path_relative_to_the_scenario(tmp_path, toy_dir):
@@ -163,3 +204,12 @@ def test_missing_scenario_file(tmp_path):
 def test_bad_overrides(tmp_path, override, message):
     with pytest.raises(ScenarioError, match=message):
         load_scenario(write(tmp_path, BASE), [override])
+
+
+def test_copy_document_shares_no_table_or_array():
+    doc = {"components": {"g": {"parameters": {"v": [1.0, [2.0]]}}}, "connections": ["a.x -> b.y"]}
+    copy = copy_document(doc)
+    assert copy == doc
+    copy["components"]["g"]["parameters"]["v"][1].append(3.0)
+    copy["connections"].clear()
+    assert doc == {"components": {"g": {"parameters": {"v": [1.0, [2.0]]}}}, "connections": ["a.x -> b.y"]}

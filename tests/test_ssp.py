@@ -26,13 +26,13 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from orchestration import CouplingWarning, load_scenario, run
 from orchestration.cli import main
+from orchestration.cosim_runner import RUNNER
 from orchestration.scenario import read_variables
 from orchestration.ssp import NS
 from toys import MASS_SPRING, analytic, write
 
 pytest.importorskip("libcosimpy")
 
-RUNNER = Path(__file__).parent / "cosim_runner.py"
 REPO = Path(__file__).resolve().parent.parent
 
 
@@ -49,7 +49,7 @@ def export(tmp_path: Path, scenario: Path, *overrides: str) -> Path:
 
 
 def cosim(ssp: Path, base_step: float, n_steps: int, columns: list[str]) -> dict[str, np.ndarray]:
-    """Run ``ssp`` in libcosim (a subprocess, see ``cosim_runner.py``): the scalar columns
+    """Run ``ssp`` in libcosim (a subprocess, see ``orchestration/cosim_runner.py``): the scalar columns
     after each of ``n_steps`` base steps, and ``time``."""
     out = ssp.with_suffix(".cosim.json")
     step_ns = int(round(base_step * 1e9))

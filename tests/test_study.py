@@ -55,6 +55,39 @@ def test_simulate_equals_a_run_written_to_disk(tmp_path):
     assert not (tmp_path / "results.csv").exists()
 
 
+def test_simulate_and_run_evaluate_the_same_metrics(tmp_path):
+    """One metric evaluation for both run paths, a truthless one (NIS) too."""
+    path = write(tmp_path, MASS_SPRING + """
+[[metrics]]
+kind = "rmse"
+name = "gap"
+estimate = "a.x"
+truth = "b.x"
+after = 0.5
+[[metrics]]
+kind = "nis"
+name = "n"
+estimate = "a.x"
+dof = 1
+""")
+    mem = study.simulate(path)
+    disk = run(path, out_dir=tmp_path / "out")
+    assert set(mem.metrics) >= {"gap", "n"}
+    assert (mem.metrics, mem.units, mem.against) == (disk.metrics, disk.units, disk.against)
+    keep = mem.time >= 0.5 - 1e-12
+    assert_allclose(mem.metrics["gap"], np.sqrt(np.mean((mem["a.x"][keep] - mem["b.x"][keep]) ** 2)))
+
+
+def test_structured_overrides_run_like_strings_and_are_recorded_as_strings(tmp_path):
+    path = write(tmp_path, MASS_SPRING)
+    mem = study.simulate(path, {("a", "k"): 9.0, ("scenario", "stop_time"): 0.5})
+    assert_array_equal(mem["a.x"], study.simulate(path, ["a.k=9.0", "scenario.stop_time=0.5"])["a.x"])
+    disk = run(path, {("a", "k"): 9.0, ("scenario", "stop_time"): 0.5}, out_dir=tmp_path / "out")
+    assert_array_equal(disk["a.x"], mem["a.x"])
+    assert json.loads((tmp_path / "out" / "run.json").read_text())["overrides"] == ["a.k=9.0",
+                                                                                "scenario.stop_time=0.5"]
+
+
 def test_simulate_keeps_the_variables_asked_for(tmp_path):
     path = write(tmp_path, MASS_SPRING)
     r = study.simulate(path, variables=["b.x"])

@@ -1,10 +1,11 @@
 """Run an SSP package in libcosim (libcosimpy), the Open Simulation Platform's engine, and
-write the recorded variables to a JSON file. Used by ``tests/test_ssp.py`` in a subprocess:
+write the recorded variables to a JSON file. Used by ``tests/test_ssp.py`` and
+``benchmarks/fmi_libcosim_flagship.py`` in a subprocess, run as a script (:data:`RUNNER`):
 pythonfmu FMUs run in the host interpreter, so libcosim and fmpy must not share a process.
 
 Usage::
 
-    python tests/cosim_runner.py PACKAGE.ssp STEP_NS N_STEPS OUT.json comp.var [comp.var ...]
+    python orchestration/cosim_runner.py PACKAGE.ssp STEP_NS N_STEPS OUT.json comp.var [comp.var ...]
 
 Steps the execution ``N_STEPS`` times by its base step ``STEP_NS`` (integer nanoseconds) and
 records, after every step, the last value of each ``comp.var`` (scalar FMI variable names).
@@ -15,6 +16,10 @@ from __future__ import annotations
 import json
 import sys
 import traceback
+from pathlib import Path
+
+#: This file, to run as a script in a subprocess of its own.
+RUNNER = Path(__file__).resolve()
 
 
 def _run(ssp: str, step_ns: int, n_steps: int, columns: list[str]) -> dict:

@@ -30,7 +30,6 @@ REFACTORING = {
     ("documented", "fmus/estimators/acceleration_observer_model.py"): "26 undocumented at c35e7a2",
     ("documented", "fmus/estimators/ekf_accelerometer_model.py"): "16 undocumented at c35e7a2",
     ("documented", "fmus/estimators/ekf_flexible_model.py"): "16 undocumented at c35e7a2",
-    ("documented", "fmus/estimators/imu_ekf_model.py"): "14 undocumented at c35e7a2",
     ("documented", "fmus/estimators/particle_filter_model.py"): "11 undocumented at c35e7a2",
 }
 

@@ -48,8 +48,8 @@ def white_noise(rng: np.random.Generator, sigma: float | np.ndarray, n: int) -> 
     """``n`` zero-mean Gaussian samples with standard deviation ``sigma`` (scalar or per channel).
 
     ``rng`` is the stream's generator (:func:`make_rng`); ``sigma`` is in the unit of the signal
-    the noise is added to. The ``n`` standard normal numbers are always drawn, even when ``sigma`` is zero, so that the
-    stream position does not depend on the noise level.
+    the noise is added to. The ``n`` standard normal numbers are always drawn, even when
+    ``sigma`` is zero, so that the stream position does not depend on the noise level.
     """
     return np.asarray(sigma, dtype=float) * rng.standard_normal(n)
 

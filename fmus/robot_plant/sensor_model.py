@@ -375,9 +375,9 @@ def calibrate_tool(phis: Sequence[float], readings: np.ndarray, g: float = G
 # Environment
 # ---------------------------------------------------------------------------------------------
 def penetration(p_tool: Sequence[float], wall: ContactEnvironmentParameters) -> float:
-    """Depth of the tool point ``p_tool`` (world x, z; m) inside the ``wall`` (plane through ``wall_point`` with the normal
-    ``wall_normal`` pointing out of the wall into free space) along the normal (m); negative
-    outside."""
+    """Depth of the tool point ``p_tool`` (world x, z; m) inside the ``wall`` (plane through
+    ``wall_point`` with the normal ``wall_normal`` pointing out of the wall into free space)
+    along the normal (m); negative outside."""
     n = np.asarray(wall.wall_normal, dtype=float)
     n = n / np.linalg.norm(n)
     return float(-(np.asarray(p_tool, dtype=float) - np.asarray(wall.wall_point, dtype=float)) @ n)

@@ -181,9 +181,9 @@ def characteristic_polynomial(freqs, dampings) -> np.ndarray:
 
 
 def poles(freqs, dampings) -> np.ndarray:
-    """The poles [rad/s] ``-zeta w +- w sqrt(zeta^2 - 1)`` of the pairs (complex for ``zeta <
-    1``), ``w = 2 pi f`` for the eigenfrequencies ``freqs`` = ``f`` [Hz] and the damping ratios
-    ``dampings`` = ``zeta``."""
+    """The poles [rad/s] ``-zeta w +- w sqrt(zeta^2 - 1)`` of the pairs (complex for
+    ``zeta < 1``), ``w = 2 pi f`` for the eigenfrequencies ``freqs`` = ``f`` [Hz] and the damping
+    ratios ``dampings`` = ``zeta``."""
     out = []
     for f, z in zip(freqs, dampings):
         w = 2 * math.pi * float(f)

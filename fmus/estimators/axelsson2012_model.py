@@ -153,7 +153,7 @@ Q_, DQ_, DDQ_ = slice(0, 2), slice(2, 4), slice(4, 6)
 # ---- eqs. 13-14: the discrete-time model ------------------------------------------------------
 def continuous_model(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
     """``(A, B)`` of the continuous constant-acceleration model ``x_dot = A x + B u`` (jerk input),
-    whose zero-order hold is eq. 13a, with the states of ``layout`` (the biases are constant: zero rows)."""
+    whose zero-order hold is eq. 13a, with the states of ``layout`` (the biases: zero rows)."""
     n = layout.n
     A = np.zeros((n, n))
     A[0:2, 2:4] = np.eye(2)

@@ -167,9 +167,9 @@ def nees(error: np.ndarray, covariance: np.ndarray) -> np.ndarray:
 
 
 def nis(statistic: np.ndarray, squared: bool = True) -> np.ndarray:
-    """Normalised innovation squared ``nu_k^T S_k^-1 nu_k`` per time, from ``statistic``, a
-    filter's output of it (``squared``) or of its square root, the normalised innovation norm
-    (``innovation_norm`` of the estimator contract)."""
+    """Normalised innovation squared ``nu_k^T S_k^-1 nu_k`` per time, from a filter's output of
+    it (``squared``) or of its square root, the normalised innovation norm (``innovation_norm``
+    of the estimator contract)."""
     s = np.asarray(statistic, dtype=float).reshape(-1)
     return s if squared else s * s
 

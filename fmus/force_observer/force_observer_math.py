@@ -350,7 +350,6 @@ class ForceObserverParameters:
     g: float = param(G, "m/s2", "gravity", low=0.0)
 
     def check(self) -> None:
-        """``index_x`` differs from ``index_z``; raises :class:`ParameterError`."""
         if self.index_x == self.index_z:
             raise ParameterError(f"parameters 'index_x' and 'index_z' must differ (both {self.index_x})")
 

@@ -78,8 +78,7 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
 
 
 def design_model(d: ImpedanceControllerParameters, k_env: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``(A, B)`` of the design model of the parameters ``d`` and input ``Delta``, on a surface
-    of stiffness ``k_env`` [N/m] (default: ``d.k_env``).
+    """``(A, B)`` of the design model and input ``Delta``.
 
     Rigid tool: states ``(e, e', zeta)``. Compliant tool (``d.compliant``; the paper's robot +
     Optidrive model, eq. 39): states ``(e_f, e_f', dl, dl', zeta)`` with ``e_f`` the flange
@@ -107,8 +106,7 @@ def design_model(d: ImpedanceControllerParameters, k_env: float | None = None) -
 
 
 def design_gains(d: ImpedanceControllerParameters) -> np.ndarray:
-    """LQR gain ``L`` for ``Delta = -L s`` (eqs. 40-41) of the design parameters ``d``
-    (weights ``q_*`` and ``r``, :func:`design_model`): on ``(e, e', zeta)`` (3) for a rigid
+    """LQR gain ``L`` for ``Delta = -L s`` (eqs. 40-41): on ``(e, e', zeta)`` (3) for a rigid
     tool, ``(e_f, e_f', dl, dl', zeta)`` (5) for the compliant one (eq. 41's diagonal form:
     weights on the robot's and the tool's position and velocity states); the ``"paper"``
     structure drops ``zeta`` (2 or 4 entries)."""
@@ -141,8 +139,7 @@ def force_gain(d: ImpedanceControllerParameters, L: np.ndarray) -> float:
 
 
 def closed_loop_poles(d: ImpedanceControllerParameters, L: np.ndarray, k_env: float) -> np.ndarray:
-    """Poles [rad/s] of the design model of ``d`` with gain ``L`` on a surface of stiffness
-    ``k_env`` [N/m]; for the
+    """Poles of the design model with gain ``L`` on a surface of stiffness ``k_env``; for the
     ``"paper"`` structure the force term ``c F = c k_env e_tool`` (in contact) is closed too."""
     A, B = design_model(d, k_env)
     L = np.asarray(L, float).ravel()
@@ -449,7 +446,6 @@ class ImpedanceControllerParameters:
                              low_inclusive=False)
 
     def check(self) -> None:
-        """``normal`` is not the zero vector; raises :class:`ParameterError`."""
         if np.hypot(*self.normal) < 1e-9:
             raise ParameterError(f"parameter 'normal' = {self.normal} must not be the zero vector")
 

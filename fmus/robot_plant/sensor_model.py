@@ -375,9 +375,9 @@ def calibrate_tool(phis: Sequence[float], readings: np.ndarray, g: float = G
 # Environment
 # ---------------------------------------------------------------------------------------------
 def penetration(p_tool: Sequence[float], wall: ContactEnvironmentParameters) -> float:
-    """Depth of the tool point ``p_tool`` (world x, z; m) inside the ``wall`` (plane through
-    ``wall_point`` with the normal ``wall_normal`` pointing out of the wall into free space)
-    along the normal (m); negative outside."""
+    """Depth of the tool inside the wall (plane through ``wall_point`` with the normal
+    ``wall_normal`` pointing out of the wall into free space) along the normal (m); negative
+    outside."""
     n = np.asarray(wall.wall_normal, dtype=float)
     n = n / np.linalg.norm(n)
     return float(-(np.asarray(p_tool, dtype=float) - np.asarray(wall.wall_point, dtype=float)) @ n)
@@ -385,8 +385,7 @@ def penetration(p_tool: Sequence[float], wall: ContactEnvironmentParameters) -> 
 
 def contact_force(p_tool: Sequence[float], v_tool: Sequence[float],
                   wall: ContactEnvironmentParameters) -> np.ndarray:
-    """Force of the ``wall`` ON the tool, world x and z (N), at the tool point ``p_tool`` (m) and
-    velocity ``v_tool`` (m/s), both world x, z.
+    """Force of the wall ON the tool, world x and z (N).
 
     ``f = n max(0, k d - c v.n)`` when the penetration ``d > 0`` (a Kelvin-Voigt contact,
     the environment model of the impedance paper with 5 N/mm), zero outside; the clip at zero
@@ -542,8 +541,7 @@ class ForceTorqueSensorParameters:
 
 
 def sensor_channels(p: ForceTorqueSensorParameters) -> SensorChannels:
-    """The imperfections of the force sensor ``p`` (noise, bias, scale, quantisation, range,
-    rate, filter) as its :class:`SensorChannels`."""
+    """The sensor's imperfections (noise, bias, scale, quantisation, range, rate, filter)."""
     return SensorChannels(
         3, seed=p.seed, stream="force_sensor", noise=p.noise, bias=p.bias, bias_rw=p.bias_rw,
         scale=p.scale, resolution=p.resolution, range=p.f_range, sample_rate=p.sample_rate,
@@ -552,9 +550,9 @@ def sensor_channels(p: ForceTorqueSensorParameters) -> SensorChannels:
 
 def calibration_readings(p: ForceTorqueSensorParameters, phis: Sequence[float], n_samples: int = 500,
                          dt: float = 1e-3) -> np.ndarray:
-    """Mean readings of the force sensor ``p`` at rest, free of contact, ``n_samples`` samples of
-    ``dt`` [s] in each tool angle [rad] of ``phis``: the data of
-    :func:`fmus.robot_plant.sensor_model.calibrate_tool`. Returns (len(phis), 3)."""
+    """Mean readings of this sensor at rest, free of contact, ``n_samples`` samples of ``dt`` in
+    each tool angle of ``phis``: the data of :func:`fmus.robot_plant.sensor_model.calibrate_tool`.
+    Returns (len(phis), 3)."""
     channels = sensor_channels(p)
     out = []
     for phi in phis:
@@ -586,7 +584,6 @@ class ContactEnvironmentParameters:
                                    low_inclusive=False, source="assumed: rubber hammer, a few ms")
 
     def check(self) -> None:
-        """``wall_normal`` is not the zero vector; raises :class:`ParameterError`."""
         if math.hypot(*self.wall_normal) < 1e-9:
             raise ParameterError(f"parameter 'wall_normal' = {self.wall_normal} must not be zero")
 

@@ -27,20 +27,9 @@ MODEL_MODULES = [p for p in MATH_MODULES if p.parent.name not in ("common", "orc
 #: and fmus/estimators). The lead clears this list after merging; a listed item that passes
 #: fails the test (strict xfail), so the list cannot go stale.
 REFACTORING = {
-    ("documented", "fmus/common/dynamics.py"): "24 undocumented at c35e7a2",
-    ("documented", "fmus/common/fmi.py"): "20 undocumented at c35e7a2",
-    ("documented", "fmus/common/kinematics.py"): "17 undocumented at c35e7a2",
-    ("documented", "fmus/common/noise.py"): "3 undocumented at c35e7a2",
-    ("documented", "fmus/common/parameters.py"): "5 undocumented at c35e7a2",
-    ("documented", "fmus/common/robot_params.py"): "2 undocumented at c35e7a2",
-    ("documented", "fmus/common/sample_time.py"): "1 undocumented at c35e7a2",
-    ("documented", "fmus/estimators/acceleration_observer_model.py"): "26 undocumented at c35e7a2",
-    ("documented", "fmus/estimators/complementary_filter_model.py"): "18 undocumented at c35e7a2",
     ("documented", "fmus/estimators/ekf_accelerometer_model.py"): "16 undocumented at c35e7a2",
     ("documented", "fmus/estimators/ekf_flexible_model.py"): "16 undocumented at c35e7a2",
-    ("documented", "fmus/estimators/imu_ekf_model.py"): "14 undocumented at c35e7a2",
     ("documented", "fmus/estimators/particle_filter_model.py"): "11 undocumented at c35e7a2",
-    ("documented", "fmus/estimators/rigid_kinematics_model.py"): "5 undocumented at c35e7a2",
 }
 
 # "eq. 16", "Eqs. (17)-(19)", "equation 3"; or a named source: "Author (2012)", "Author et al.

@@ -36,6 +36,9 @@ class ArmConstants:
 
     ``M11 = a + 2 b(q2)``, ``M12 = c + b(q2)``, ``M22 = c`` with ``b = -e sin q2``,
     ``e = m2 l1 c2``; gravity ``G = (-g1 sin q1 - g2 cos(q1 + q2), -g2 cos(q1 + q2))``.
+
+    Built from ``p``, the robot parameters. The methods take a joint index ``i`` (0: axis 2,
+    1: axis 3) and arm-side quantities: deflection ``D`` [rad], torque ``tau`` [N.m].
     """
 
     def __init__(self, p: RobotParameters) -> None:
@@ -57,11 +60,14 @@ class ArmConstants:
         self.w_c = tuple(map(float, p.w_c))
 
     def spring(self, i: int, D: float) -> float:
+        """Gearbox spring torque ``tau_s(D)`` [N.m] of joint ``i`` at the deflection ``D`` [rad]
+        (:func:`spring_torque` on a float)."""
         return self.k_hi[i] * D - self.k_soft[i] * self.delta[i] * math.tanh(D / self.delta[i])
 
     def deflection(self, i: int, tau: float, D0: float | None = None) -> float:
-        """:func:`spring_deflection` of joint ``i`` on a float (the same Newton steps, each
-        joint stopping on its own; on 2-vectors a scalar loop is about 14x faster than numpy)."""
+        """:func:`spring_deflection` of joint ``i`` on a float: the deflection [rad] carrying the
+        spring torque ``tau`` [N.m], from the guess ``D0`` [rad] if given (the same Newton steps,
+        each joint stopping on its own; on 2-vectors a scalar loop is about 14x faster than numpy)."""
         k_hi, k_soft, delta = self.k_hi[i], self.k_soft[i], self.delta[i]
         if D0 is None:
             D = (tau + math.copysign(k_soft * delta * math.tanh(abs(tau) / (k_hi * delta)), tau)) / k_hi
@@ -76,12 +82,14 @@ class ArmConstants:
         return D
 
     def gravity(self, q1: float, q2: float) -> tuple[float, float]:
-        """:func:`gravity_torque` on floats."""
+        """:func:`gravity_torque` [N.m] on floats: the arm angles ``q1``, ``q2`` [rad]."""
         cp = math.cos(q1 + q2)
         return -self.g1 * math.sin(q1) - self.g2 * cp, -self.g2 * cp
 
     def derivatives(self, s, tau1: float, tau2: float, fx: float, fz: float) -> tuple:
-        """``x_dot`` as a tuple of 8 floats (eqs. 10-11)."""
+        """``x_dot`` as a tuple of 8 floats (eqs. 10-11) at the state ``s`` (8 floats, the
+        module's ``x``), with the motor torques ``tau1``, ``tau2`` [N.m, motor side] and the
+        external tool force ``fx``, ``fz`` [N, world x, z]."""
         q1, q2, qm1, qm2, dq1, dq2, dqm1, dqm2 = s
         s1, c1 = math.sin(q1), math.cos(q1)
         phi = q1 + q2
@@ -129,7 +137,8 @@ def _arr(v) -> np.ndarray:
 
 
 def mass_matrix(q, p: RobotParameters) -> np.ndarray:
-    """Arm inertia matrix ``M(q_a)`` of eq. 11 (shape (..., 2, 2))."""
+    """Arm inertia matrix ``M(q_a)`` [kg.m^2] of eq. 11 (shape (..., 2, 2)) at the arm angles
+    ``q`` [rad] (shape (..., 2)) of the robot ``p``."""
     k = arm_constants(p)
     b = -k.e * np.sin(_arr(q)[..., 1])
     m12 = k.c + b
@@ -137,7 +146,8 @@ def mass_matrix(q, p: RobotParameters) -> np.ndarray:
 
 
 def coriolis(q, dq, p: RobotParameters) -> np.ndarray:
-    """Coriolis and centrifugal torques ``C(q_a, dq_a) dq_a`` of eq. 11 (Christoffel symbols of M)."""
+    """Coriolis and centrifugal torques ``C(q_a, dq_a) dq_a`` [N.m] of eq. 11 (Christoffel symbols
+    of M) at the arm angles ``q`` [rad] and rates ``dq`` [rad/s] of the robot ``p``."""
     k = arm_constants(p)
     bd = -k.e * np.cos(_arr(q)[..., 1])
     dq = _arr(dq)
@@ -146,7 +156,8 @@ def coriolis(q, dq, p: RobotParameters) -> np.ndarray:
 
 
 def gravity_torque(q, p: RobotParameters) -> np.ndarray:
-    """Gravity torques ``G(q_a) = dV/dq_a`` of eq. 11 (``V``: potential energy of the links)."""
+    """Gravity torques ``G(q_a) = dV/dq_a`` [N.m] of eq. 11 (``V``: potential energy of the links)
+    at the arm angles ``q`` [rad] of the robot ``p``."""
     k = arm_constants(p)
     q = _arr(q)
     cp = np.cos(q[..., 0] + q[..., 1])
@@ -154,13 +165,17 @@ def gravity_torque(q, p: RobotParameters) -> np.ndarray:
 
 
 def inverse_dynamics_rigid(q, dq, ddq, p: RobotParameters) -> np.ndarray:
-    """Arm-side torque ``M ddq + C dq + G`` the gearboxes must deliver (eq. 11, left side)."""
+    """Arm-side torque ``M ddq + C dq + G`` [N.m] the gearboxes must deliver (eq. 11, left side)
+    at the arm angles ``q`` [rad], rates ``dq`` [rad/s] and accelerations ``ddq`` [rad/s^2] of
+    the robot ``p``."""
     return (np.einsum("...ij,...j->...i", mass_matrix(q, p), _arr(ddq)) + coriolis(q, dq, p)
             + gravity_torque(q, p))
 
 
 def spring_torque(q_a, q_m, p: RobotParameters) -> np.ndarray:
-    """Gearbox spring torque ``tau_s(D)``, ``D = q_m / r - q_a`` (arm side, without damping)."""
+    """Gearbox spring torque ``tau_s(D)`` [N.m], ``D = q_m / r - q_a`` (arm side, without
+    damping), of the arm angles ``q_a`` [rad] and motor angles ``q_m`` [rad, motor side] of the
+    robot ``p`` (its gear ratios and springs)."""
     k = arm_constants(p)
     D = _arr(q_m) / np.array(k.r) - _arr(q_a)
     delta = np.array(k.delta)
@@ -168,14 +183,16 @@ def spring_torque(q_a, q_m, p: RobotParameters) -> np.ndarray:
 
 
 def spring_stiffness(D, p: RobotParameters) -> np.ndarray:
-    """``d tau_s / dD`` at the deflection ``D``: ``k_lo`` at zero, ``k_hi`` for ``|D| >> delta``."""
+    """``d tau_s / dD`` [N.m/rad] at the deflection ``D`` [rad] of the springs of ``p``: ``k_lo``
+    at zero, ``k_hi`` for ``|D| >> delta``."""
     k = arm_constants(p)
     return np.array(k.k_hi) - np.array(k.k_soft) / np.cosh(_arr(D) / np.array(k.delta)) ** 2
 
 
 def spring_deflection(tau, p: RobotParameters, D0=None) -> np.ndarray:
-    """The deflection ``D`` with ``tau_s(D) = tau`` (Newton's method; ``tau_s`` is monotonic),
-    from ``D0`` if given (a nearby solution: one or two steps)."""
+    """The deflection ``D`` [rad] with ``tau_s(D) = tau`` (``tau`` [N.m] arm side, springs of
+    ``p``; Newton's method, ``tau_s`` is monotonic), from ``D0`` [rad] if given (a nearby
+    solution: one or two steps)."""
     k = arm_constants(p)
     tau = _arr(tau)
     k_hi, k_soft, delta = np.array(k.k_hi), np.array(k.k_soft), np.array(k.delta)
@@ -193,26 +210,29 @@ def spring_deflection(tau, p: RobotParameters, D0=None) -> np.ndarray:
 
 
 def motor_friction(dq_m, p: RobotParameters) -> np.ndarray:
-    """Motor friction ``f_v w + f_c tanh(w / w_c)`` (motor side; smooth Coulomb friction)."""
+    """Motor friction ``f_v w + f_c tanh(w / w_c)`` [N.m] (motor side; smooth Coulomb friction)
+    at the motor rates ``w`` = ``dq_m`` [rad/s], with the friction parameters of ``p``."""
     k = arm_constants(p)
     w = _arr(dq_m)
     return np.array(k.f_v) * w + np.array(k.f_c) * np.tanh(w / np.array(k.w_c))
 
 
 def derivatives(x, tau_m, f_ext, p: RobotParameters) -> np.ndarray:
-    """``x_dot`` of the flexible-joint model (eqs. 10-11) at state ``x``, motor torque ``tau_m``
-    (motor side) and external tool force ``f_ext`` (world x, z)."""
+    """``x_dot`` of the flexible-joint model (eqs. 10-11) of the robot ``p`` at state ``x``, motor
+    torque ``tau_m`` [N.m] (motor side) and external tool force ``f_ext`` [N] (world x, z)."""
     return np.array(arm_constants(p).derivatives(tuple(map(float, x)), float(tau_m[0]), float(tau_m[1]),
                                               float(f_ext[0]), float(f_ext[1])))
 
 
 def arm_acceleration(x, f_ext, p: RobotParameters) -> np.ndarray:
-    """Arm angular acceleration at state ``x`` (independent of the motor torque, eq. 11)."""
+    """Arm angular acceleration [rad/s^2] of the robot ``p`` at state ``x`` with the external
+    tool force ``f_ext`` [N] (world x, z) (independent of the motor torque, eq. 11)."""
     return derivatives(x, (0.0, 0.0), f_ext, p)[4:6]
 
 
 def energy(x, p: RobotParameters) -> float:
-    """Total mechanical energy: kinetic (arm and motors), gravity and spring potential."""
+    """Total mechanical energy [J] of the robot ``p`` at state ``x``: kinetic (arm and motors),
+    gravity and spring potential."""
     k = arm_constants(p)
     q, qm, dq, dqm = x[0:2], x[2:4], np.asarray(x[4:6], float), x[6:8]
     kinetic = 0.5 * dq @ mass_matrix(q, p) @ dq + 0.5 * sum(k.jm[i] * dqm[i] ** 2 for i in range(2))
@@ -226,7 +246,8 @@ def energy(x, p: RobotParameters) -> float:
 
 
 def static_equilibrium(q_a, p: RobotParameters) -> np.ndarray:
-    """The state at rest with the arm at ``q_a``: motors where the springs carry gravity.
+    """The state at rest with the arm at ``q_a`` [rad]: motors where the springs of the robot
+    ``p`` carry gravity.
 
     Returns ``x`` with ``q_m = r (q_a + D)``, ``tau_s(D) = G(q_a)``; the motor torque that holds
     it is ``G(q_a) / r``.
@@ -237,7 +258,8 @@ def static_equilibrium(q_a, p: RobotParameters) -> np.ndarray:
 
 
 def locked_motor_frequencies(q_a, p: RobotParameters) -> np.ndarray:
-    """Natural frequencies [Hz] of the arm with the motors locked, linearised at rest at ``q_a``.
+    """Natural frequencies [Hz] of the arm of the robot ``p`` with the motors locked, linearised
+    at rest at the arm angles ``q_a`` [rad].
 
     ``M ddq = -(K + dG/dq) dq`` with ``K = diag(d tau_s / dD)`` at the gravity deflection.
     """
@@ -278,6 +300,7 @@ class FlexibleRobotModel:
 
     @x.setter
     def x(self, value) -> None:
+        """Set the state to ``value`` (8 numbers, as :attr:`x`)."""
         self._s = tuple(float(v) for v in value)
 
     @property
@@ -296,7 +319,8 @@ class FlexibleRobotModel:
         return k.spring(0, s[2] / k.r[0] - s[0]), k.spring(1, s[3] / k.r[1] - s[1])
 
     def step(self, tau_m, f_ext, dt: float) -> None:
-        """Advance by ``dt`` with the inputs held constant (zero-order hold)."""
+        """Advance by ``dt`` [s] with the inputs held constant (zero-order hold): the motor
+        torque ``tau_m`` [N.m, motor side] and the external tool force ``f_ext`` [N, world x, z]."""
         f = self._k.derivatives
         t1, t2, fx, fz = float(tau_m[0]), float(tau_m[1]), float(f_ext[0]), float(f_ext[1])
         h = dt / self.substeps

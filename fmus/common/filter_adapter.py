@@ -69,6 +69,8 @@ class FilterAdapter(FlexFusionSlave):
     feedthrough = True
 
     def declare_t_meas(self) -> None:
+        """Declare the optional input ``t_meas`` [s], the measurement inputs' stamp (start value
+        :data:`~fmus.common.sample_time.UNSTAMPED`: unconnected)."""
         self.input("t_meas", unit="s", start=UNSTAMPED, description=T_MEAS_DESCRIPTION)
 
     def start_fusion(self, initial: Any) -> None:
@@ -135,10 +137,14 @@ class FilterAdapter(FlexFusionSlave):
             self._pending = None
 
     def update_outputs(self) -> None:
+        """With feedthrough, fuse the inputs just set and show the estimate at the current time."""
         if self.feedthrough:
             self._refresh(self._time)
 
     def step(self, t: float, dt: float) -> None:
+        """Advance from ``t`` to ``t + dt`` [s]: commit the update computed before this step,
+        fuse the inputs at their stamp and show the estimate at ``t + dt``; a divergence raises
+        ``divergence`` (this step and every later one)."""
         if self._pending is None and not self._diverged and self.feedthrough:
             self._refresh(t)
         if self._diverged:

@@ -168,6 +168,10 @@ class FlexFusionSlave(Fmi2Slave):
     ``nan_outputs``
         ``"error"`` (default): reading a non-finite output is an FMI error naming it;
         ``"pass"``: allowed (a test toy standing for a third-party FMU that outputs NaN).
+
+    The constructor takes pythonfmu's ``kwargs`` (``instance_name``, ``resources``, ``logger``,
+    ...), passes them on to :class:`pythonfmu.Fmi2Slave` and declares the parameters of
+    ``parameters_class``.
     """
 
     parameters_class: type | None = None
@@ -268,14 +272,20 @@ class FlexFusionSlave(Fmi2Slave):
 
     def input(self, name: str, size: int | None = None, *, unit: str, description: str,
               start: float | Sequence[float] = 0.0) -> None:
-        """Declare a Real input; ``self.<name>`` holds a float (size None) or an array."""
+        """Declare a Real input ``name``; ``self.<name>`` holds a float (``size`` None) or an
+        array of ``size`` elements, declared as ``name[1]`` ... ``name[size]``. ``unit`` must be
+        in ``_UNITS``; ``description`` goes to the modelDescription; ``start`` is the start
+        value (a scalar or one per element)."""
         self._inputs.append(name)
         self._declare_real_array(name, size, Fmi2Causality.input, unit, description, start,
                                  Fmi2Variability.continuous, None, on_set=self._mark_dirty)
 
     def output(self, name: str, size: int | None = None, *, unit: str, description: str,
                start: float | Sequence[float] = 0.0, depends_on: Iterable[str] = ()) -> None:
-        """Declare a Real output; ``depends_on`` names the inputs with direct feedthrough."""
+        """Declare a Real output ``name`` (a float, or ``size`` elements ``name[1]`` ...), with its
+        ``unit`` (in ``_UNITS``), ``description`` and ``start`` value (valid until :meth:`setup`
+        sets it); ``depends_on`` names the inputs with direct feedthrough (the
+        ``<ModelStructure>`` dependencies)."""
         deps = tuple(depends_on)
         for d in deps:
             if d not in self._inputs:
@@ -363,7 +373,8 @@ class FlexFusionSlave(Fmi2Slave):
 
     # ---- what a subclass implements ------------------------------------------------------
     def setup(self, params: Any) -> None:
-        """Build the model from validated parameters and set the initial outputs."""
+        """Build the model from ``params``, the validated instance of ``parameters_class``
+        (None without one), and set the initial outputs."""
 
     def step(self, t: float, dt: float) -> None:
         """Advance from ``t`` to ``t + dt`` with the current inputs; update the outputs."""
@@ -386,7 +397,8 @@ class FlexFusionSlave(Fmi2Slave):
 
     def log(self, msg: str, status: Fmi2Status = Fmi2Status.ok, category: str | None = None,
             debug: Any = None) -> None:
-        """pythonfmu's log, except that errors always reach the host.
+        """pythonfmu's log of ``msg`` with ``status``, ``category`` and ``debug``, except that
+        errors always reach the host.
 
         pythonfmu 0.7 passes a message to the host's logger only while the host has debug
         logging on (and its category enabled). An error must be reported whatever the host's
@@ -399,9 +411,12 @@ class FlexFusionSlave(Fmi2Slave):
             super().log(msg, status, category)
 
     def setup_experiment(self, start_time: float, stop_time: float | None, tolerance: float | None) -> None:
+        """FMI ``fmi2SetupExperiment``: the time starts at ``start_time`` [s]; ``stop_time`` and
+        ``tolerance`` are not used (fixed-step components)."""
         self._time = float(start_time)
 
     def enter_initialization_mode(self) -> None:
+        """FMI ``fmi2EnterInitializationMode``: outputs read from now on build the model."""
         self._phase = "initialization"
 
     def _build(self) -> None:
@@ -419,6 +434,8 @@ class FlexFusionSlave(Fmi2Slave):
         self._inputs_dirty = True
 
     def exit_initialization_mode(self) -> int | None:
+        """FMI ``fmi2ExitInitializationMode``: validate the parameters and build the model with
+        them and the inputs set (unless an output read already did), then step."""
         if self._stale or not self._ready:
             self._build()
         self._phase = "stepping"
@@ -432,6 +449,9 @@ class FlexFusionSlave(Fmi2Slave):
         self._inputs_unchecked = False
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        """FMI ``fmi2DoStep`` from ``current_time`` [s] over ``step_size`` [s] (> 0): check the
+        inputs, call :meth:`step` with the step rounded by :func:`nominal_step`. A bad step size
+        or state raises (an FMI error); a failed step logs the cause and returns False."""
         if not (step_size > 0.0 and math.isfinite(step_size) and math.isfinite(current_time)) \
                 or self._phase != "stepping":
             msg = (f"{self.instance_name}: fmi2DoStep(t = {current_time!r}, h = {step_size!r}) "
@@ -453,6 +473,9 @@ class FlexFusionSlave(Fmi2Slave):
             return False
 
     def get_real(self, vrs: list[int]) -> list[float]:
+        """FMI ``fmi2GetReal`` of the value references ``vrs``: first the model (in
+        Initialization Mode) or the direct-feedthrough outputs (:meth:`update_outputs`) brought
+        up to date with the inputs set; a non-finite output is an FMI error naming it."""
         if self._stale and self._phase == "initialization":
             self._build()
         if self._inputs_dirty and self._ready:
@@ -486,6 +509,7 @@ class FlexFusionSlave(Fmi2Slave):
             raise FloatingPointError(msg)
 
     def terminate(self) -> None:
+        """FMI ``fmi2Terminate``: no step after this."""
         self._phase = "terminated"
 
     # ---- FMU state: the complete internal state, restored bit-exactly ----------------------
@@ -520,7 +544,9 @@ class FlexFusionSlave(Fmi2Slave):
         return pickle.loads(data)  # noqa: S301 - our own state, from the host that saved it
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
-        """Inputs straight into their arrays (the hot path: no setter per scalar), marked dirty
+        """FMI ``fmi2SetReal`` of ``values`` to the value references ``vrs``.
+
+        Inputs straight into their arrays (the hot path: no setter per scalar), marked dirty
         once; one sum flags a non-finite value for the check at the next step. Anything else
         (parameters) goes through its variable's setter."""
         if not vrs:
@@ -555,6 +581,9 @@ class FlexFusionSlave(Fmi2Slave):
 
     # ---- modelDescription ----------------------------------------------------------------
     def to_xml(self, model_options: dict[str, str] = dict()) -> Element:  # noqa: B006 - pythonfmu's signature
+        """pythonfmu's modelDescription (``model_options`` passed on) with what it lacks: FMU
+        state support, units and ``<UnitDefinitions>``, fixed String parameters and each
+        output's real direct-feedthrough dependencies and initial unknowns."""
         root = super().to_xml(model_options)
         cosim = root.find("CoSimulation")
         cosim.set("canGetAndSetFMUstate", "true")     # see _get_fmu_state

@@ -25,7 +25,8 @@ def rot_y(phi: float) -> np.ndarray:
 
 
 def rot_rpy(rpy: Sequence[float]) -> np.ndarray:
-    """Mounting rotation from roll, pitch, yaw (``Rz(yaw) @ Ry(pitch) @ Rx(roll)``), sensor to tool."""
+    """Mounting rotation from ``rpy`` = (roll, pitch, yaw) [rad] (``Rz(yaw) @ Ry(pitch) @ Rx(roll)``),
+    sensor to tool."""
     r, p, y = (float(v) for v in rpy)
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
     rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
@@ -35,7 +36,8 @@ def rot_rpy(rpy: Sequence[float]) -> np.ndarray:
 
 
 def sensor_rotation(phi: float, mount_rpy: Sequence[float]) -> np.ndarray:
-    """``R_s = Ry(phi) @ R_mount``: sensor frame to world."""
+    """``R_s = Ry(phi) @ R_mount``: sensor frame to world, for the tool angle ``phi`` [rad] and
+    the mounting rotation ``mount_rpy`` (roll, pitch, yaw [rad], :func:`rot_rpy`)."""
     return rot_y(phi) @ rot_rpy(mount_rpy)
 
 
@@ -48,17 +50,20 @@ class RigidMount:
         self.q_mount = from_matrix(mount_matrix)
 
     def sensor_pose(self, p_tool, q_tool) -> tuple[np.ndarray, np.ndarray]:
-        """The sensor point and frame (world) of a tool pose."""
+        """The sensor point [m] and frame (quaternion, sensor to world) of a tool pose: the tool
+        point ``p_tool`` [m, world] and orientation ``q_tool`` (quaternion, tool to world)."""
         return (np.asarray(p_tool, float) + rotate(q_tool, self.lever), multiply(q_tool, self.q_mount))
 
     def tool_pose(self, p_sensor, q_sensor) -> tuple[np.ndarray, np.ndarray]:
-        """The tool point and orientation (tool to world) of a sensor pose."""
+        """The tool point [m] and orientation (tool to world) of a sensor pose: the sensor point
+        ``p_sensor`` [m, world] and frame ``q_sensor`` (quaternion, sensor to world)."""
         q_tool = normalise(multiply(q_sensor, conjugate(self.q_mount)))
         return np.asarray(p_sensor, float) - rotate(q_tool, self.lever), q_tool
 
 
 def planar_pose(p_xz, phi: float) -> tuple[np.ndarray, np.ndarray]:
-    """3-D pose of a planar tool pose: position ``(x, 0, z)`` and ``Ry(phi)`` as a quaternion."""
+    """3-D pose of a planar tool pose, the point ``p_xz`` = (x, z) [m] and the tool angle ``phi``
+    [rad]: position ``(x, 0, z)`` and ``Ry(phi)`` as a quaternion."""
     return np.array([float(p_xz[0]), 0.0, float(p_xz[1])]), from_angle_y(phi)
 
 

@@ -49,23 +49,28 @@ def _geometry(q, p, point: str) -> tuple[float, float, float, float]:
 
 
 def position(q, p, point: str = "tool") -> np.ndarray:
-    """World position of ``point`` ("tool", "sensor" or "elbow") at arm angles ``q``."""
+    """World position (x, z) [m] of ``point`` ("tool", "sensor" or "elbow") at the arm angles
+    ``q`` [rad], for the robot ``p`` (:class:`~fmus.common.robot_params.RobotParameters`: links
+    ``l1``, ``l2`` and the ``sensor_offset`` in the tool frame)."""
     x, z, _, _ = _geometry(q, p, point)
     return np.array([x, z])
 
 
 def tool_position(q, p) -> np.ndarray:
-    """Tool point position (world x, z): the rigid forward kinematics."""
+    """Tool point position (world x, z) [m] at the arm angles ``q`` [rad] of the robot ``p``:
+    the rigid forward kinematics."""
     return position(q, p, "tool")
 
 
 def sensor_position(q, p) -> np.ndarray:
-    """Accelerometer mount position (world x, z)."""
+    """Accelerometer mount position (world x, z) [m] at the arm angles ``q`` [rad] of the robot
+    ``p`` (its ``sensor_offset``)."""
     return position(q, p, "sensor")
 
 
 def jacobian(q, p, point: str = "tool") -> np.ndarray:
-    """``J(q) = dp/dq`` of ``point``; a rotation about +y maps ``r`` to ``(r_z, -r_x)``."""
+    """``J(q) = dp/dq`` [m/rad] of ``point`` (as in :func:`position`) at the arm angles ``q``
+    [rad] of the robot ``p``; a rotation about +y maps ``r`` to ``(r_z, -r_x)``."""
     rx, rz, r2x, r2z = _geometry(q, p, point)
     elbow_x, elbow_z = rx - r2x, rz - r2z
     # joint 1 turns the whole chain about the origin; joint 2 the forearm about the elbow
@@ -73,7 +78,8 @@ def jacobian(q, p, point: str = "tool") -> np.ndarray:
 
 
 def jacobian_dot(q, dq, p, point: str = "tool") -> np.ndarray:
-    """Time derivative of :func:`jacobian` along ``dq``.
+    """Time derivative of :func:`jacobian` of ``point`` at the arm angles ``q`` [rad] along the
+    arm velocities ``dq`` [rad/s], for the robot ``p``.
 
     Each column is ``omega_k x r_k``-type: ``d/dt (r_z, -r_x) = (v_z, -v_x)`` of the lever arm.
     """
@@ -91,9 +97,12 @@ def jacobian_dot(q, dq, p, point: str = "tool") -> np.ndarray:
 
 
 def point_motion(q, dq, ddq, p, point: str = "tool") -> tuple[float, float, float, float, float, float]:
-    """Position, velocity and acceleration ``(x, z, vx, vz, ax, az)`` of ``point``, in plain floats.
+    """Position, velocity and acceleration ``(x, z, vx, vz, ax, az)`` of ``point``, in plain floats
+    (m, m/s, m/s^2), at the arm angles ``q`` [rad], velocities ``dq`` [rad/s] and accelerations
+    ``ddq`` [rad/s^2] of the robot ``p``.
 
-    ``v = J dq``, ``a = J ddq + J_dot dq`` (2012 paper, eq. 18), with ``J`` and ``J_dot`` written
+    ``v = J dq``, ``a = J ddq + J_dot dq`` (2012 paper, eq. 19: eq. 18 differentiated twice),
+    with ``J`` and ``J_dot`` written
     out (the plant evaluates this every step: no numpy arrays on the hot path).
     """
     rx, rz, r2x, r2z = _geometry(q, p, point)
@@ -113,17 +122,22 @@ def point_motion(q, dq, ddq, p, point: str = "tool") -> tuple[float, float, floa
 
 
 def velocity(q, dq, p, point: str = "tool") -> np.ndarray:
-    """World velocity ``J(q) dq`` of ``point``."""
+    """World velocity ``J(q) dq`` [m/s] of ``point`` at the arm angles ``q`` [rad] and
+    velocities ``dq`` [rad/s] of the robot ``p``."""
     return jacobian(q, p, point) @ np.asarray(dq, float)
 
 
 def point_acceleration(q, dq, ddq, p, point: str = "tool") -> np.ndarray:
-    """World acceleration ``J(q) ddq + J_dot(q, dq) dq`` of ``point`` (2012 paper, eq. 18)."""
+    """World acceleration ``J(q) ddq + J_dot(q, dq) dq`` [m/s^2] of ``point`` (2012 paper,
+    eq. 19) at the arm angles ``q`` [rad], velocities ``dq`` [rad/s] and accelerations ``ddq``
+    [rad/s^2] of the robot ``p``."""
     return np.array(point_motion(q, dq, ddq, p, point)[4:6])
 
 
 def specific_force(q, dq, ddq, p) -> np.ndarray:
-    """Noise-free accelerometer reading in the sensor frame (x, z): Axelsson 2012, eqs. 17-19.
+    """Noise-free accelerometer reading [m/s^2] in the sensor frame (x, z): Axelsson 2012,
+    eqs. 17-19, at the arm angles ``q`` [rad], velocities ``dq`` [rad/s] and accelerations
+    ``ddq`` [rad/s^2] of the robot ``p`` (its links, ``sensor_offset`` and gravity ``g``).
 
     ``rho_s = R(phi)^T (p_ddot_s - g_vec)``, ``g_vec = (0, -g)``; at rest it reads ``+g`` along
     the world's up direction.

@@ -72,8 +72,9 @@ def reseed_param() -> Any:
 def white_noise(rng: np.random.Generator, sigma: float | np.ndarray, n: int) -> np.ndarray:
     """``n`` zero-mean Gaussian samples with standard deviation ``sigma`` (scalar or per channel).
 
-    The ``n`` standard normal numbers are always drawn, even when ``sigma`` is zero, so that the
-    stream position does not depend on the noise level.
+    ``rng`` is the stream's generator (:func:`make_rng`); ``sigma`` is in the unit of the signal
+    the noise is added to. The ``n`` standard normal numbers are always drawn, even when
+    ``sigma`` is zero, so that the stream position does not depend on the noise level.
     """
     return np.asarray(sigma, dtype=float) * rng.standard_normal(n)
 
@@ -82,7 +83,9 @@ def random_walk_increment(rng: np.random.Generator, sigma_per_sqrt_s: float | np
                           dt: float, n: int) -> np.ndarray:
     """Increments of a Wiener process with intensity ``sigma_per_sqrt_s`` over ``dt`` seconds.
 
-    After a time ``t`` the walk has standard deviation ``sigma_per_sqrt_s * sqrt(t)``.
+    ``rng`` is the stream's generator (:func:`make_rng`); ``sigma_per_sqrt_s`` is in the signal's
+    unit per sqrt(s) (scalar or per channel); ``n`` increments (one per channel) are drawn. After a
+    time ``t`` the walk has standard deviation ``sigma_per_sqrt_s * sqrt(t)``.
     """
     return np.asarray(sigma_per_sqrt_s, dtype=float) * np.sqrt(dt) * rng.standard_normal(n)
 

@@ -51,7 +51,7 @@ def param(default: Any, unit: str = "1", description: str = "", *, low: float | 
 
 
 def fields(params_cls: type) -> tuple[dataclasses.Field, ...]:
-    """The parameter fields of a parameter dataclass (class or instance)."""
+    """The parameter fields of ``params_cls``, a parameter dataclass (class or instance)."""
     return dataclasses.fields(params_cls)
 
 
@@ -75,7 +75,8 @@ def _check_scalar(name: str, value: Any, meta: dict) -> None:
 
 
 def validate(params: Any) -> Any:
-    """Check every field against its declared range, then the set's own ``check()`` if any.
+    """Check every field of ``params`` (a parameter dataclass instance) against its declared
+    range, then the set's own ``check()`` if any.
 
     Returns the parameters unchanged, so that ``p = validate(P(...))`` reads naturally.
 
@@ -98,12 +99,15 @@ def validate(params: Any) -> Any:
 
 
 def replace(params: Any, **changes: Any) -> Any:
-    """A validated copy with some fields changed; vectors may be given as lists or arrays."""
+    """A validated copy of ``params`` with the fields named in ``changes`` (keyword arguments)
+    changed; vectors may be given as lists or arrays. Raises :class:`ParameterError` as
+    :func:`validate` does."""
     changes = {k: tuple(np.asarray(v, dtype=float).tolist()) if isinstance(v, (list, np.ndarray)) else v
                for k, v in changes.items()}
     return validate(dataclasses.replace(params, **changes))
 
 
 def as_array(value: Any) -> np.ndarray:
-    """A per-joint parameter tuple as a float array (a copy, so the frozen defaults stay frozen)."""
+    """``value``, a per-joint parameter tuple, as a float array (a copy, so the frozen defaults
+    stay frozen)."""
     return np.array(value, dtype=float)

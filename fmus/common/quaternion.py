@@ -37,7 +37,7 @@ def conjugate(q: Sequence[float]) -> np.ndarray:
 
 
 def norm(q: Sequence[float]) -> float:
-    """Euclidean norm of the four components."""
+    """Euclidean norm of the four components of ``q``."""
     return math.sqrt(sum(float(c) * float(c) for c in q))
 
 
@@ -57,7 +57,7 @@ def normalise(q: Sequence[float]) -> np.ndarray:
 
 
 def to_matrix(q: Sequence[float]) -> np.ndarray:
-    """Rotation matrix of a unit quaternion (body to world)."""
+    """Rotation matrix of the unit quaternion ``q`` (body to world)."""
     w, x, y, z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
     return np.array([[1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
                      [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
@@ -95,7 +95,8 @@ def from_rotation_vector(r: Sequence[float]) -> np.ndarray:
 
 
 def to_rotation_vector(q: Sequence[float]) -> np.ndarray:
-    """The logarithm map, inverse of :func:`from_rotation_vector`, angle in [0, pi]."""
+    """The logarithm map of the unit quaternion ``q``, inverse of :func:`from_rotation_vector`:
+    a rotation vector [rad] with angle in [0, pi]."""
     w, x, y, z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
     if w < 0.0:
         w, x, y, z = -w, -x, -y, -z
@@ -124,7 +125,7 @@ def from_angle_y(phi: float) -> np.ndarray:
 
 
 def angle_y(q: Sequence[float]) -> float:
-    """The angle about +y of a rotation about +y (the inverse of :func:`from_angle_y`).
+    """The angle [rad] about +y of ``q``, a rotation about +y (the inverse of :func:`from_angle_y`).
 
     For a general rotation it is ``atan2(R[0,2], R[2,2])``: the direction of the body z axis
     projected on the world x-z plane.
@@ -134,7 +135,8 @@ def angle_y(q: Sequence[float]) -> float:
 
 
 def from_matrix(m: np.ndarray) -> np.ndarray:
-    """Unit quaternion (``w >= 0``) of a rotation matrix (Shepperd's method)."""
+    """Unit quaternion (``w >= 0``) of the 3x3 rotation matrix ``m`` (Shepperd's method,
+    Shepperd 1978)."""
     m = np.asarray(m, dtype=float)
     tr = m[0, 0] + m[1, 1] + m[2, 2]
     if tr > 0.0:

@@ -84,6 +84,8 @@ class RobotParameters:
         return RobotParameters(**{f.name: getattr(self, f.name) for f in fields(RobotParameters)})
 
     def check(self) -> None:
+        """Cross-field rules the ranges cannot state: ``c1 <= l1`` (the centre of mass lies on
+        the link) and ``k_lo <= k_hi`` per joint; raises :class:`ParameterError`."""
         if self.c1 > self.l1:
             raise ParameterError(f"parameter 'c1' = {self.c1} must not exceed 'l1' = {self.l1}")
         for i, (lo, hi) in enumerate(zip(self.k_lo, self.k_hi), start=1):
@@ -110,5 +112,7 @@ class RobotAtInitialPose(RobotParameters):
             raise ParameterError(f"parameter 'p_tool0' = {tuple(self.p_tool0)}: {exc}") from None
 
     def check(self) -> None:
+        """The robot's rules, and an initial pose that exists (``p_tool0`` within reach);
+        raises :class:`ParameterError`."""
         super().check()
         self.initial_angles()

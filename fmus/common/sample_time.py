@@ -19,7 +19,8 @@ T_MEAS_DESCRIPTION = ("time the measurement inputs were sampled (the sensors' t_
 
 
 def measurement_time(t_meas: float, now: float) -> float:
-    """The time of the measurement inputs: their stamp, or ``now`` when unstamped."""
+    """The time [s] of the measurement inputs: their stamp ``t_meas``, or ``now`` (the
+    estimator's current time) when unstamped (negative, :data:`UNSTAMPED`)."""
     return t_meas if t_meas >= 0.0 else now
 
 

@@ -132,13 +132,16 @@ class AccelerationObserverParameters(RobotAtInitialPose):
     index_z: int = param(3, "1", "index (1-based) of the sensor-frame z component in acc_s", low=1, high=3)
 
     def check(self) -> None:
+        """The robot's rules, and ``index_x`` differs from ``index_z``; raises
+        :class:`ParameterError`."""
         super().check()
         if self.index_x == self.index_z:
             raise ParameterError(f"parameters 'index_x' and 'index_z' must differ (both {self.index_x})")
 
 
 def model_robot(p: AccelerationObserverParameters) -> RobotParameters:
-    """The observer's robot model: the robot parameters with the stiffness scaled."""
+    """The observer's robot model: the robot parameters of ``p`` with the stiffness ``k_lo``,
+    ``k_hi`` scaled by its ``stiffness_scale``."""
     r = p.robot()
     if p.stiffness_scale == 1.0:
         return r
@@ -148,7 +151,8 @@ def model_robot(p: AccelerationObserverParameters) -> RobotParameters:
 
 # ---- the linear part -----------------------------------------------------------------------
 def joint_matrices(p: RobotParameters, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(A_i, B_i, C)`` of joint ``i`` (0-based): the linear part with ``K = k_hi``.
+    """``(A_i, B_i, C)`` of joint ``i`` (0-based) of the robot model ``p``: the linear part with
+    ``K = k_hi`` (section III-B's ``A_0``, ``G_0``, ``C_0``).
 
     Inputs ``(ddq_a, tau)``: the measured arm acceleration and the motor torque (motor side)
     plus the nonlinear rest :func:`nonlinear_torque`.
@@ -167,7 +171,8 @@ def joint_matrices(p: RobotParameters, i: int) -> tuple[np.ndarray, np.ndarray, 
 
 def characteristic_polynomial(freqs, dampings) -> np.ndarray:
     """Coefficients (highest power first) of ``prod_j (s^2 + 2 zeta_j w_j s + w_j^2)``,
-    ``w_j = 2 pi f_j``."""
+    ``w_j = 2 pi f_j``, for the eigenfrequencies ``freqs`` = ``f_j`` [Hz] and the damping ratios
+    ``dampings`` = ``zeta_j`` of the pole pairs."""
     c = np.array([1.0])
     for f, z in zip(freqs, dampings):
         w = 2 * math.pi * float(f)
@@ -176,7 +181,9 @@ def characteristic_polynomial(freqs, dampings) -> np.ndarray:
 
 
 def poles(freqs, dampings) -> np.ndarray:
-    """The poles ``-zeta w +- w sqrt(zeta^2 - 1)`` of the pairs (complex for ``zeta < 1``)."""
+    """The poles [rad/s] ``-zeta w +- w sqrt(zeta^2 - 1)`` of the pairs (complex for
+    ``zeta < 1``), ``w = 2 pi f`` for the eigenfrequencies ``freqs`` = ``f`` [Hz] and the damping
+    ratios ``dampings`` = ``zeta``."""
     out = []
     for f, z in zip(freqs, dampings):
         w = 2 * math.pi * float(f)
@@ -223,7 +230,8 @@ def ackermann_gain(A: np.ndarray, C: np.ndarray, coeffs: np.ndarray, scale=None)
 
 
 def observer_gains(p: AccelerationObserverParameters) -> list[np.ndarray]:
-    """``L_i`` (4 x 1) per joint from the pole parameters."""
+    """``L_i`` (4 x 1) per joint from the pole parameters of ``p`` (``pole_freq``,
+    ``pole_damping``), on its model robot (:func:`model_robot`)."""
     f, z = as_array(p.pole_freq), as_array(p.pole_damping)
     gains = []
     robot = model_robot(p)
@@ -237,7 +245,7 @@ def observer_gains(p: AccelerationObserverParameters) -> list[np.ndarray]:
 
 def closed_loop_matrix(p: AccelerationObserverParameters) -> np.ndarray:
     """``A - L C`` of both joints (8 x 8, states per joint ``(q_a, q_m, dq_a, dq_m)``): the error
-    dynamics of the linear part, whose eigenvalues are :func:`poles` of the parameters."""
+    dynamics of the linear part, whose eigenvalues are :func:`poles` of the parameters ``p``."""
     M = np.zeros((8, 8))
     robot = model_robot(p)
     for i, L in enumerate(observer_gains(p)):
@@ -247,7 +255,8 @@ def closed_loop_matrix(p: AccelerationObserverParameters) -> np.ndarray:
 
 
 def discretise(p: AccelerationObserverParameters, T: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact first-order-hold discretisation of the observer over ``T``.
+    """Exact first-order-hold discretisation of the observer with the parameters ``p`` over the
+    step ``T`` [s].
 
     With the inputs ``u = (ddq^M, tau, q_m^M)`` of both joints, ordered ``(ddq_1, tau_1, qm_1,
     ddq_2, tau_2, qm_2)`` and linear between the samples ``u_k`` and ``u_{k+1}``:
@@ -283,7 +292,9 @@ def damped_solve(J, b, eps: float, mu_max: float) -> tuple[np.ndarray, float]:
 
     ``J^+ = (J^T J + mu^2 I)^-1 J^T`` (equal to ``V diag(s / (s^2 + mu^2)) U^T``); the smallest
     singular value from the eigenvalues of ``J^T J``. Written out in floats (this runs every step).
-    Returns the solution and the damping ``mu`` used (0 away from singular poses).
+    Returns the solution and the damping ``mu`` used (0 away from singular poses). ``eps`` is
+    the singular-value threshold below which the inverse is damped and ``mu_max`` the damping at
+    a singular pose (both in the unit of ``J``'s singular values, m/rad for the sensor Jacobian).
     """
     a, bb, c, d = float(J[0][0]), float(J[0][1]), float(J[1][0]), float(J[1][1])
     y1, y2 = float(b[0]), float(b[1])
@@ -303,8 +314,10 @@ def damped_solve(J, b, eps: float, mu_max: float) -> tuple[np.ndarray, float]:
 
 def measured_arm_acceleration(q, dq, f_xz, p: RobotParameters, eps: float, mu_max: float
                               ) -> tuple[np.ndarray, float]:
-    """``ddq_a^M`` of section III-B from the accelerometer reading ``f_xz`` (sensor x, z) at the
-    estimated arm angles and rates; returns it and the damping used."""
+    """``ddq_a^M`` [rad/s^2] of section III-B from the accelerometer reading ``f_xz`` [m/s^2]
+    (sensor x, z) at the estimated arm angles ``q`` [rad] and rates ``dq`` [rad/s] of the robot
+    model ``p``; returns it and the damping used (:func:`damped_solve` with ``eps`` and
+    ``mu_max``)."""
     phi = float(q[0]) + float(q[1])
     c, s = math.cos(phi), math.sin(phi)
     fx, fz = float(f_xz[0]), float(f_xz[1])
@@ -317,7 +330,8 @@ def measured_arm_acceleration(q, dq, f_xz, p: RobotParameters, eps: float, mu_ma
 
 
 def nonlinear_torque(z: np.ndarray, p: RobotParameters) -> np.ndarray:
-    """The motor-side torques ``n_i`` outside the linear part: Coulomb friction and the
+    """The motor-side torques ``n_i`` [N.m] outside the linear part at the observer state ``z``
+    (8, per joint ``(q_a, q_m, dq_a, dq_m)``) of the robot model ``p``: Coulomb friction and the
     softening of the spring (``tau_s(D) = k_hi D - (k_hi - k_lo) delta tanh(D / delta)``)."""
     out = np.empty(2)
     for i in range(2):
@@ -338,6 +352,10 @@ class AccelerationObserverModel:
     ----------
     p
         Observer parameters.
+
+    The measurements of a call are the motor angles ``q_m_meas`` [rad, motor side], the
+    accelerometer reading ``acc_s`` [m/s^2] (sensor frame; ``index_x`` and ``index_z`` pick its
+    x and z) and the motor torques ``tau_m`` [N.m, motor side].
 
     Notes
     -----
@@ -396,8 +414,9 @@ class AccelerationObserverModel:
         return self.z[[1, 5]]
 
     def static_angles(self, q_m_meas) -> np.ndarray:
-        """``q_m / r - D(G(q))`` at the current fused estimate (Newton steps on the spring from
-        the last deflection, in floats); ``q_m / r`` without ``static_gravity_compensation``."""
+        """``q_m / r - D(G(q))`` for the measured motor angles ``q_m_meas``, with ``G`` at the
+        current fused estimate (Newton steps on the spring from the last deflection, in floats);
+        ``q_m / r`` without ``static_gravity_compensation``."""
         qs = [float(q_m_meas[0]) / self.r[0], float(q_m_meas[1]) / self.r[1]]
         if not self.p.static_gravity_compensation:
             return np.array(qs)

@@ -110,6 +110,8 @@ class EkfAccelerometerParameters(RobotAtInitialPose):
     index_z: int = param(3, "1", "index (1-based) of the sensor-frame z component in acc_s", low=1, high=3)
 
     def check(self) -> None:
+        """The robot's rules, ``index_x`` differs from ``index_z`` and the initial pose exists;
+        raises :class:`ParameterError`."""
         super().check()
         if self.index_x == self.index_z:
             raise ParameterError(f"parameters 'index_x' and 'index_z' must differ (both {self.index_x})")
@@ -136,10 +138,12 @@ class Layout:
 
     @property
     def bias_m(self) -> slice | None:
+        """Indices of the motor-angle biases in ``x`` (None without ``use_bias``)."""
         return slice(6, 8) if self.use_bias else None
 
     @property
     def bias_acc(self) -> slice | None:
+        """Indices of the accelerometer biases in ``x`` (None without both switches)."""
         return slice(8, 10) if self.use_bias and self.use_accelerometer else None
 
 
@@ -148,7 +152,8 @@ Q_, DQ_, DDQ_ = slice(0, 2), slice(2, 4), slice(4, 6)
 
 # ---- eqs. 13-14: the discrete-time model ------------------------------------------------------
 def continuous_model(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
-    """``(A, B)`` of the continuous constant-acceleration model ``x_dot = A x + B u`` (jerk input)."""
+    """``(A, B)`` of the continuous constant-acceleration model ``x_dot = A x + B u`` (jerk input),
+    whose zero-order hold is eq. 13a, with the states of ``layout`` (the biases: zero rows)."""
     n = layout.n
     A = np.zeros((n, n))
     A[0:2, 2:4] = np.eye(2)
@@ -159,7 +164,8 @@ def continuous_model(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
 
 
 def transition_matrices(T: float, layout: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``F``, ``G_u``, ``G_w`` of eq. 14 for the sample period ``T`` (zero-order hold of eq. 13)."""
+    """``F``, ``G_u``, ``G_w`` of eqs. 13a-14 for the sample period ``T`` [s] (the zero-order
+    hold of :func:`continuous_model`), with the states of ``layout``."""
     n = layout.n
     I2 = np.eye(2)
     F = np.eye(n)
@@ -179,7 +185,8 @@ def transition_matrices(T: float, layout: Layout) -> tuple[np.ndarray, np.ndarra
 
 
 def process_noise(p: EkfAccelerometerParameters, layout: Layout) -> np.ndarray:
-    """``Cov(w)`` (eq. 26's ``Q``): jerk noise, then the bias random walks."""
+    """``Cov(w)`` (eq. 26's ``Q``) from the parameters ``p``: jerk noise, then the bias random
+    walks of ``layout``."""
     q = [p.q_jerk] * 2
     if layout.use_bias:
         q += [p.q_bias_m] * 2
@@ -189,12 +196,13 @@ def process_noise(p: EkfAccelerometerParameters, layout: Layout) -> np.ndarray:
 
 
 def measurement_noise(p: EkfAccelerometerParameters, layout: Layout) -> np.ndarray:
-    """``R`` of eq. 26: motor angles, then the accelerometer."""
+    """``R`` of eq. 26 from the parameters ``p``: motor angles, then the accelerometer (if
+    ``layout`` fuses it)."""
     return np.diag([p.r_motor] * 2 + ([p.r_acc] * 2 if layout.use_accelerometer else []))
 
 
 def initial_covariance(p: EkfAccelerometerParameters, layout: Layout) -> np.ndarray:
-    """``P_0`` from the initial standard deviations."""
+    """``P_0`` from the initial standard deviations of ``p``, for the states of ``layout``."""
     s = [p.p0_q] * 2 + [p.p0_dq] * 2 + [p.p0_ddq] * 2
     if layout.use_bias:
         s += [p.p0_bias_m] * 2
@@ -205,7 +213,8 @@ def initial_covariance(p: EkfAccelerometerParameters, layout: Layout) -> np.ndar
 
 # ---- eqs. 15-19: the measurement model ---------------------------------------------------------
 class MeasurementModel:
-    """``h(x)`` of eq. 15 and its analytic Jacobian, for the robot model ``p``.
+    """``h(x)`` of eq. 15 and its analytic Jacobian, for the robot model ``p`` and the states and
+    measurements of ``layout``.
 
     The inertia, Coriolis and gravity constants are the arm's
     (:class:`fmus.common.dynamics.ArmConstants`), so the filter's model is the plant's model with

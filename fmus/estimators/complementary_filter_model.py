@@ -81,6 +81,7 @@ class ComplementaryFilterParameters:
     g: float = param(G, "m/s2", "gravity", low=0.0)
 
     def check(self) -> None:
+        """``lever_arm`` and ``mount_rpy`` are 3-vectors; raises :class:`ParameterError`."""
         if len(self.lever_arm) != 3:
             raise ParameterError(f"parameter 'lever_arm' needs 3 elements, got {len(self.lever_arm)}")
         if len(self.mount_rpy) != 3:
@@ -90,7 +91,9 @@ class ComplementaryFilterParameters:
 def discrete_gains(cutoff: float, damping: float, dt: float) -> tuple[float, float]:
     """Gains ``(L1, L2)`` of the predict-correct loop whose error dynamics
     ``[[1 - L1, (1 - L1) T], [-L2 / T, 1 - L2]]`` have the poles ``z_i = exp(s_i T)`` of
-    ``s^2 + 2 zeta w_c s + w_c^2`` (the discrete equivalent of eq. 2's ``G``).
+    ``s^2 + 2 zeta w_c s + w_c^2`` (the discrete equivalent of eq. 2's ``G``), for the cut-off
+    ``w_c = 2 pi cutoff`` (``cutoff`` in Hz), the damping ratio ``zeta`` = ``damping`` and the
+    sample period ``T`` = ``dt`` [s]. ``L2 / T`` is the velocity gain.
 
     The characteristic polynomial is ``z^2 - (2 - L1 - L2) z + (1 - L1)``, so
     ``L1 = 1 - z1 z2`` and ``L2 = 2 - L1 - (z1 + z2)``.
@@ -106,7 +109,8 @@ def discrete_gains(cutoff: float, damping: float, dt: float) -> tuple[float, flo
 
 def split_response(f: np.ndarray, cutoff: float, damping: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Frequency responses of the discrete low-pass ``G`` (kinematics branch) and high-pass
-    ``1 - G`` (IMU branch) at ``f`` Hz; they sum to one (eq. 2)."""
+    ``1 - G`` (IMU branch) at ``f`` Hz; they sum to one (eq. 2). ``cutoff`` [Hz], ``damping``
+    and ``dt`` [s] as in :func:`discrete_gains`."""
     l1, l2 = discrete_gains(cutoff, damping, dt)
     z = np.exp(1j * 2.0 * np.pi * np.asarray(f, float) * dt)
     # transfer from p_fk to p: closed loop of the predict-correct recursion with a = 0
@@ -121,7 +125,12 @@ class ComplementaryFilterModel:
 
     Call :meth:`reset` with the first kinematic pose and IMU sample, then :meth:`step` with each
     new sample. Internal state: sensor position ``p_s``, velocity ``v_s`` (world), sensor
-    orientation ``q_s`` (sensor to world) and gyro bias ``b_gyro`` (sensor frame).
+    orientation ``q_s`` (sensor to world) and gyro bias ``b_gyro`` (sensor frame); ``params`` are
+    the :class:`ComplementaryFilterParameters`.
+
+    The IMU sample of a call is the specific force ``acc_s`` [m/s^2] and the angular rate
+    ``gyro_s`` [rad/s], each (x, y, z) in the sensor frame; a kinematic pose is the tool point
+    [m, world x, y, z] and orientation (quaternion, tool to world).
     """
 
     def __init__(self, params: ComplementaryFilterParameters) -> None:
@@ -163,11 +172,13 @@ class ComplementaryFilterModel:
         self._dt = dt
 
     def world_acceleration(self, q_s, acc_s) -> np.ndarray:
-        """``a = R(q_s) f + g_vec``: the specific force in the world, gravity removed."""
+        """``a = R(q_s) f + g_vec`` [m/s^2]: the specific force ``f`` = ``acc_s`` (sensor frame)
+        in the world with the sensor orientation ``q_s``, gravity removed."""
         return qt.rotate(q_s, acc_s) + self.g_vec
 
     def reset(self, p_tool, q_tool, acc_s, gyro_s) -> None:
-        """Start at the kinematic pose, at rest (zero velocity and gyro bias)."""
+        """Start at the kinematic pose ``p_tool``, ``q_tool``, at rest (zero velocity and gyro
+        bias), with the IMU sample ``acc_s``, ``gyro_s`` of that time."""
         self.p_s, self.q_s = self.mount.sensor_pose(p_tool, q_tool)
         self.v_s = np.zeros(3)
         self.b_gyro = np.zeros(3)
@@ -184,7 +195,8 @@ class ComplementaryFilterModel:
         self.v_s = self.v_s + dt * a
 
     def step(self, p_tool_fk, q_tool_fk, acc_s, gyro_s, dt: float) -> None:
-        """Advance one sample of length ``dt`` with the new kinematic pose and IMU sample."""
+        """Advance one sample of length ``dt`` [s] with the new kinematic pose ``p_tool_fk``,
+        ``q_tool_fk`` and IMU sample ``acc_s``, ``gyro_s``."""
         if self._dt is None or abs(dt - self._dt) > 1e-12 * dt:
             if not dt > 0.0:
                 raise ValueError(f"time step must be positive, got {dt!r}")

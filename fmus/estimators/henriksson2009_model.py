@@ -176,8 +176,9 @@ class FlexibleModel:
         return fx, fz
 
     def specific_force_jacobian(self, x, xdot, A: np.ndarray) -> np.ndarray:
-        """``d rho_s / dx`` (2 x 8) of :meth:`specific_force` with ``ddq_a(x)``: the direct
-        terms plus ``d rho_s / d ddq_a`` times the rows ``A[4:6]`` of :meth:`jacobian`."""
+        """``d rho_s / dx`` (2 x 8) of :meth:`specific_force` with ``ddq_a(x)``, at the state
+        ``x`` and its derivative ``xdot`` (eq. 2, whose ``xdot[4:6]`` is the arm acceleration):
+        the direct terms plus ``d rho_s / d ddq_a`` times the rows ``A[4:6]`` of :meth:`jacobian`."""
         q1, q2 = x[0], x[1]
         dq1, dphi = x[4], x[4] + x[5]
         a1 = xdot[4]

@@ -90,13 +90,20 @@ class ImuEkfParameters:
     g: float = param(G, "m/s2", "gravity", low=0.0)
 
     def check(self) -> None:
+        """``lever_arm`` and ``mount_rpy`` are 3-vectors; raises :class:`ParameterError`."""
         for name in ("lever_arm", "mount_rpy"):
             if len(getattr(self, name)) != 3:
                 raise ParameterError(f"parameter '{name}' needs 3 elements, got {len(getattr(self, name))}")
 
 
 class ImuEkfModel:
-    """The error-state EKF of the module docstring; :meth:`reset`, then :meth:`step` per sample."""
+    """The error-state EKF of the module docstring; :meth:`reset`, then :meth:`step` per sample.
+
+    ``params`` are the :class:`ImuEkfParameters`. The IMU sample of a call is the specific force
+    ``acc_s`` [m/s^2] and the angular rate ``gyro_s`` [rad/s], each (x, y, z) in the sensor
+    frame; a kinematic pose is the tool point [m, world x, y, z] and orientation (quaternion,
+    tool to world).
+    """
 
     def __init__(self, params: ImuEkfParameters) -> None:
         self.params = params
@@ -139,7 +146,10 @@ class ImuEkfModel:
 
     # -- filter ----------------------------------------------------------------------------
     def reset(self, p_tool, q_tool, acc_s=None, gyro_s=None) -> None:
-        """Start at the kinematic pose at rest, zero biases, with the initial covariance."""
+        """Start at the kinematic pose ``p_tool``, ``q_tool`` at rest, zero biases, with the
+        initial covariance; the angular velocity starts at the gyro sample ``gyro_s`` if given
+        (else zero). ``acc_s`` is accepted for the common reset signature and not used (the
+        acceleration starts at zero)."""
         self.p, self.q = self.mount.sensor_pose(p_tool, q_tool)
         self.v = np.zeros(3)
         self.a = np.zeros(3)
@@ -188,7 +198,8 @@ class ImuEkfModel:
         self.P = F @ self.P @ F.T + self._Q
 
     def update(self, p_tool_fk, q_tool_fk, acc_s, gyro_s) -> None:
-        """Measurement update with the kinematic pose and the IMU sample (eq. 4)."""
+        """Measurement update with the kinematic pose ``p_tool_fk``, ``q_tool_fk`` and the IMU
+        sample ``acc_s``, ``gyro_s`` (eq. 4)."""
         p_fk, q_fk = self.mount.sensor_pose(p_tool_fk, q_tool_fk)
         Rt = qt.to_matrix(self.q).T
         f_hat = Rt @ (self.a - self.g_vec)
@@ -225,7 +236,8 @@ class ImuEkfModel:
         check_estimate(np.concatenate([self.p, self.q]), self.P, "EKF diverged in the measurement update")
 
     def step(self, p_tool_fk, q_tool_fk, acc_s, gyro_s, dt: float) -> None:
-        """Predict over ``dt`` and update with the sample at its end."""
+        """Predict over ``dt`` [s] and update with the sample at its end (``p_tool_fk``,
+        ``q_tool_fk``, ``acc_s``, ``gyro_s`` as in :meth:`update`)."""
         self.predict(dt)
         self.update(p_tool_fk, q_tool_fk, acc_s, gyro_s)
 

@@ -34,7 +34,9 @@ class RigidKinematicsParameters(RobotParameters):
 
 
 def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = False) -> tuple[float, float]:
-    """Arm angles from motor angles: ``q_m / r``, minus the gravity deflection ``D(G(q_a))``.
+    """Arm angles [rad] from the motor angles ``q_m`` [rad, motor side]: ``q_m / r``, minus the
+    gravity deflection ``D(G(q_a))`` when ``gravity_compensation`` is on; ``robot`` is the
+    estimator's model of the robot (gear ratios, and the stiffness the compensation uses).
 
     The fixed point ``q_a = q_m / r - D(G(q_a))`` contracts fast (``|dD/dq| ~ 1e-3``): each
     iteration gains three digits (so the error left after a change ``c`` is about ``1e-3 c``), and
@@ -58,5 +60,6 @@ def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = False) 
 
 
 def tool_position(q_m, robot: RobotParameters, gravity_compensation: bool = False) -> np.ndarray:
-    """Tool position (world x, z) by rigid forward kinematics of the motor angles."""
+    """Tool position (world x, z) [m] by rigid forward kinematics of the motor angles ``q_m``
+    [rad], with the arm angles of :func:`arm_angles` (``robot``, ``gravity_compensation``)."""
     return kinematics.tool_position(arm_angles(q_m, robot, gravity_compensation), robot)

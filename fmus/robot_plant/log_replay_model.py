@@ -32,7 +32,8 @@ from fmus.common.parameters import ParameterError, param
 from fmus.common.sample_time import TIME_TOL
 
 #: Column units that are converted (factor to the SI unit); a column in the output's own SI
-#: unit needs no ``[unit]``. g is the standard gravity (ISO 80000-3).
+#: unit needs no ``[unit]``. g is the standard gravity, 9.80665 m/s^2 by definition (the
+#: CGPM 1901, 3rd meeting; ISO 80000-3).
 UNIT_FACTORS: dict[str, tuple[str, float]] = {
     "deg": ("rad", math.pi / 180.0), "mrad": ("rad", 1e-3), "urad": ("rad", 1e-6),
     "deg/s": ("rad/s", math.pi / 180.0), "deg/s2": ("rad/s2", math.pi / 180.0),
@@ -75,8 +76,10 @@ class Mapping:
 
 def parse_columns(text: str, outputs: dict[str, tuple[int | None, str]], available: Sequence[str],
                   where: str) -> list[Mapping]:
-    """The column map (module docstring) against the outputs ``{name: (size, SI unit)}`` and the
-    log's ``available`` column names."""
+    """The column map ``text`` (module docstring) against the ``outputs`` ``{name: (size, SI
+    unit)}`` (size None: a scalar) and the log's ``available`` column names, as one
+    :class:`Mapping` per output scalar; ``where`` (e.g. "log 'x.csv'") begins every error
+    message (:class:`ParameterError`)."""
     mappings: list[Mapping] = []
     seen: set[str] = set()
     for raw in text.replace("\n", ";").split(";"):
@@ -129,7 +132,8 @@ def parse_columns(text: str, outputs: dict[str, tuple[int | None, str]], availab
 
 
 def column_names(path: Path) -> list[str]:
-    """The column names of a log file (CSV header, or the 1-D datasets of an HDF5 file)."""
+    """The column names of the log file ``path`` (CSV header, or the 1-D datasets of an HDF5
+    file, by their paths in it)."""
     if path.suffix.lower() in HDF5_SUFFIXES:
         h5py = _h5py(path)
         names: list[str] = []
@@ -142,8 +146,8 @@ def column_names(path: Path) -> list[str]:
 
 
 def read_columns(path: Path, names: Sequence[str]) -> dict[str, np.ndarray]:
-    """The named columns of a log as float arrays; an empty or non-numeric cell is an error
-    naming its column and row (data rows count from 1, the header excluded)."""
+    """The columns ``names`` of the log file ``path`` as float arrays; an empty or non-numeric
+    cell is an error naming its column and row (data rows count from 1, the header excluded)."""
     if path.suffix.lower() in HDF5_SUFFIXES:
         h5py = _h5py(path)
         with h5py.File(path, "r") as f:
@@ -205,6 +209,10 @@ def _h5py(path: Path):
 
 class RecordedLog:
     """A checked log: its times and the mapped outputs' values, sampled by :meth:`sample`.
+
+    Built from ``p``, the :class:`LogReplayParameters` (file, column map, time column, offset,
+    largest gap, interpolation), and ``outputs``, the outputs a column may feed ``{name: (size,
+    SI unit)}`` (:func:`parse_columns`); every problem raises :class:`ParameterError`.
 
     ``stamp`` names the output that, when a column is mapped to it, holds each row's sample
     time in log time (a sensor's recorded ``t_meas``): :meth:`sample` then gives it as the time

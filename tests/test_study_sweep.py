@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from orchestration import study_sweep
+from orchestration import study, study_sweep
 from orchestration.build import build_all
 from orchestration.cli import main
 from orchestration.master import run
@@ -145,3 +145,21 @@ def test_resume_reuses_the_finished_runs(scenario, tmp_path):
     assert (status["status"], status["jobs_reused_now"], status["jobs_computed_now"]) == ("ok", 2, 0)
     assert (out / "study.json").read_text() == first
     assert np.isfinite(json.loads(first)["points"][1]["estimators"]["toy"]["max_error"])
+
+
+def test_seeds_are_the_scenarios_seed_on_the_flagship(tmp_path):
+    """On a simulated robot the seeds change the sensor noise: run i is ``scenario.seed =
+    first_seed + i``, as a plain run with that seed gives; ANIS without degrees of freedom
+    (the flagship has no nis metric) has no band."""
+    flagship = REPO / "orchestration" / "scenarios" / "flagship.toml"
+    out = tmp_path / "flagship"
+    assert main(["study", "sweep", str(flagship), "--estimator", "ekf", "--runs", "2", "--first-seed", "3",
+                 "--set", "scenario.stop_time=0.3", "--after", "0.1", "--workers", "1", "--no-progress",
+                 "--no-plots", "--out", str(out)]) == 0
+    ekf = json.loads((out / "study.json").read_text())["points"][0]["estimators"]["ekf"]
+    r = study.simulate(flagship, ["scenario.stop_time=0.3", "scenario.seed=4"])
+    keep = r.time >= 0.1 - 1e-12
+    assert_allclose(ekf["position_rmse_per_seed"][1], rmse(r["ekf.p_tool_hat"][keep], r["plant.p_tool"][keep]),
+                    rtol=1e-12)
+    assert ekf["position_rmse_std"] > 0
+    assert ekf["nis"]["band_95"] is None and np.isfinite(ekf["nis"]["mean"])

@@ -110,6 +110,9 @@ def sweep_points(grid: Sequence[str] = (), lhs: Sequence[str] = (), samples: int
     from .scenario import parse_value
     axes = grid_axes(grid)
     keys, cube = lhs_points(lhs, samples, lhs_seed)
+    if any(k.startswith("scenario.") for k in [*axes, *keys]):
+        raise StudyError("sweep component parameters only: the seeds are --runs and --first-seed, "
+                         "other scenario keys are --set")
     if set(keys) & set(axes):
         raise StudyError(f"both --grid and --lhs sweep {', '.join(sorted(set(keys) & set(axes)))}")
     points = []
@@ -216,8 +219,12 @@ def estimator_figures(runs: Sequence[dict[str, np.ndarray]], name: str, truth: s
         "nees": None, "nis": None}
     if gives["nees"]:
         truth_q = f"{truth.partition('.')[0]}.q_a"
-        stat = np.array([nees((r[f"{name}.q_a_hat"] - r[truth_q])[keep], r[f"{name}.P_x"][keep])
-                         for r in runs])
+        try:
+            stat = np.array([nees((r[f"{name}.q_a_hat"] - r[truth_q])[keep], r[f"{name}.P_x"][keep])
+                             for r in runs])
+        except np.linalg.LinAlgError:
+            raise StudyError(f"{name}.P_x is singular at some time t >= {after:g} s: no NEES "
+                             "(a later --after skips the filter's start)") from None
         out["nees"] = _consistency(stat, NEES_DOF)
     if gives["nis"]:
         stat = np.array([nis(r[f"{name}.{gives['nis']}"][keep], squared=gives["nis"] == "nis")

@@ -108,6 +108,8 @@ def test_a_latin_hypercube_is_stratified_and_reproducible_with_its_seed():
     for key, lo, hi in (("ekf.r_acc", 1e-4, 4e-4), ("ekf.q_jerk", 1e-6, 1e-5)):
         strata = sorted(int((p[key] - lo) / (hi - lo) * 3) for p in points)
         assert strata == [0, 1, 2]                       # one sample in each third of each range
+    with pytest.raises(study.StudyError, match="the seeds are --runs and --first-seed"):
+        study_sweep.sweep_points(grid=["scenario.seed=1,2"])
     grid = study_sweep.sweep_points(grid=["ekf.r_motor=1e-9,2e-9"], lhs=lhs, samples=3, lhs_seed=7)
     assert len(grid) == 6 and [p["ekf.r_acc"] for p in grid[3:]] == [p["ekf.r_acc"] for p in points]
 

@@ -97,7 +97,7 @@ def lhs_points(lhs: Sequence[str], samples: int, seed: int) -> tuple[list[str], 
     if not keys:
         return [], np.zeros((1, 0))
     if samples < 1:
-        raise StudyError(f"--samples must be at least 1 with --lhs, not {samples}")
+        raise StudyError(f"--lhs needs --samples K with K >= 1, not {samples}")
     from scipy.stats import qmc
     unit = qmc.LatinHypercube(d=len(keys), rng=np.random.default_rng(seed)).random(samples)
     return keys, qmc.scale(unit, lows, highs)
@@ -108,6 +108,8 @@ def sweep_points(grid: Sequence[str] = (), lhs: Sequence[str] = (), samples: int
     """The sweep's points, each ``{"comp.param": value}``: every grid combination with every
     Latin hypercube sample (one empty point when nothing is swept)."""
     from .scenario import parse_value
+    if samples and not lhs:
+        raise StudyError("--samples goes with --lhs COMP.PARAM=LO:HI")
     axes = grid_axes(grid)
     keys, cube = lhs_points(lhs, samples, lhs_seed)
     if any(k.startswith("scenario.") for k in [*axes, *keys]):
@@ -248,10 +250,6 @@ def run_study(scenario: str | Path, estimators: Sequence[str], out: str | Path, 
 
     if runs < 1:
         raise StudyError(f"--runs must be at least 1, not {runs}")
-    if lhs and samples < 1:
-        raise StudyError("--lhs needs --samples K (K >= 1)")
-    if samples and not lhs:
-        raise StudyError("--samples goes with --lhs COMP.PARAM=LO:HI")
     doc, gives = prepare(scenario, estimators, truth, overrides, nis_dof)
     points = sweep_points(grid, lhs, samples, lhs_seed)
     sets = [tuple(f"{k}={toml_value(v)}" for k, v in p.items()) for p in points]

@@ -1,0 +1,167 @@
+"""``flexfusion study sweep`` (orchestration/study_sweep.py): any scenario, any estimator meeting
+the contract, seeds and grid / Latin hypercube sweeps. Tiny sizes: the replay scenario (a
+recorded log, so every seed gives the same run) cut to 1 s."""
+from __future__ import annotations
+
+import csv
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from orchestration import study, study_sweep
+from orchestration.build import build_all
+from orchestration.cli import main
+from orchestration.master import run
+from orchestration.metrics import rmse
+from orchestration.scenario import scenario_document, toml_value
+
+pytestmark = pytest.mark.usefixtures("fmu_env_module")      # scenarios find every FMU of this test run
+
+REPO = Path(__file__).resolve().parent.parent
+THIRD_PARTY = Path(__file__).parent / "fmus" / "third_party"
+AFTER = 0.5                                                   # s, as the replay scenario's metrics
+
+
+@pytest.fixture(scope="module")
+def scenarios(tmp_path_factory) -> dict[str, Path]:
+    """The replay scenario (1 s) with a third-party-style estimator beside ours, ``toy``, which
+    meets the contract, and the same with ``leaky``, which does not (tests/fmus/third_party)."""
+    folder = tmp_path_factory.mktemp("sweep")
+    built = {p.stem: p for p in build_all(folder / "fmus", quiet=True,
+                                          scripts=sorted(THIRD_PARTY.glob("*_fmu.py")))}
+    doc = scenario_document(REPO / "orchestration" / "scenarios" / "replay_log.toml",
+                            ["scenario.stop_time=1.0"])
+    doc["components"]["toy"] = {"fmu": str(built["ThirdPartyEstimator"])}
+    doc["connections"] += ["log.q_m_meas -> toy.q_m_meas"]
+    doc["record"]["variables"] += ["toy.p_tool_hat"]
+    paths = {"ok": folder / "replay_third_party.toml", "leaky": folder / "replay_leaky.toml"}
+    paths["ok"].write_text(_toml(doc))
+    doc["components"]["leaky"] = {"fmu": str(built["LeakyEstimator"])}
+    paths["leaky"].write_text(_toml(doc))
+    return paths
+
+
+@pytest.fixture
+def scenario(scenarios) -> Path:
+    return scenarios["ok"]
+
+
+def _toml(doc: dict) -> str:
+    """A whole scenario document as TOML (a line of an inline table per top-level key)."""
+    return "".join(f"{k} = {toml_value(v)}\n" for k, v in doc.items())
+
+
+def _sweep(scenario: Path, out: Path, *extra: str) -> int:
+    return main(["study", "sweep", str(scenario), "--truth", "log.p_tool", "--after", str(AFTER),
+                 "--workers", "1", "--no-progress", "--out", str(out), *extra])
+
+
+def test_a_third_party_estimator_is_studied_beside_ours(scenario, tmp_path, capsys):
+    """Its RMSE, and our EKF's RMSE, ANEES and ANIS, are those the scenario's own run gives
+    (metrics.compute on the recorded run: an independent path), every seed alike (a log)."""
+    out = tmp_path / "study"
+    assert _sweep(scenario, out, "--estimator", "toy", "--estimator", "ekf", "--runs", "2") == 0
+    data = json.loads((out / "study.json").read_text())
+    r = run(scenario, out_dir=tmp_path / "run")
+    keep = r.time >= AFTER - 1e-12
+    toy, ekf = (data["points"][0]["estimators"][n] for n in ("toy", "ekf"))
+    assert_allclose(toy["position_rmse_per_seed"], [rmse(r["toy.p_tool_hat"][keep], r["log.p_tool"][keep])] * 2,
+                    rtol=1e-12)
+    assert_allclose(ekf["position_rmse_mean"], r.metrics["ekf_position_rmse"], rtol=1e-12)
+    assert ekf["position_rmse_std"] == 0.0 and toy["nees"] is None and toy["nis"] is None
+    assert_allclose(ekf["nees"]["mean"], r.metrics["ekf_angle_nees"], rtol=1e-12)
+    assert_allclose(ekf["nis"]["mean"], r.metrics["ekf_nis"], rtol=1e-12)
+    assert ekf["nis"]["dof"] == 4 and ekf["nees"]["dof"] == 2      # the scenario's nis metric; q_a
+    lo, hi = ekf["nees"]["band_95"]
+    assert 0 < lo < 2 < hi                                          # the band of the mean of 2 runs
+    assert data["estimators"]["toy"]["gives"] == {"nees": False, "nis": None, "nis_dof": None}
+    rows = list(csv.DictReader((out / "study.csv").open()))
+    assert [row["estimator"] for row in rows] == ["toy", "ekf"]
+    assert (out / "study.png").stat().st_size > 0
+    assert "toy" in capsys.readouterr().out
+
+
+def test_a_grid_of_2x2_points_runs_their_product(scenario, tmp_path):
+    """Each point's parameters reach its runs: the EKF's RMSE differs between points, the
+    kinematic toy (no such parameter) is the same at all four."""
+    out = tmp_path / "grid"
+    assert _sweep(scenario, out, "--estimator", "ekf", "--estimator", "toy", "--no-plots",
+                  "--grid", "ekf.r_acc=1e-4,4e-4", "--grid", "ekf.r_motor=1.2e-9,5e-9") == 0
+    data = json.loads((out / "study.json").read_text())
+    assert [p["parameters"] for p in data["points"]] == [
+        {"ekf.r_acc": a, "ekf.r_motor": m} for a in (1e-4, 4e-4) for m in (1.2e-9, 5e-9)]
+    ekf = [p["estimators"]["ekf"]["position_rmse_mean"] for p in data["points"]]
+    toy = [p["estimators"]["toy"]["position_rmse_mean"] for p in data["points"]]
+    assert len(set(ekf)) == 4 and len(set(toy)) == 1
+    assert len(list(csv.DictReader((out / "study.csv").open()))) == 8
+
+
+def test_a_latin_hypercube_is_stratified_and_reproducible_with_its_seed():
+    lhs = ["ekf.r_acc=1e-4:4e-4", "ekf.q_jerk=1e-6:1e-5"]
+    points = study_sweep.sweep_points(lhs=lhs, samples=3, lhs_seed=7)
+    assert points == study_sweep.sweep_points(lhs=lhs, samples=3, lhs_seed=7)
+    assert points != study_sweep.sweep_points(lhs=lhs, samples=3, lhs_seed=8)
+    for key, lo, hi in (("ekf.r_acc", 1e-4, 4e-4), ("ekf.q_jerk", 1e-6, 1e-5)):
+        strata = sorted(int((p[key] - lo) / (hi - lo) * 3) for p in points)
+        assert strata == [0, 1, 2]                       # one sample in each third of each range
+    with pytest.raises(study.StudyError, match="the seeds are --runs and --first-seed"):
+        study_sweep.sweep_points(grid=["scenario.seed=1,2"])
+    grid = study_sweep.sweep_points(grid=["ekf.r_motor=1e-9,2e-9"], lhs=lhs, samples=3, lhs_seed=7)
+    assert len(grid) == 6 and [p["ekf.r_acc"] for p in grid[3:]] == [p["ekf.r_acc"] for p in points]
+
+
+def test_a_latin_hypercube_study_runs_its_samples(scenario, tmp_path):
+    out = tmp_path / "lhs"
+    assert _sweep(scenario, out, "--estimator", "ekf", "--no-plots", "--lhs", "ekf.r_acc=1e-4:4e-4",
+                  "--samples", "3", "--lhs-seed", "5") == 0
+    data = json.loads((out / "study.json").read_text())
+    assert [p["parameters"] for p in data["points"]] == study_sweep.sweep_points(
+        lhs=["ekf.r_acc=1e-4:4e-4"], samples=3, lhs_seed=5)
+    assert len({p["estimators"]["ekf"]["position_rmse_mean"] for p in data["points"]}) == 3
+
+
+@pytest.mark.parametrize("name, message", [
+    ("nosuch", r"^error: --estimator nosuch: scenario 'replay_log' has no component 'nosuch' \(components: .*toy.*\)$"),
+    ("leaky", r"^error: --estimator leaky: LeakyEstimator.fmu does not meet the estimator contract "
+              r".*required-outputs: p_tool_hat\[1\] \(missing\).*$"),
+])
+def test_a_bad_or_non_contract_estimator_is_one_line_and_exit_2(scenarios, tmp_path, capsys, name, message):
+    assert _sweep(scenarios["leaky"], tmp_path / "bad", "--estimator", "ekf", "--estimator", name) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.match(message, err[0]), err
+    assert not list((tmp_path / "bad" / "jobs").glob("*.pickle"))     # no run was started
+
+
+def test_resume_reuses_the_finished_runs(scenario, tmp_path):
+    out = tmp_path / "resumed"
+    args = ("--estimator", "toy", "--no-plots", "--grid", "ekf.r_acc=1e-4,4e-4")
+    assert _sweep(scenario, out, *args) == 0
+    first = (out / "study.json").read_text()
+    assert _sweep(scenario, out, *args) == 2                          # not over a finished study
+    assert _sweep(scenario, out, *args, "--resume") == 0
+    status = json.loads((out / "status.json").read_text())
+    assert (status["status"], status["jobs_reused_now"], status["jobs_computed_now"]) == ("ok", 2, 0)
+    assert (out / "study.json").read_text() == first
+    assert np.isfinite(json.loads(first)["points"][1]["estimators"]["toy"]["max_error"])
+
+
+def test_seeds_are_the_scenarios_seed_on_the_flagship(tmp_path):
+    """On a simulated robot the seeds change the sensor noise: run i is ``scenario.seed =
+    first_seed + i``, as a plain run with that seed gives; ANIS without degrees of freedom
+    (the flagship has no nis metric) has no band."""
+    flagship = REPO / "orchestration" / "scenarios" / "flagship.toml"
+    out = tmp_path / "flagship"
+    assert main(["study", "sweep", str(flagship), "--estimator", "ekf", "--runs", "2", "--first-seed", "3",
+                 "--set", "scenario.stop_time=0.3", "--after", "0.1", "--workers", "1", "--no-progress",
+                 "--no-plots", "--out", str(out)]) == 0
+    ekf = json.loads((out / "study.json").read_text())["points"][0]["estimators"]["ekf"]
+    r = study.simulate(flagship, ["scenario.stop_time=0.3", "scenario.seed=4"])
+    keep = r.time >= 0.1 - 1e-12
+    assert_allclose(ekf["position_rmse_per_seed"][1], rmse(r["ekf.p_tool_hat"][keep], r["plant.p_tool"][keep]),
+                    rtol=1e-12)
+    assert ekf["position_rmse_std"] > 0
+    assert ekf["nis"]["band_95"] is None and np.isfinite(ekf["nis"]["mean"])

@@ -11,16 +11,12 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from fmus.common.noise import make_rng
 from orchestration import batched, study, study_montecarlo
-from orchestration.scenario import DEFAULT_FMU_DIR, scenario_document
+from orchestration.scenario import scenario_document
 
 pytestmark = pytest.mark.usefixtures("fmu_env_module")      # scenarios find every FMU of this test run
 
 SCENARIO = Path(study_montecarlo.__file__).resolve().parent / "scenarios" / "axelsson2012.toml"
 SHORT = ["scenario.stop_time=0.3"]
-
-needs_fmus = pytest.mark.skipif(not (DEFAULT_FMU_DIR / "EkfAccelerometer.fmu").exists(),
-                                reason="needs the built FMUs in dist/fmus (flexfusion build)")
-
 
 def test_run_streams_are_each_seeds_own_generator():
     """Run r's numbers are what the FMU with seed r draws, call by call, across block borders."""
@@ -62,7 +58,6 @@ def test_batched_ekf_equals_the_single_filter():
         BatchedEkfModel([base, em.EkfAccelerometerParameters(r_acc=1.0)])
 
 
-@needs_fmus
 def test_batched_runs_equal_the_fmus():
     """Three seeds on the batched engine and through the FMUs: the same numbers, bit for bit
     (the shared closed loop runs the FMU classes' own code, the kernels repeat their math)."""
@@ -96,7 +91,6 @@ def test_check_names_seed_quantity_and_difference():
         study_montecarlo.check_against_fmus(same, fmu, 4, filters)
 
 
-@needs_fmus
 def test_noise_in_the_closed_loop_runs_the_plant_per_run():
     """A controller fed by the noisy encoder puts the noise into the loop: the plant and the
     controller become per-run components (their FMU classes, one instance per run), and the runs
@@ -115,7 +109,6 @@ def test_noise_in_the_closed_loop_runs_the_plant_per_run():
     assert not np.array_equal(res["plant.q_a"][0], res["plant.q_a"][1])
 
 
-@needs_fmus
 def test_study_falls_back_to_the_fmus_and_says_why(tmp_path, monkeypatch):
     def refuse(model_identifier):
         raise batched.BatchError(f"no kernel for '{model_identifier}' (test)")
@@ -126,13 +119,11 @@ def test_study_falls_back_to_the_fmus_and_says_why(tmp_path, monkeypatch):
     assert "no kernel for" in data["engine"]["fallback"]
 
 
-@needs_fmus
 def test_runs_of_another_structure_are_refused():
     with pytest.raises(batched.BatchError, match="run 1 has another structure"):
         batched.simulate_runs(str(SCENARIO), [SHORT, ["scenario.stop_time=0.2"]], {"plant.q_a": None})
 
 
-@needs_fmus
 @pytest.mark.slow
 def test_100_runs_batched_equal_the_fmu_study(tmp_path):
     """The whole Monte Carlo table of 100 runs (seeds 1-100) on both engines: the same numbers."""
@@ -146,7 +137,6 @@ def test_100_runs_batched_equal_the_fmu_study(tmp_path):
                 assert fast["summary"][name][key] == value, f"{name} {key}"
 
 
-@needs_fmus
 def test_particle_filter_stays_on_the_fmus():
     """The particle filter has no kernel: the study's engine refuses it before simulating (the
     study then runs every run through the FMUs)."""

@@ -13,7 +13,7 @@ from orchestration import contract
 from orchestration.build import _CLASS, build_all
 from orchestration.cli import main
 from orchestration.master import run
-from orchestration.scenario import DEFAULT_FMU_DIR, scenario_document
+from orchestration.scenario import scenario_document
 
 pytestmark = pytest.mark.usefixtures("fmu_env_module")      # scenarios find every FMU of this test run
 
@@ -29,15 +29,16 @@ def toys(tmp_path_factory) -> dict[str, Path]:
     return {p.stem: p for p in built}
 
 
-def _ours() -> list[Path]:
-    """Every estimator FMU of fmus/estimators (the tool-position estimators)."""
+def _ours(every_fmu: dict[str, Path]) -> list[Path]:
+    """Every estimator FMU of fmus/estimators (the tool-position estimators), of this test run's
+    build."""
     names = [n for script in sorted((REPO / "fmus" / "estimators").glob("*_fmu.py"))
-             for n in _CLASS.findall(script.read_text()) if (DEFAULT_FMU_DIR / f"{n}.fmu").is_file()]
-    return [DEFAULT_FMU_DIR / f"{n}.fmu" for n in names]
+             for n in _CLASS.findall(script.read_text()) if n in every_fmu]
+    return [every_fmu[n] for n in names]
 
 
-def test_every_estimator_of_ours_meets_the_contract() -> None:
-    fmus = _ours()
+def test_every_estimator_of_ours_meets_the_contract(every_fmu) -> None:
+    fmus = _ours(every_fmu)
     assert {p.stem for p in fmus} >= {"RigidKinematics", "EkfAccelerometer", "ParticleFilter", "EkfComplete",
                                       "EkfMotor", "EkfIntegrated", "AccelerationObserver",
                                       "ComplementaryFilter", "ImuEkf"}
@@ -45,8 +46,8 @@ def test_every_estimator_of_ours_meets_the_contract() -> None:
         assert contract.check_estimator(path) == [], path.stem
 
 
-def test_a_sensor_is_no_estimator() -> None:
-    failures = contract.check_estimator(DEFAULT_FMU_DIR / "Encoder.fmu")
+def test_a_sensor_is_no_estimator(every_fmu) -> None:
+    failures = contract.check_estimator(every_fmu["Encoder"])
     assert [f.split(":")[0] for f in failures] == ["required-outputs", "inputs"]
     assert "'q_m[1]' is not a contract input" in failures[1]
 

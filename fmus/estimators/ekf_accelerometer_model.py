@@ -53,7 +53,16 @@ class EkfAccelerometerModel:
             self._T = T
 
     def measurement_vector(self, q_m, acc_xz=None) -> np.ndarray:
-        """Stack the readings as ``y`` of eq. 15 (the accelerometer only if it is used)."""
+        """Stack the readings as ``y`` of eq. 15 (the accelerometer only if it is used).
+
+        Parameters
+        ----------
+        q_m
+            Measured motor angles (2,) [rad], motor side (eq. 16).
+        acc_xz
+            Accelerometer specific force (sensor x, z) (2,) [m/s^2] (eqs. 17-19); ignored, and
+            may be None, when the filter does not use the accelerometer.
+        """
         y = np.asarray(q_m, float)
         if self.layout.use_accelerometer:
             y = np.concatenate([y, np.asarray(acc_xz, float)])
@@ -92,12 +101,14 @@ class EkfAccelerometerModel:
         return xf, Pf, float(math.sqrt(z @ z))
 
     def update(self, y) -> np.ndarray:
-        """Measurement update (eq. 3b); returns ``x_{t|t}``."""
+        """Measurement update (eq. 3b) with the measurement ``y`` (eq. 15, as stacked by
+        :meth:`measurement_vector`); commits and returns ``x_{t|t}``."""
         self.x, self.P, self.innovation_norm = self.filtered(y)
         return self.x
 
     def predict(self, u, T: float) -> np.ndarray:
-        """Time update over ``T`` with the jerk reference ``u`` held (eqs. 3a, 13)."""
+        """Time update over the period ``T`` [s] with the arm jerk reference ``u`` (2,) [rad/s^3]
+        held (eqs. 3a, 13); commits and returns ``x_{t+1|t}``."""
         self.x, self.P = self.predicted(u, T)
         return self.x
 
@@ -115,7 +126,8 @@ class EkfAccelerometerModel:
         return x, P
 
     def tool_position(self, x=None) -> np.ndarray:
-        """Tool position from the estimated arm angles (eq. 29)."""
+        """Tool position (world x, z) [m] from the arm angles of the state ``x`` (default: the
+        filter's estimate) by the rigid forward kinematics (eq. 29)."""
         return kinematics.tool_position((self.x if x is None else x)[Q_], self.meas.p)
 
 

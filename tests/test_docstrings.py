@@ -28,7 +28,6 @@ MODEL_MODULES = [p for p in MATH_MODULES if p.parent.name not in ("common", "orc
 #: fails the test (strict xfail), so the list cannot go stale.
 REFACTORING = {
     ("documented", "fmus/estimators/ekf_flexible_model.py"): "16 undocumented at c35e7a2",
-    ("documented", "fmus/estimators/particle_filter_model.py"): "11 undocumented at c35e7a2",
 }
 
 # "eq. 16", "Eqs. (17)-(19)", "equation 3"; or a named source: "Author (2012)", "Author et al.

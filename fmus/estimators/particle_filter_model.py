@@ -139,10 +139,10 @@ class ParticleFilterParameters(EkfAccelerometerParameters):
 def optimal_bandwidth(n_eff: float, n_states: int) -> float:
     """Silverman's bandwidth ``h_opt = (4 / (N (n + 2)))^(1 / (n + 4))`` of a Gaussian kernel that
     minimises the mean integrated squared error of a Gaussian density estimated from ``N``
-    equally weighted samples in ``n`` dimensions (Silverman 1986, section 4.3.2; the regularised
-    particle filter's choice, Musso, Oudjane, Le Gland 2001). For weighted particles ``N`` is
-    their effective sample size ``n_eff`` (Kish): resampling copies ``N`` particles but adds no
-    information. Below 1 for ``n_eff >= 1`` (``(4 / (n + 2))^(1 / (n + 4)) < 1``)."""
+    equally weighted samples in ``n = n_states`` dimensions (Silverman 1986, section 4.3.2; the
+    regularised particle filter's choice, Musso, Oudjane, Le Gland 2001). For weighted particles
+    ``N`` is their effective sample size ``n_eff`` (Kish; clipped below at 1): resampling copies
+    ``N`` particles but adds no information. Below 1 for ``n_eff >= 1`` (``(4 / (n + 2))^(1 / (n + 4)) < 1``)."""
     return (4.0 / (max(n_eff, 1.0) * (n_states + 2))) ** (1.0 / (n_states + 4))
 
 
@@ -150,8 +150,11 @@ def optimal_bandwidth(n_eff: float, n_states: int) -> float:
 class BatchMeasurementModel:
     """``h(x)`` of eq. 15 and its Jacobian, vectorised over particles (``X`` of shape (N, n)).
 
-    The constants are those of the scalar :class:`MeasurementModel` (the EKF's), so both
-    evaluate the same model.
+    Parameters
+    ----------
+    meas
+        The scalar :class:`MeasurementModel` (the EKF's) whose robot model, state layout and
+        constants this one takes, so both evaluate the same model.
     """
 
     def __init__(self, meas: MeasurementModel) -> None:
@@ -295,7 +298,8 @@ class BatchMeasurementModel:
 
 # ---- Algorithm 1, building blocks -------------------------------------------------------------
 def normalise_log_weights(logw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised weights ``g_i`` (Algorithm 1, step 2) and their logarithms, by log-sum-exp.
+    """Normalised weights ``g_i`` (Algorithm 1, step 2) and their logarithms, by log-sum-exp,
+    from the unnormalised log-weights ``logw`` (N,).
 
     Non-finite log-weights count as zero weight. The caller checks that one is finite.
     """
@@ -315,12 +319,15 @@ def finite_rows(X: np.ndarray) -> np.ndarray:
 
 
 def effective_sample_size(w: np.ndarray) -> float:
-    """``1 / sum g_i^2`` of normalised weights (N for equal weights, 1 for one particle)."""
+    """``1 / sum g_i^2`` of the normalised weights ``w`` (N,) (Kish's effective sample size: N for
+    equal weights, 1 for one particle)."""
     return float(1.0 / np.dot(w, w))
 
 
 def systematic_resample(w: np.ndarray, u: float) -> np.ndarray:
-    """Indices of systematic resampling (Algorithm 1, step 3) with one uniform ``u`` in [0, 1).
+    """Indices (N,) of systematic resampling (Algorithm 1, step 3) of the particles with the
+    weights ``w`` (N,), non-negative and normalised here by their sum, with one uniform ``u`` in
+    [0, 1).
 
     The points ``(u + j) / N``, ``j = 0..N-1``, select the particle whose cumulative weight
     interval contains them: particle ``i`` is copied ``floor(N g_i)`` or ``ceil(N g_i)`` times
@@ -335,7 +342,8 @@ def systematic_resample(w: np.ndarray, u: float) -> np.ndarray:
 
 def weighted_mean_cov(X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The MMSE estimate ``sum g_i x_i`` (eq. 6) and the weighted covariance
-    ``sum g_i (x_i - x_hat)(x_i - x_hat)^T``."""
+    ``sum g_i (x_i - x_hat)(x_i - x_hat)^T`` of the particles ``X`` (N, n) with the normalised
+    weights ``w`` (N,) (summing to 1; the covariance is the plug-in one, not debiased)."""
     x = w @ X
     d = X - x
     return x, (d * w[:, None]).T @ d
@@ -479,7 +487,16 @@ class ParticleFilterModel:
             self._T = T
 
     def measurement_vector(self, q_m, acc_xz=None) -> np.ndarray:
-        """Stack the readings as ``y`` of eq. 15 (the accelerometer only if it is used)."""
+        """Stack the readings as ``y`` of eq. 15 (the accelerometer only if it is used).
+
+        Parameters
+        ----------
+        q_m
+            Measured motor angles (2,) [rad], motor side (eq. 16).
+        acc_xz
+            Accelerometer specific force (sensor x, z) (2,) [m/s^2] (eqs. 17-19); ignored, and
+            may be None, when the filter does not use the accelerometer.
+        """
         y = np.asarray(q_m, float)
         if self.layout.use_accelerometer:
             y = np.concatenate([y, np.asarray(acc_xz, float)])
@@ -605,11 +622,13 @@ class ParticleFilterModel:
         return self.x
 
     def update(self, y) -> np.ndarray:
-        """Measurement update (Algorithm 1, steps 2-3, eq. 6); returns ``x_{t|t}``."""
+        """Measurement update (Algorithm 1, steps 2-4, eq. 6) with the measurement ``y`` (eq. 15,
+        as stacked by :meth:`measurement_vector`); commits and returns ``x_{t|t}``."""
         return self.commit(self.filtered(y))
 
     def tool_position(self, x=None) -> np.ndarray:
-        """Tool position from the estimated arm angles (eq. 29)."""
+        """Tool position (world x, z) [m] from the arm angles of the state ``x`` (default: the
+        filter's estimate) by the rigid forward kinematics (eq. 29)."""
         return kinematics.tool_position((self.x if x is None else x)[Q_], self.meas.p)
 
 

@@ -27,7 +27,6 @@ MODEL_MODULES = [p for p in MATH_MODULES if p.parent.name not in ("common", "orc
 #: and fmus/estimators). The lead clears this list after merging; a listed item that passes
 #: fails the test (strict xfail), so the list cannot go stale.
 REFACTORING = {
-    ("documented", "fmus/estimators/ekf_flexible_model.py"): "16 undocumented at c35e7a2",
 }
 
 # "eq. 16", "Eqs. (17)-(19)", "equation 3"; or a named source: "Author (2012)", "Author et al.

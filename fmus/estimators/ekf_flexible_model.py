@@ -278,6 +278,23 @@ class EkfFlexibleModel:
     (for an FMU's outputs), :meth:`commit` commits it. With ``init_from_motors`` the first
     update starts from :meth:`initial_state` at the measured motor angles instead of the state
     at ``q_a0`` / ``p_tool0``.
+
+    The arguments the methods share:
+
+    x, P
+        A state (n,) and its covariance (n, n); where optional, the filter's current estimate.
+        The state is eq. 1's ``(q_a, q_m, dq_a, dq_m)`` [rad, rad/s; ``q_m`` and ``dq_m`` motor
+        side], then the drift-correction states (module docstring): the velocity errors ``b``
+        (world x, z) [m/s] and the log gearbox-stiffness factor ``s`` [1].
+    q_m
+        Measured motor angles (2,) [rad], motor side (the ``x_2`` rows of eqs. 6 and 8).
+    acc_s
+        Accelerometer reading: the specific force (3,) [m/s^2] in the sensor frame, turned into
+        the tool frame with ``mount_rpy`` (:meth:`tool_frame`); EKF Motor ignores it (None).
+    u
+        Motor torque (2,) [N m], motor side: the input of eq. 2 (``u_k`` of eqs. 3-5).
+    T
+        Sample period [s] (eqs. 3a, 5).
     """
 
     def __init__(self, p: EkfMotorParameters, variant: str) -> None:
@@ -334,7 +351,8 @@ class EkfFlexibleModel:
         return np.diag(T * self._wq)
 
     def tool_frame(self, acc_s) -> tuple[float, float]:
-        """The accelerometer reading (sensor frame, 3 axes) in the tool frame, x and z."""
+        """The accelerometer reading ``acc_s`` (sensor frame, 3 axes) [m/s^2] in the tool frame,
+        x and z, through the mounting rotation of ``mount_rpy``."""
         f = self._mount @ np.asarray(acc_s, float)
         return float(f[0]), float(f[1])
 
@@ -351,7 +369,8 @@ class EkfFlexibleModel:
         return np.array(y)
 
     def h_jacobian(self, x, u=(0.0, 0.0)) -> np.ndarray:
-        """``H = dh/dx`` (eq. 5 notation), analytic."""
+        """``H = dh/dx`` at the state ``x`` with the input ``u`` (``H_k`` of eqs. 4b, 5c),
+        analytic."""
         x = tuple(map(float, x))
         H = np.zeros((self.m, self.n))
         H[0, 2] = H[1, 3] = 1.0
@@ -370,11 +389,13 @@ class EkfFlexibleModel:
         return self._dynamics(np.asarray(x, float), u, T, self._aux if aux is None else aux)[0]
 
     def transition_jacobian(self, x, u, T: float, aux=None) -> np.ndarray:
-        """``A = dF/dx = I + T df/dx`` (eq. 5), analytic, drift-correction states included."""
+        """``A = dF/dx = I + T df/dx`` (eq. 5b's ``A_k``) at the state ``x`` with the input ``u``,
+        analytic, drift-correction states included; ``aux`` as in :meth:`transition`."""
         return self._dynamics(np.asarray(x, float), u, T, self._aux if aux is None else aux)[1]
 
     def stiffness_factor(self, x=None) -> float:
-        """The estimated factor on the model's gearbox stiffness (1 without ``tilt_stiffness``)."""
+        """The factor ``exp(s)`` on the model's gearbox stiffness of the state ``x`` (1 without
+        the stiffness state of ``tilt_stiffness`` or EKF Complete's ``estimate_stiffness``)."""
         x = self.x if x is None else x
         return math.exp(min(float(x[self._i_s]), 700.0)) if self._stiff else 1.0
 
@@ -481,9 +502,11 @@ class EkfFlexibleModel:
         return x
 
     def static_alignment(self, q_m, acc_s) -> tuple[np.ndarray, np.ndarray]:
-        """Initial state and covariance of ``tilt_stiffness`` (all ``n`` states) at rest: the
-        log stiffness factor ``s`` that makes the static equilibrium's tool angle
-        ``phi(s) = q1 + q2`` match the accelerometer's gravity direction
+        """Initial state and covariance (all ``n`` states) at rest, from the first sample's motor
+        angles ``q_m`` and accelerometer reading ``acc_s``, of a filter with the stiffness state
+        (``tilt_stiffness``, or EKF Complete's ``estimate_stiffness`` with ``r_acc / g`` in
+        place of ``r_tilt``): the log stiffness factor ``s`` that makes the static equilibrium's
+        tool angle ``phi(s) = q1 + q2`` match the accelerometer's gravity direction
         ``phi_acc = atan2(-f_x, f_z)`` (at rest ``f = g (-sin phi, cos phi)`` in the tool frame),
         as the MAP estimate with the prior ``N(0, p0_stiffness^2)`` and ``r_tilt`` on
         ``phi_acc`` (Gauss-Newton); the arm angles follow ``s`` and inherit its variance through
@@ -572,14 +595,15 @@ class EkfFlexibleModel:
         return Filtered(xf, Pf, nnu, u, v_int, a_w, aux)
 
     def commit(self, r: Filtered) -> np.ndarray:
-        """Make a :meth:`filtered` result the current estimate ``x_{k|k}``."""
+        """Make the :meth:`filtered` result ``r`` the current estimate ``x_{k|k}``; returns it."""
         self.x, self.P, self.innovation_norm, self.u = r.x, r.P, r.innovation_norm, r.u
         self._started = True
         self.v_int, self.a_world, self._aux = r.v_int, r.a_world, r.aux
         return self.x
 
     def update(self, q_m, acc_s=None, u=(0.0, 0.0)) -> np.ndarray:
-        """Measurement update (eq. 4) with the sample at ``t_k``; returns ``x_{k|k}``."""
+        """Measurement update (eq. 4) with the sample ``(q_m, acc_s)`` and the input ``u`` at
+        ``t_k``; commits and returns ``x_{k|k}``."""
         return self.commit(self.filtered(q_m, acc_s, u))
 
     # -- eq. 5
@@ -601,11 +625,13 @@ class EkfFlexibleModel:
 
     # -- outputs
     def tool_position(self, x=None) -> np.ndarray:
-        """Tool position (world x, z) from the estimated arm angles (rigid forward kinematics)."""
+        """Tool position (world x, z) [m] from the arm angles of the state ``x`` (rigid forward
+        kinematics)."""
         return kinematics.tool_position((self.x if x is None else x)[0:2], self.robot)
 
     def tool_position_variance(self, x=None, P=None) -> float:
-        """Trace of the tool position covariance ``J P_qa J^T`` (m^2)."""
+        """Trace of the tool position covariance ``J P_qa J^T`` [m^2] of the state ``x`` and its
+        covariance ``P`` (``J``: the tool Jacobian at the arm angles, ``P_qa``: their block)."""
         x = self.x if x is None else x
         P = self.P if P is None else P
         J = kinematics.jacobian(x[0:2], self.robot)

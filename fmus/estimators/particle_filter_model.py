@@ -142,7 +142,8 @@ def optimal_bandwidth(n_eff: float, n_states: int) -> float:
     equally weighted samples in ``n = n_states`` dimensions (Silverman 1986, section 4.3.2; the
     regularised particle filter's choice, Musso, Oudjane, Le Gland 2001). For weighted particles
     ``N`` is their effective sample size ``n_eff`` (Kish; clipped below at 1): resampling copies
-    ``N`` particles but adds no information. Below 1 for ``n_eff >= 1`` (``(4 / (n + 2))^(1 / (n + 4)) < 1``)."""
+    ``N`` particles but adds no information. Below 1 for ``n_eff >= 1``
+    (``(4 / (n + 2))^(1 / (n + 4)) < 1``)."""
     return (4.0 / (max(n_eff, 1.0) * (n_states + 2))) ** (1.0 / (n_states + 4))
 
 

@@ -28,10 +28,10 @@ demo: $(FMUS)
 	$(BIN)/flexfusion run orchestration/scenarios/flagship.toml --out results/flagship --force
 	$(BIN)/flexfusion plot results/flagship
 
-test: $(FMUS)
+test: $(STAMP)          # the tests build every FMU themselves (tests/conftest.py)
 	$(BIN)/pytest -q
 
-test-slow: $(FMUS)
+test-slow: $(STAMP)
 	$(BIN)/pytest -q -m slow
 
 bench: $(FMUS)

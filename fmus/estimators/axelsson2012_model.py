@@ -146,6 +146,22 @@ class Layout:
         """Indices of the accelerometer biases in ``x`` (None without both switches)."""
         return slice(8, 10) if self.use_bias and self.use_accelerometer else None
 
+    def measurement_vector(self, q_m, acc_xz=None) -> np.ndarray:
+        """Stack the readings as ``y`` of eq. 15 (the accelerometer only if it is used).
+
+        Parameters
+        ----------
+        q_m
+            Measured motor angles (2,) [rad], motor side (eq. 16).
+        acc_xz
+            Accelerometer specific force (sensor x, z) (2,) [m/s^2] (eqs. 17-19); ignored, and
+            may be None, when the layout does not use the accelerometer.
+        """
+        y = np.asarray(q_m, float)
+        if self.use_accelerometer:
+            y = np.concatenate([y, np.asarray(acc_xz, float)])
+        return y
+
 
 Q_, DQ_, DDQ_ = slice(0, 2), slice(2, 4), slice(4, 6)
 

@@ -53,20 +53,9 @@ class EkfAccelerometerModel:
             self._T = T
 
     def measurement_vector(self, q_m, acc_xz=None) -> np.ndarray:
-        """Stack the readings as ``y`` of eq. 15 (the accelerometer only if it is used).
-
-        Parameters
-        ----------
-        q_m
-            Measured motor angles (2,) [rad], motor side (eq. 16).
-        acc_xz
-            Accelerometer specific force (sensor x, z) (2,) [m/s^2] (eqs. 17-19); ignored, and
-            may be None, when the filter does not use the accelerometer.
-        """
-        y = np.asarray(q_m, float)
-        if self.layout.use_accelerometer:
-            y = np.concatenate([y, np.asarray(acc_xz, float)])
-        return y
+        """``y`` of eq. 15 from the motor angles ``q_m`` (rad) and, if the filter uses it, the
+        accelerometer's ``acc_xz`` (m/s^2): :meth:`Layout.measurement_vector`."""
+        return self.layout.measurement_vector(q_m, acc_xz)
 
     def filtered(self, y, x=None, P=None) -> tuple[np.ndarray, np.ndarray, float]:
         """``(x_{t|t}, P_{t|t}, normalised innovation norm)`` for the measurement ``y`` (eq. 3b)

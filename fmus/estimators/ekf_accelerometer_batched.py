@@ -81,26 +81,6 @@ class BatchedMeasurement:
             D.append(d)
         return tau, (D[0], D[1])
 
-    def _arm_torque_jacobian(self, x: np.ndarray) -> np.ndarray:
-        m = self.m
-        q1, q2, dq1, dq2, a1, a2 = (x[:, i] for i in range(6))
-        s2, c2 = np.sin(q2), np.cos(q2)
-        sp = np.sin(q1 + q2)
-        b = -m.e * s2
-        bd = -m.e * c2
-        bdd = m.e * s2
-        J = np.zeros((x.shape[0], 2, 6))
-        J[:, 0, 0] = -m.g1 * np.cos(q1) + m.g2 * sp
-        J[:, 1, 0] = m.g2 * sp
-        J[:, 0, 1] = 2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + m.g2 * sp
-        J[:, 1, 1] = bd * a1 - bdd * dq1 * dq1 + m.g2 * sp
-        J[:, 0, 2] = 2 * bd * dq2
-        J[:, 0, 3] = 2 * bd * (dq1 + dq2)
-        J[:, 1, 2] = -2 * bd * dq1
-        J[:, 0, 4], J[:, 0, 5] = m.a + 2 * b, m.c + b
-        J[:, 1, 4], J[:, 1, 5] = m.c + b, m.c
-        return J
-
     def _specific_force_and_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         m = self.m
         q1, q2 = x[:, 0], x[:, 1]
@@ -135,7 +115,7 @@ class BatchedMeasurement:
         _, D = self._torque_deflection(x)
         y = np.empty((runs, L.m))
         H = np.zeros((runs, L.m, L.n))
-        Jt = self._arm_torque_jacobian(x)
+        Jt = m.arm_torque_jacobian_many(x)
         for i in range(2):
             k = m._k_hi[i] - m._k_soft[i] * (1.0 - _tanh_squared(D[i] / m._delta[i]))
             y[:, i] = m.r[i] * (x[:, i] + D[i])

@@ -182,24 +182,6 @@ class BatchMeasurementModel:
         tau[:, 1] = (self.c + b) * a1 + self.c * a2 - bd * dq1 * dq1 - gc
         return tau
 
-    def arm_torque_jacobian(self, X: np.ndarray) -> np.ndarray:
-        """``d tau_a / d(q, dq, ddq)``, (N, 2, 6), analytic."""
-        q1, q2, dq1, dq2, a1, a2 = X[:, 0], X[:, 1], X[:, 2], X[:, 3], X[:, 4], X[:, 5]
-        s2, c2 = np.sin(q2), np.cos(q2)
-        gs = self.g2 * np.sin(q1 + q2)
-        b, bd, bdd = -self.e * s2, -self.e * c2, self.e * s2
-        J = np.zeros((X.shape[0], 2, 6))
-        J[:, 0, 0] = -self.g1 * np.cos(q1) + gs
-        J[:, 1, 0] = gs
-        J[:, 0, 1] = 2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + gs
-        J[:, 1, 1] = bd * a1 - bdd * dq1 * dq1 + gs
-        J[:, 0, 2] = 2 * bd * dq2
-        J[:, 0, 3] = 2 * bd * (dq1 + dq2)
-        J[:, 1, 2] = -2 * bd * dq1
-        J[:, 0, 4], J[:, 0, 5] = self.a + 2 * b, self.c + b
-        J[:, 1, 4], J[:, 1, 5] = self.c + b, self.c
-        return J
-
     def specific_force(self, X: np.ndarray) -> np.ndarray:
         """Accelerometer reading (sensor x, z) of eqs. 17-19, (N, 2)."""
         q1, q2, dq1 = X[:, 0], X[:, 1], X[:, 2]
@@ -283,7 +265,7 @@ class BatchMeasurementModel:
         L = self.layout
         H = np.zeros((X.shape[0], L.m, L.n))
         k = dynamics.spring_stiffness(self.deflection(X) if D is None else D, self.p)
-        H[:, 0:2, 0:6] = (self.r / k)[:, :, None] * self.arm_torque_jacobian(X)
+        H[:, 0:2, 0:6] = (self.r / k)[:, :, None] * self.meas.arm_torque_jacobian_many(X)
         H[:, 0, 0] += self.r[0]
         H[:, 1, 1] += self.r[1]
         if L.bias_m is not None:

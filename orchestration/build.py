@@ -28,17 +28,16 @@ from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
+from fmus.common.jit import BUNDLE_ID_FILE, package_digest, package_sources
+
 REPO = Path(__file__).resolve().parent.parent
 FMU_SOURCES = REPO / "fmus"
 DEFAULT_DEST = REPO / "dist" / "fmus"
 # What the FMUs import besides the standard library and the bundled `fmus` package.
-FMU_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11"]
+FMU_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11", "numba>=0.60"]
 # What one feature imports when it is used (pyproject's optional dependencies).
 FMU_OPTIONAL_REQUIREMENTS = ["h5py>=3.8"]
 
-
-# Hash of the bundled package, in every FMU (provenance; its first 12 hex name the vendored package).
-BUNDLE_ID_FILE = "BUNDLE_ID"
 
 _CLASS = re.compile(r"^class (\w+)\(", re.M)
 _STAGED_SCRIPT = re.compile(r"\w+_[0-9a-f]{12}")     # a script's module name (_stage_script)
@@ -59,12 +58,8 @@ _IMPORT = re.compile(r"^(\s*)(from|import)\s+fmus(?=[.\s])", re.M)
 
 def _stage_package(stage: Path) -> Path:
     """Copy ``fmus`` into ``stage`` as ``fmus_<12 hex of its BUNDLE_ID>``, imports rewritten."""
-    digest = hashlib.sha256()
-    sources = sorted(p for p in FMU_SOURCES.rglob("*.py")
-                     if not p.name.endswith("_fmu.py") and "__pycache__" not in p.parts)
-    for f in sources:
-        digest.update(f.relative_to(FMU_SOURCES).as_posix().encode() + b"\0" + f.read_bytes())
-    bundle_id = digest.hexdigest()
+    sources = package_sources(FMU_SOURCES)
+    bundle_id = package_digest(FMU_SOURCES)       # also the key of the kernel cache (jit.py)
     target = stage / f"fmus_{bundle_id[:12]}"
     for f in sources:
         out = target / f.relative_to(FMU_SOURCES)

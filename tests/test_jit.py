@@ -1,0 +1,105 @@
+"""fmus/common/jit.py: numba kernels whose on-disk cache survives an FMU's extraction folder."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fmus.common import jit
+
+REPO = Path(__file__).resolve().parent.parent
+
+pytest.importorskip("numba")
+
+KERNEL = '''
+import math
+from {pkg}.common.jit import kernel
+
+@kernel
+def damped(x, n):
+    s = 0.0
+    for i in range(n):
+        s = s * 0.5 + math.tanh(x * i)
+    return s
+'''
+
+PROBE = '''
+import json, sys
+sys.path.insert(0, sys.argv[1])
+from {pkg}.common import kern
+value = kern.damped(0.3, 50)
+print(json.dumps({{"value": value.hex(), "hits": sum(kern.damped.stats.cache_hits.values()),
+                  "misses": sum(kern.damped.stats.cache_misses.values())}}))
+'''
+
+
+def _bundle(where: Path, pkg: str, bundle_id: str | None, kernel_src: str = KERNEL) -> Path:
+    """A package laid out as in an FMU's resources/: ``<pkg>/common/{jit,kern}.py`` (+ BUNDLE_ID)."""
+    common = where / pkg / "common"
+    common.mkdir(parents=True)
+    (where / pkg / "__init__.py").write_text("")
+    (common / "__init__.py").write_text("")
+    shutil.copy(REPO / "fmus" / "common" / "jit.py", common / "jit.py")
+    (common / "kern.py").write_text(kernel_src.format(pkg=pkg))
+    if bundle_id:
+        (where / pkg / jit.BUNDLE_ID_FILE).write_text(bundle_id + "\n")
+    return where
+
+
+def _probe(folder: Path, pkg: str, cache: Path) -> dict:
+    env = {**os.environ, "FLEXFUSION_CACHE_DIR": str(cache)}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    out = subprocess.run([sys.executable, "-c", PROBE.format(pkg=pkg), str(folder)], env=env,
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_cache_hits_in_a_fresh_extraction_folder_and_process(tmp_path):
+    """Two extractions of one bundle in two processes: compiled once, loaded from disk after."""
+    cache = tmp_path / "cache"
+    first = _probe(_bundle(tmp_path / "x1", "fmus_abc", "ab" * 32), "fmus_abc", cache)
+    second = _probe(_bundle(tmp_path / "x2", "fmus_abc", "ab" * 32), "fmus_abc", cache)
+    assert first["misses"] == 1 and first["hits"] == 0
+    assert second["hits"] == 1 and second["misses"] == 0
+    assert second["value"] == first["value"]
+    assert list((cache / "numba").iterdir()) == [cache / "numba" / ("ab" * 8)]
+
+
+def test_changed_sources_never_load_a_stale_kernel(tmp_path):
+    """Another bundle id (any source changed) compiles anew, in its own folder."""
+    cache = tmp_path / "cache"
+    _probe(_bundle(tmp_path / "x1", "fmus_abc", "ab" * 32), "fmus_abc", cache)
+    changed = KERNEL.replace("0.5", "0.25")
+    other = _probe(_bundle(tmp_path / "x2", "fmus_abc", "cd" * 32, changed), "fmus_abc", cache)
+    assert other["misses"] == 1 and other["hits"] == 0
+    assert sorted(p.name for p in (cache / "numba").iterdir()) == ["ab" * 8, "cd" * 8]
+
+
+def test_kernel_rounds_as_plain_python(tmp_path):
+    """No fastmath, no contraction: the compiled loop equals the same code run by Python."""
+    got = _probe(_bundle(tmp_path / "x", "fmus_abc", "ef" * 32), "fmus_abc", tmp_path / "cache")
+    s = 0.0
+    import math
+    for i in range(50):
+        s = s * 0.5 + math.tanh(0.3 * i)
+    assert got["value"] == s.hex()
+
+
+def test_bundle_id_of_the_working_tree_is_the_build_digest():
+    """Without a BUNDLE_ID file the tree is hashed as the build hashes it."""
+    assert jit.bundle_id() == jit.package_digest(REPO / "fmus")
+    assert len(jit.bundle_id()) == 64
+
+
+def test_unwritable_cache_falls_back_to_the_temporary_folder(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")          # a file where the cache folder should be: not writable
+    env = {**os.environ, "FLEXFUSION_CACHE_DIR": str(blocker), "PYTHONPATH": str(REPO)}
+    code = "from fmus.common import jit; print(jit._kernel_cache_dir())"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert "flexfusion-numba-" in out.stdout and str(blocker) not in out.stdout

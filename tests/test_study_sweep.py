@@ -13,46 +13,35 @@ import pytest
 from numpy.testing import assert_allclose
 
 from orchestration import study, study_sweep
-from orchestration.build import build_all
 from orchestration.cli import main
 from orchestration.master import run
 from orchestration.metrics import rmse
-from orchestration.scenario import scenario_document, toml_value
+from orchestration.scenario import scenario_document
+from toys import with_third_party
 
 pytestmark = pytest.mark.usefixtures("fmu_env_module")      # scenarios find every FMU of this test run
 
 REPO = Path(__file__).resolve().parent.parent
-THIRD_PARTY = Path(__file__).parent / "fmus" / "third_party"
 AFTER = 0.5                                                   # s, as the replay scenario's metrics
 
 
 @pytest.fixture(scope="module")
-def scenarios(tmp_path_factory) -> dict[str, Path]:
+def scenarios(tmp_path_factory, third_party_fmus) -> dict[str, Path]:
     """The replay scenario (1 s) with a third-party-style estimator beside ours, ``toy``, which
     meets the contract, and the same with ``leaky``, which does not (tests/fmus/third_party)."""
     folder = tmp_path_factory.mktemp("sweep")
-    built = {p.stem: p for p in build_all(folder / "fmus", quiet=True,
-                                          scripts=sorted(THIRD_PARTY.glob("*_fmu.py")))}
     doc = scenario_document(REPO / "orchestration" / "scenarios" / "replay_log.toml",
                             ["scenario.stop_time=1.0"])
-    doc["components"]["toy"] = {"fmu": str(built["ThirdPartyEstimator"])}
-    doc["connections"] += ["log.q_m_meas -> toy.q_m_meas"]
     doc["record"]["variables"] += ["toy.p_tool_hat"]
-    paths = {"ok": folder / "replay_third_party.toml", "leaky": folder / "replay_leaky.toml"}
-    paths["ok"].write_text(_toml(doc))
-    doc["components"]["leaky"] = {"fmu": str(built["LeakyEstimator"])}
-    paths["leaky"].write_text(_toml(doc))
-    return paths
+    ok = with_third_party(doc, third_party_fmus, folder / "replay_third_party.toml", source="log.q_m_meas")
+    leaky = with_third_party(ok, third_party_fmus, folder / "replay_leaky.toml", "leaky", "LeakyEstimator",
+                             source="")
+    return {"ok": ok, "leaky": leaky}
 
 
 @pytest.fixture
 def scenario(scenarios) -> Path:
     return scenarios["ok"]
-
-
-def _toml(doc: dict) -> str:
-    """A whole scenario document as TOML (a line of an inline table per top-level key)."""
-    return "".join(f"{k} = {toml_value(v)}\n" for k, v in doc.items())
 
 
 def _sweep(scenario: Path, out: Path, *extra: str) -> int:

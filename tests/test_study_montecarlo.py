@@ -15,7 +15,7 @@ from numpy.testing import assert_allclose
 
 from orchestration import cli, study, study_montecarlo
 from orchestration.scenario import scenario_document
-from toys import with_third_party
+from toys import assert_same_document, with_third_party
 
 SCENARIO = Path(study_montecarlo.__file__).resolve().parent / "scenarios" / "axelsson2012.toml"
 SHORT = ["scenario.stop_time=0.5"]
@@ -356,24 +356,6 @@ def test_pf_algorithm_1_needs_many_particles(tmp_path):
 REFERENCE = Path(__file__).parent / "data" / "montecarlo_main_reference.json"
 
 
-def assert_same_document(got, ref, path: str = "") -> None:
-    """Every key of ``ref`` (a JSON document) in ``got`` and no other, equal strings and flags,
-    numbers to the batched engine's own tolerance against the FMUs (CHECK_RTOL: the last bits
-    may move with the order of floating-point operations, nothing more)."""
-    if isinstance(ref, dict):
-        assert isinstance(got, dict) and set(got) == set(ref), (path, set(got) ^ set(ref))
-        for k in ref:
-            assert_same_document(got[k], ref[k], f"{path}.{k}")
-    elif isinstance(ref, list):
-        assert isinstance(got, list) and len(got) == len(ref), path
-        for i, (g, r) in enumerate(zip(got, ref)):
-            assert_same_document(g, r, f"{path}[{i}]")
-    elif isinstance(ref, float):
-        assert_allclose(got, ref, rtol=study_montecarlo.CHECK_RTOL, atol=0, err_msg=path)
-    else:
-        assert got == ref, path
-
-
 def test_without_estimator_the_study_is_mains(small):
     """No --estimator: study.json of the paper's study is main's before the generic studies
     (tests/data/montecarlo_main_reference.json; its "how" says how it was computed, with main's
@@ -383,7 +365,7 @@ def test_without_estimator_the_study_is_mains(small):
     for key in ("wall_time_s", "executor", "scenario_file"):
         saved.pop(key)
     saved["engine"].pop("engine_wall_time_s")
-    assert_same_document(saved, json.loads(REFERENCE.read_text())["study"])
+    assert_same_document(saved, json.loads(REFERENCE.read_text())["study"], rtol=study_montecarlo.CHECK_RTOL)
 
 
 @pytest.fixture(scope="module")

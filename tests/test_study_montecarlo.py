@@ -446,3 +446,26 @@ def test_a_bad_or_non_contract_estimator_is_one_line_and_exit_2(toy_scenarios, t
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and re.match(message, err[0]), err
     assert not list((tmp_path / "bad" / "jobs").glob("*.pickle"))     # no run was started
+
+
+def test_an_estimator_of_some_arm_estimates_is_judged_on_those():
+    """An estimator giving only the arm angles (and the tool position): its errors are those
+    columns of the truth, its summary the angle and tool RMSE (eq. 27), no velocity, no NEES."""
+    rng = np.random.default_rng(5)
+    t = np.linspace(0.0, 1.0, 11)
+    plant = {f"plant.{v}": rng.standard_normal((11, 2)) for v in ("q_a", "dq_a", "ddq_a", "q_m", "dq_m", "p_tool")}
+    f = study_montecarlo.FilterInfo("mine", "Mine", False, 1, 0.1, {}, groups=("position",), tool=True, ours=False)
+    runs = []
+    for _ in range(3):
+        est = {"mine.q_a_hat": rng.standard_normal((11, 2)), "mine.p_tool_hat": rng.standard_normal((11, 2))}
+        values = {**plant, **est}
+        runs.append(study_montecarlo._errors(t, np.arange(11), values.__getitem__, values.__getitem__, [f], "plant"))
+        assert_allclose(runs[-1]["mine"], est["mine.q_a_hat"] - plant["plant.q_a"], rtol=0, atol=0)
+        assert_allclose(runs[-1]["mine.tool"], est["mine.p_tool_hat"] - plant["plant.p_tool"], rtol=0, atol=0)
+    summary, per_time = study_montecarlo._summarise(runs, [f], t >= 0.5)
+    e = np.stack([r["mine"] for r in runs])
+    assert_allclose(per_time["mine"]["position"], np.sqrt(np.mean(np.sum(e * e, 2), 0)), rtol=1e-12)
+    assert sorted(summary["mine"]) == ["fmu", "rmse_position", "rmse_tool_position", "use_accelerometer"]
+    assert study_montecarlo.needed([f], "plant") == [
+        "plant.q_a", "plant.dq_a", "plant.ddq_a", "plant.q_m", "plant.dq_m", "plant.p_tool",
+        "mine.q_a_hat", "mine.p_tool_hat"]

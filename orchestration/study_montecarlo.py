@@ -27,9 +27,10 @@ Fig. 4).
   (``q_a_hat``, ``dq_a_hat``, ``ddq_a_hat``: ``rmse_position`` ...), with the ANEES when it also
   gives ``P_x``; the bound, Table 1, the sweep and Fig. 4 take our EKFs and PFs among them. Their
   steps must divide the slowest one's (the errors are taken at its instants). The batched
-  engine knows only our FMUs' math: with an estimator FMU that is not ours (not found among
-  our built FMUs by its model identifier) the study says so in one line and runs every run
-  through the FMUs (``engine.fallback``): the FMU runs give every estimator's numbers at once.
+  engine knows only our FMUs' math: with an estimator FMU that is not ours (its file not in
+  our FMU folder, ``dist/fmus`` or ``$FLEXFUSION_FMU_DIR``, where a model identifier is looked
+  up) the study says so in one line and runs every run through the FMUs (``engine.fallback``):
+  those runs give every estimator's numbers at once.
 * Timing: the master steps a component with communication step ``T = n h`` at ``t_j = j T``
   after the faster producers have made their step to ``t_j + h``, so a filter's estimate fuses
   the measurements of ``t_j + h`` (see :mod:`orchestration.master`). The errors are taken at
@@ -125,7 +126,8 @@ class FilterInfo:
     """A filter (estimator) component of the scenario: ``has_covariance``, its ``P_x`` is
     recorded; ``groups``, the arm estimates it gives (:data:`GROUPS`: ``q_a_hat``, ``dq_a_hat``,
     ``ddq_a_hat``); ``tool``, its ``p_tool_hat`` is judged against the plant's ``p_tool``
-    (``--estimator``); ``ours``, its FMU is one of our build (the batched engine's math)."""
+    (``--estimator``); ``ours``, its FMU file is in our FMU folder (the batched engine knows its
+    math)."""
     name: str
     fmu: str
     use_accelerometer: bool

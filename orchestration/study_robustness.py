@@ -134,7 +134,7 @@ def estimators(doc: dict[str, Any], names: Sequence[str] = ()) -> dict[str, str]
     ``names`` (``--estimator``), or every one of a type of :data:`ESTIMATOR_TYPES` in file order."""
     kinds = {name: Path(str(ctab.get("fmu", ""))).stem for name, ctab in doc.get("components", {}).items()}
     if names:
-        return {name: kinds[name] for name in names}
+        return {name: kinds.get(name, "") for name in names}
     return {name: kind for name, kind in kinds.items() if kind in ESTIMATOR_TYPES}
 
 

@@ -50,6 +50,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from .master import Interrupted, RunError, run, stop_on_signals
     from .results import OutputError
     from .scenario import ScenarioError
+    from .study import StudyError, open_executor
 
     if args.forks is not None:
         if args.save_state_at is None or args.state_out is not None or args.from_state is not None:
@@ -63,12 +64,16 @@ def cmd_run(args: argparse.Namespace) -> int:
         return _error("--save-state-at T and --state-out FILE go together")
     if args.from_state is not None and args.save_state_at is not None:
         return _error("--from-state and --save-state-at cannot be combined")
+    if args.forks is None and (args.workers is not None or args.scheduler is not None):
+        return _error("--workers and --scheduler go with --forks N (the forks run on them)")
     try:
         with stop_on_signals(), loaded(args.scenario, args.set or ()) as scenario:
             if args.forks is not None:      # fork i: scenario.seed = seed + i (fork.monte_carlo)
                 out = args.out or Path("results") / f"{scenario.name}-forks"
                 seeds = range(scenario.seed + 1, scenario.seed + 1 + args.forks)
-                forks = fork.monte_carlo(args.scenario, args.save_state_at, seeds, args.set or (), out)
+                with open_executor(args.workers, args.scheduler) as ex:
+                    forks = fork.monte_carlo(args.scenario, args.save_state_at, seeds, args.set or (), out,
+                                             executor=ex, progress=not args.no_progress)
             else:
                 out = args.out or Path("results") / scenario.name
                 hook = (fork.from_state(scenario, args.from_state) if args.from_state is not None else
@@ -76,7 +81,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                         if args.save_state_at is not None else None)
                 result = run(scenario, out_dir=out, progress=not args.no_progress, force=args.force,
                              hook=hook)
-    except (ScenarioError, RunError, OutputError, Interrupted) as exc:
+    except (ScenarioError, RunError, OutputError, Interrupted, StudyError) as exc:
         msg = str(exc)
         out_dir = getattr(exc, "out_dir", None)
         if out_dir is not None:
@@ -243,6 +248,12 @@ def main(argv: list[str] | None = None) -> int:
                        help="with --save-state-at T: a Monte Carlo after a common warm-up, N forks "
                             "from the state at T with scenario.seed = seed+1 .. seed+N, into "
                             "--out (default results/<name>-forks): state.json, warmup/, seed-<s>/")
+    p_run.add_argument("--workers", type=int, metavar="K",
+                       help="with --forks: local worker processes the forks run on (default: the "
+                            "number of cores)")
+    p_run.add_argument("--scheduler", metavar="ADDRESS",
+                       help="with --forks: run them on a Dask cluster (tcp://host:port, or 'local'; "
+                            "its workers must see --out)")
 
     p_plot = sub.add_parser("plot", help="PNG plots of a run folder")
     p_plot.add_argument("dir", type=Path, help="a run folder (flexfusion run --out)")

@@ -34,7 +34,9 @@ A component without ``reseed`` whose seed comes from a new ``scenario.seed`` kee
 its random numbers (e.g. a particle filter's) continue the saved stream. So forks of one state
 with different ``scenario.seed`` are the members of a Monte Carlo after a common warm-up
 (:func:`monte_carlo`), each reproducible, and equal to each other up to the state's time; a
-fork with the saved run's own seed changes nothing and continues that run exactly.
+fork with the saved run's own seed changes nothing and continues that run exactly. The forks
+may run in parallel, on a study's executor (``flexfusion run --forks N --workers K``, or
+``--scheduler`` for Dask): the same numbers as one after the other.
 """
 from __future__ import annotations
 
@@ -49,6 +51,8 @@ import numpy as np
 from .scenario import Scenario, ScenarioError, load_scenario, stable_seed
 
 if TYPE_CHECKING:
+    from concurrent.futures import Executor
+
     from .results import Result
 
 FORMAT = "flexfusion-state-1"
@@ -246,7 +250,8 @@ def resume(scenario: str | Path, state: str | Path, overrides: Iterable[str] = (
 
 
 def monte_carlo(scenario: str | Path | dict[str, Any], t: float, seeds: Iterable[int],
-                overrides: Iterable[str] = (), out_dir: str | Path | None = None) -> list["Result"]:
+                overrides: Iterable[str] = (), out_dir: str | Path | None = None,
+                executor: "Executor | None" = None, progress: bool = False) -> list["Result"]:
     """A Monte Carlo after a common warm-up: run the scenario once, saving its state at ``t``,
     then one fork from that state per seed ``s`` (``scenario.seed=s``: every sensor reseeded at
     ``t``, the module docstring); the forks' results, in the order of ``seeds``.
@@ -254,8 +259,12 @@ def monte_carlo(scenario: str | Path | dict[str, Any], t: float, seeds: Iterable
     ``out_dir`` (default ``results/<name>-forks``) gets ``state.json``, the warm-up run in
     ``warmup/`` and fork ``s`` in ``seed-<s>/`` (each from ``t`` on). The warm-up runs to
     ``stop_time`` too: a shorter run may not fit the components' steps and the record interval,
-    and it is the member of the scenario's own seed. Forks run one after the other.
+    and it is the member of the scenario's own seed. The forks run one after the other here, or
+    on ``executor`` (:func:`orchestration.study.open_executor`: local processes or Dask, whose
+    workers must see ``out_dir``) through :func:`orchestration.study.map_jobs`: each fork is a
+    whole run of its own from the state file, so the numbers are the same either way.
     """
+    from .study import map_jobs
     seeds = [int(s) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds):
         raise ScenarioError(f"a Monte Carlo after a warm-up needs distinct seeds, got {seeds}")
@@ -264,8 +273,13 @@ def monte_carlo(scenario: str | Path | dict[str, Any], t: float, seeds: Iterable
         Path("results") / f"{load_scenario(scenario, overrides).name}-forks"
     state = out / "state.json"
     run_saving(scenario, t, state, overrides, out_dir=out / "warmup")
-    return [resume(scenario, state, [*overrides, f"scenario.seed={s}"], out_dir=out / f"seed-{s}")
+    if not isinstance(scenario, dict):        # a worker's folder may be another
+        scenario = Path(scenario).resolve()
+    jobs = [(scenario, state.resolve(), [*overrides, f"scenario.seed={s}"], (out / f"seed-{s}").resolve())
             for s in seeds]
+    if executor is None:
+        return [resume(*job) for job in jobs]
+    return map_jobs(resume, jobs, executor, desc="forks", progress=progress, star=True)
 
 
 __all__ = ["FORMAT", "SaveState", "FromState", "read_state", "reseed_fork", "check_fork", "check_capable",

@@ -32,14 +32,27 @@ side, in millimetres) and ``fig4_nominal.png``, ``fig5_tuning.png``, ``fig6_mode
 (band-passed tool x-position of a part with a hammer strike, truth and estimates, like the
 paper's figures) plus ``fig3_nominal_all.png`` (all frequencies, the paper's Fig. 3).
 
-CLI: ``flexfusion study robustness --out DIR [--tuned FILE ...] [--stop-time S] [--workers K |
---scheduler ADDR]``.
+Any estimator, any scenario (issue 17): ``--estimator NAME`` (repeated) takes these components
+as the columns instead, ours or anyone's, each checked against the estimator contract
+(docs/estimator_contract.md, as ``study sweep`` does) in every case's scenario before any run;
+another estimator's column is its component's name. ``--scenario FILE`` runs the nominal case
+and the model errors on that scenario, ``--other-path FILE`` the tuning case (another path, the
+same tuning). A model error reaches the estimators that take their model from
+:data:`MODEL_SET` (ours); a case that reaches none of the studied estimators is left out, and
+the study says so (``skipped`` in table.json). The paper's findings need its five columns.
+Besides the tool position, each case gives ``arm_errors``: the RMSE and largest error of the
+arm estimates an estimator gives (``q_a_hat``, ``dq_a_hat``, ``ddq_a_hat``, per the contract)
+against the plant's.
+
+CLI: ``flexfusion study robustness --out DIR [--tuned FILE ...] [--stop-time S] [--scenario FILE]
+[--other-path FILE] [--estimator NAME ...] [--workers K | --scheduler ADDR]``.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import sys
 import time
 from concurrent.futures import Executor
 from pathlib import Path
@@ -50,6 +63,7 @@ import numpy as np
 from .metrics import bandpass
 from .scenario import copy_document
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
+from .study_montecarlo import PLANT_FMU
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
 
@@ -115,22 +129,22 @@ def _load(path: Path, tuned: Sequence[str | Path]) -> dict[str, Any]:
     return doc
 
 
-def estimators(doc: dict[str, Any]) -> dict[str, str]:
-    """``{component: FMU type}`` of the estimators in a scenario document, in file order."""
-    out = {}
-    for name, ctab in doc.get("components", {}).items():
-        kind = Path(str(ctab.get("fmu", ""))).stem
-        if kind in ESTIMATOR_TYPES:
-            out[name] = kind
-    return out
+def estimators(doc: dict[str, Any], names: Sequence[str] = ()) -> dict[str, str]:
+    """``{component: FMU type}`` of the estimators in a scenario document: the components
+    ``names`` (``--estimator``), or every one of a type of :data:`ESTIMATOR_TYPES` in file order."""
+    kinds = {name: Path(str(ctab.get("fmu", ""))).stem for name, ctab in doc.get("components", {}).items()}
+    if names:
+        return {name: kinds.get(name, "") for name in names}
+    return {name: kind for name, kind in kinds.items() if kind in ESTIMATOR_TYPES}
 
 
-def column_labels(doc: dict[str, Any]) -> dict[str, str]:
-    """``{component: table column}`` of the estimators: the paper's names, the observer's drift
-    fix marked, ``[component]`` appended where two would share a name."""
+def column_labels(doc: dict[str, Any], names: Sequence[str] = ()) -> dict[str, str]:
+    """``{component: table column}`` of the estimators (:func:`estimators`): the paper's names,
+    the observer's drift fix marked, ``[component]`` appended where two would share a name;
+    another estimator's column is its component's name."""
     labels = {}
-    for comp, kind in estimators(doc).items():
-        label = ESTIMATOR_TYPES[kind]
+    for comp, kind in estimators(doc, names).items():
+        label = ESTIMATOR_TYPES.get(kind, comp)
         params = doc["components"][comp].get("parameters", {})
         if kind == "AccelerationObserver" and float(params.get("drift_crossover", 0.0)) > 0:
             label += f" + FK fusion ({float(params['drift_crossover']):g} Hz)"
@@ -160,9 +174,18 @@ def model_error_factors(kind: str, model: dict[str, Any]) -> dict[str, Any]:
     raise StudyError(f"unknown model error {kind!r} (one of {', '.join(MODEL_ERRORS)})")
 
 
-def with_model_error(doc: dict[str, Any], kind: str) -> dict[str, Any]:
-    """A copy of ``doc`` whose estimators take :data:`MODEL_SET` with the model error ``kind``
-    (as a new set ``<MODEL_SET>_<kind>``); other components (the controller) keep theirs."""
+def takes_model(doc: dict[str, Any], names: Sequence[str] = ()) -> list[str]:
+    """The estimators (:func:`estimators`) that take their robot model from :data:`MODEL_SET`:
+    those a model error reaches (another estimator's model is its own)."""
+    if MODEL_SET not in doc.get("parameter_sets", {}):
+        return []
+    return [c for c in estimators(doc, names) if MODEL_SET in doc["components"][c].get("parameter_sets", [])]
+
+
+def with_model_error(doc: dict[str, Any], kind: str, names: Sequence[str] = ()) -> dict[str, Any]:
+    """A copy of ``doc`` whose estimators (:func:`takes_model`) take :data:`MODEL_SET` with the
+    model error ``kind`` (as a new set ``<MODEL_SET>_<kind>``); other components (the
+    controller) keep theirs."""
     doc = copy_document(doc)
     if not kind:
         return doc
@@ -175,22 +198,60 @@ def with_model_error(doc: dict[str, Any], kind: str) -> dict[str, Any]:
                        else model[name] * factor)
     sname = f"{MODEL_SET}_{kind}"
     doc["parameter_sets"][sname] = wrong
-    for comp in estimators(doc):
+    for comp in takes_model(doc, names):
         sets = doc["components"][comp].get("parameter_sets", [])
         doc["components"][comp]["parameter_sets"] = [sname if x == MODEL_SET else x for x in sets]
     return doc
 
 
+def case_list(scenario: str | Path | None = None, other_path: str | Path | None = None
+              ) -> tuple[tuple[str, str, str, str], ...]:
+    """:data:`CASES` on other scenarios: the nominal case and the model errors on ``scenario``
+    (default P1), the tuning case on ``other_path`` (another path with the same tuning; default
+    P2 with P1, none with another scenario)."""
+    if scenario is None and other_path is None:
+        return CASES
+    nominal = str(Path(scenario).resolve()) if scenario is not None else CASES[0][2]
+    other = str(Path(other_path).resolve()) if other_path is not None else None
+    return tuple((key, label, other if key == "tuning" else nominal, error)
+                 for key, label, _, error in CASES if key != "tuning" or other)
+
+
 def case_jobs(tuned: Sequence[str | Path] = (), stop_time: float | None = None,
               cases: Sequence[tuple[str, str, str, str]] = CASES,
-              scenario_dir: Path = SCENARIOS) -> list[tuple[dict[str, Any], list[str], list[str]]]:
-    """One ``(document, overrides, variables)`` job per case."""
-    jobs = []
+              scenario_dir: Path = SCENARIOS, names: Sequence[str] = ()
+              ) -> list[tuple[dict[str, Any], list[str], list[str]] | None]:
+    """One ``(document, overrides, variables)`` job per case: the truth (the plant's tool
+    position), each estimator's ``p_tool_hat`` and the arm estimates it gives with their truth
+    (:func:`orchestration.study_sweep.arm_estimates`); ``None`` for a model error no studied
+    estimator takes (:func:`takes_model`). The estimators ``names`` (``--estimator``) are
+    checked against the estimator contract in every case's scenario before any run."""
+    from .scenario import ScenarioError, load_scenario
+    from .study_sweep import ARM_TRUTH, arm_estimates, contract_estimators
+    jobs: list[tuple[dict[str, Any], list[str], list[str]] | None] = []
     for key, _label, fname, error in cases:
-        doc = with_model_error(_load(scenario_dir / fname, tuned), error)
-        est = estimators(doc)
+        doc = _load(scenario_dir / fname, tuned)
+        if error and not takes_model(doc, names):
+            jobs.append(None)
+            continue
+        doc = with_model_error(doc, error, names)
+        try:
+            sc = load_scenario(doc)
+        except ScenarioError as exc:
+            raise StudyError(f"{fname}: {exc}") from None
+        if names:
+            contract_estimators(sc, names)
+        plants = [n for n, c in sc.components.items() if c.model_identifier == PLANT_FMU]
+        if len(plants) != 1:
+            raise StudyError(f"{fname}: needs exactly one {PLANT_FMU} component for the truth, found {len(plants)}")
+        est = estimators(doc, names)
         overrides = [f"scenario.stop_time={stop_time!r}"] if stop_time else []
-        variables = ["plant.p_tool"] + [f"{c}.p_tool_hat" for c in est]
+        variables = [f"{plants[0]}.p_tool"] + [f"{c}.p_tool_hat" for c in est]
+        variables += [v for c in est for a in arm_estimates(sc, c, plants[0])
+                      for v in (f"{c}.{a}", f"{plants[0]}.{ARM_TRUTH[a][0]}")]
+        variables = list(dict.fromkeys(variables))
+        record = doc.setdefault("record", {}).setdefault("variables", [])
+        record += [v for v in variables if v not in record]          # a scenario does not know the study
         jobs.append((doc, overrides, variables))
     return jobs
 
@@ -220,33 +281,51 @@ def error_stats(time_: np.ndarray, estimate: np.ndarray, truth: np.ndarray, afte
 def robustness(tuned: Sequence[str | Path] = (), *, executor: Executor | None = None,
                stop_time: float | None = None, after: float = 0.5, progress: bool = True,
                cases: Sequence[tuple[str, str, str, str]] = CASES,
-               scenario_dir: Path = SCENARIOS, workers: int | None = None) -> dict[str, Any]:
+               scenario_dir: Path = SCENARIOS, workers: int | None = None,
+               names: Sequence[str] = ()) -> dict[str, Any]:
     """Run the cases (in parallel on ``executor``; ``None``: here, one after the other) and
-    return the table: ``{"cases": {key: {"label", "columns": {label: stats}, "wall_time"}},
-    "paper": PAPER_TABLE, "findings": findings(...), "wall_time", "workers" (as given, for the
-    record), "series": {key: arrays for the figures}}``."""
+    return the table: ``{"cases": {key: {"label", "columns": {label: stats}, "arm_errors":
+    {label: {estimate: {rmse, max_error, unit}}}, "wall_time"}}, "paper": PAPER_TABLE,
+    "findings": findings(...), "wall_time", "workers" (as given, for the record), "series":
+    {key: arrays for the figures}}``, and ``"skipped"`` ``{key: why}`` for a model error no
+    studied estimator takes. ``names``: the estimators to study (``--estimator``, each meeting
+    the estimator contract; default the paper's, :data:`ESTIMATOR_TYPES`)."""
+    from .metrics import max_error, rmse
+    from .study_sweep import ARM_TRUTH
     if stop_time is not None and stop_time <= after:
         raise StudyError(f"--stop-time {stop_time:g} s leaves nothing after the first {after:g} s "
                          "the errors leave out")
-    jobs = case_jobs(tuned, stop_time, cases, scenario_dir)
+    jobs = case_jobs(tuned, stop_time, cases, scenario_dir, names)
+    skipped = {key: f"no studied estimator takes the parameter set '{MODEL_SET}' the model error is put in"
+               for (key, *_), job in zip(cases, jobs) if job is None}
+    run = [(case, job) for case, job in zip(cases, jobs) if job is not None]
     t0 = time.perf_counter()
     if executor is None:
-        results = [_run_case(j) for j in jobs]
+        results = [_run_case(j) for _, j in run]
     else:
-        results = map_jobs(_run_case, jobs, executor, desc="robustness", progress=progress)
+        results = map_jobs(_run_case, [j for _, j in run], executor, desc="robustness", progress=progress)
     wall = time.perf_counter() - t0
     table: dict[str, Any] = {"cases": {}, "paper": PAPER_TABLE, "wall_time": wall, "workers": workers,
                              "series": {}}
-    for (key, label, fname, error), (doc, overrides, variables), res in zip(cases, jobs, results):
-        cols = {}
-        labels = column_labels(doc)
+    if skipped:
+        table["skipped"] = skipped
+    for ((key, label, fname, error), (doc, overrides, variables)), res in zip(run, results):
+        truth = variables[0]
+        plant = truth.partition(".")[0]
+        labels = column_labels(doc, names)
+        keep = res["time"] >= after - 1e-12
+        cols, arm = {}, {}
         for comp, col in labels.items():
-            cols[col] = error_stats(res["time"], res[f"{comp}.p_tool_hat"], res["plant.p_tool"], after)
+            cols[col] = error_stats(res["time"], res[f"{comp}.p_tool_hat"], res[truth], after)
+            arm[col] = {a: {"rmse": rmse(res[f"{comp}.{a}"][keep], res[f"{plant}.{t}"][keep]),
+                            "max_error": max_error(res[f"{comp}.{a}"][keep], res[f"{plant}.{t}"][keep]),
+                            "unit": unit}
+                        for a, (t, unit) in ARM_TRUTH.items() if f"{comp}.{a}" in variables}
         factors = model_error_factors(error, doc["parameter_sets"][MODEL_SET]) if error else {}
         table["cases"][key] = {"label": label, "scenario": fname, "model_error": error,
                                "model_error_factors": factors, "overrides": overrides,
-                               "columns": cols, "wall_time": res["wall_time"]}
-        table["series"][key] = {"time": res["time"], "truth": res["plant.p_tool"],
+                               "columns": cols, "arm_errors": arm, "wall_time": res["wall_time"]}
+        table["series"][key] = {"time": res["time"], "truth": res[truth],
                                 **{labels[c]: res[f"{c}.p_tool_hat"] for c in labels}}
     table["findings"] = findings(table["cases"])
     return table
@@ -274,11 +353,13 @@ def _paper_band_mean(case: str, col: str) -> float:
 
 def findings(cases: dict[str, Any]) -> list[dict[str, Any]]:
     """The paper's claims (section IV-B/C, Table I) against our cases: a list of ``{claim,
-    paper, ours, reproduced, why}`` (3-30 Hz mean errors; ratios > 1 mean "better than")."""
+    paper, ours, reproduced, why}`` (3-30 Hz mean errors; ratios > 1 mean "better than"); none
+    when a case lacks one of the paper's five columns (``--estimator``)."""
     out: list[dict[str, Any]] = []
     have = [k for k in ("nominal", "tuning") if k in cases]
-    if not have:
-        return out
+    if not have or any(not {*PAPER_OBSERVERS, "Rigid kinematics"} <= set(case["columns"])
+                       for case in cases.values()):
+        return out                  # the claims are about the paper's five columns
 
     def mean(key: str, col: str) -> float:
         return cases[key]["columns"][col]["band_mean"]
@@ -499,8 +580,11 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out)
     with open_executor(args.workers, args.scheduler) as ex:
         table = robustness(args.tuned or (), executor=ex, stop_time=args.stop_time,
-                           progress=not args.no_progress,
-                           workers=args.workers or (os.cpu_count() if args.scheduler is None else None))
+                           progress=not args.no_progress, cases=case_list(args.scenario, args.other_path),
+                           workers=args.workers or (os.cpu_count() if args.scheduler is None else None),
+                           names=args.estimators)
+    for key, why in table.get("skipped", {}).items():
+        print(f"robustness: case '{key}' left out: {why}", file=sys.stderr)
     files = write(table, out)
     print(markdown(table))
     print(f"robustness study: {len(table['cases'])} cases in {table['wall_time']:.1f} s "
@@ -517,10 +601,18 @@ def register(subparsers: Any) -> None:
     p.add_argument("--tuned", action="append", metavar="FILE",
                    help="TOML include file(s) with tuned estimator parameters (from `study tune`)")
     p.add_argument("--stop-time", type=float, default=None, help="shorter runs (s)")
+    p.add_argument("--scenario", metavar="FILE", help="the nominal case and the model errors on this "
+                   "scenario (default: path P1, henriksson2009_p1.toml)")
+    p.add_argument("--other-path", metavar="FILE", help="the tuning case: another path with the same "
+                   "tuning (default: P2 with P1, none with --scenario)")
+    p.add_argument("--estimator", action="append", default=[], metavar="NAME", dest="estimators",
+                   help="study this component, ours or anyone's meeting the estimator contract "
+                        "(repeatable; default: the paper's observers and rigid kinematics)")
     add_executor_arguments(p)
     p.set_defaults(func=main)
 
 
-__all__ = ["robustness", "error_stats", "markdown", "figures", "write", "case_jobs", "estimators", "column_labels",
+__all__ = ["robustness", "error_stats", "markdown", "figures", "write", "case_list", "case_jobs", "estimators",
+           "column_labels", "takes_model",
            "findings", "with_model_error", "model_error_factors", "base_label", "CASES", "PAPER_TABLE",
            "MODEL_ERRORS", "register"]

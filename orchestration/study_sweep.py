@@ -17,7 +17,10 @@
   first_seed + N - 1`` (the same seeds at every point: paired comparisons).
 * Per estimator and point, over the samples ``t >= --after``: the position RMSE of
   ``p_tool_hat`` against the truth (:func:`orchestration.metrics.rmse`), mean and standard
-  deviation over the seeds, and the largest error of any seed (:func:`~orchestration.metrics.max_error`).
+  deviation over the seeds, and the largest error of any seed (:func:`~orchestration.metrics.max_error`);
+  the same (``arm``) for each arm estimate the contract allows and the estimator gives
+  (``q_a_hat``, ``dq_a_hat``, ``ddq_a_hat``) against the truth component's ``q_a``, ``dq_a``,
+  ``ddq_a`` when it has them (the plant does; a log where its truth columns are mapped).
   Consistency (Bar-Shalom et al. 2001, section 5.4.2), when the estimator gives what the contract
   allows: ANEES of its arm angles ``q_a_hat`` against the truth component's ``q_a`` with its
   covariance ``P_x`` (2 degrees of freedom: the angles' marginal), and ANIS from its ``nis`` or
@@ -42,6 +45,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from fmus.common.estimator_contract import OPTIONAL_OUTPUTS
+
 from . import study
 from .metrics import chi2_band, max_error, monte_carlo_consistency, nees, nis, rmse
 from .results import json_safe
@@ -49,9 +54,13 @@ from .safe_io import atomic_write_json
 from .study import StudyError
 
 NEES_DOF = 2                 # the arm angles q_a (the first 2 states of the contract's P_x)
+#: The contract's optional arm estimates, each judged against the truth component's variable of
+#: the same name without ``_hat`` (the plant's outputs, a log's truth columns): (truth, unit).
+ARM_TRUTH = {s.name: (s.name.removesuffix("_hat"), s.unit) for s in OPTIONAL_OUTPUTS
+             if s.name in ("q_a_hat", "dq_a_hat", "ddq_a_hat")}
 CSV_FIELDS = ("position_rmse_mean", "position_rmse_std", "max_error", "anees", "anees_band_lo",
               "anees_band_hi", "anees_fraction_in_band", "anis", "anis_band_lo", "anis_band_hi",
-              "anis_fraction_in_band")
+              "anis_fraction_in_band", *(f"{est}_rmse_mean" for est in ARM_TRUTH))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -134,22 +143,65 @@ def _variable(sc: Any, ref: str) -> bool:
     return comp in sc.components and bool(sc.components[comp].group(var))
 
 
+def contract_estimators(sc: Any, names: Sequence[str]) -> dict[str, Any]:
+    """The components ``names`` (``--estimator``, in order) of the loaded scenario ``sc``, each
+    meeting the estimator contract on its modelDescription (:func:`orchestration.contract.check_estimator`
+    without running it): what every study that takes ``--estimator`` checks before any run.
+
+    Raises
+    ------
+    StudyError
+        No name, an unknown component, one named twice, one that does not meet the contract.
+    """
+    from .contract import check_estimator
+
+    if not names:
+        raise StudyError("name the estimator component(s) to study: --estimator NAME (repeatable)")
+    out: dict[str, Any] = {}
+    for name in names:
+        if name not in sc.components:
+            raise StudyError(f"--estimator {name}: scenario '{sc.name}' has no component '{name}' "
+                             f"(components: {', '.join(sc.components)})")
+        if name in out:
+            raise StudyError(f"--estimator {name} given twice")
+        comp = sc.components[name]
+        failures = check_estimator(comp.fmu, run=False)
+        if failures:
+            raise StudyError(f"--estimator {name}: {comp.fmu.name} does not meet the estimator "
+                             f"contract (docs/estimator_contract.md): {'; '.join(failures)}")
+        out[name] = comp
+    return out
+
+
+def _log_feeds(comp: Any, var: str) -> bool:
+    """Whether a LogReplay component's column map (``output = column [unit]; ...``) feeds its
+    output ``var``: it declares every contract signal, but reading one no column feeds is an error."""
+    entries = str(comp.parameters.get("columns", "")).replace("\n", ";").split(";")
+    return var in {e.partition("=")[0].strip().partition("[")[0] for e in entries if "=" in e}
+
+
+def arm_estimates(sc: Any, name: str, truth_comp: str) -> list[str]:
+    """The contract's arm estimates (:data:`ARM_TRUTH`) that component ``name`` outputs and the
+    truth component ``truth_comp`` gives the truth of (a log: where its column map feeds it)."""
+    comp = sc.components[truth_comp]
+    return [est for est, (true, _) in ARM_TRUTH.items()
+            if _variable(sc, f"{name}.{est}") and _variable(sc, f"{truth_comp}.{true}")
+            and (comp.model_identifier != "LogReplay" or _log_feeds(comp, true))]
+
+
 def prepare(scenario: str | Path, estimators: Sequence[str], truth: str,
             overrides: Sequence[str] = (), nis_dof: dict[str, int] | None = None
             ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
     """The scenario document recording what the study needs, and per estimator what it gives:
-    ``{"nees": bool, "nis": output or None, "nis_dof": int or None}``.
+    ``{"nees": bool, "nis": output or None, "nis_dof": int or None, "arm": [arm estimates]}``.
 
     Raises
     ------
     StudyError
         No estimator, an unknown component, one that does not meet the contract, a missing truth.
     """
-    from .contract import check_estimator
     from .scenario import load_scenario, scenario_document
 
-    if not estimators:
-        raise StudyError("name the estimator component(s) to study: --estimator NAME (repeatable)")
     doc = scenario_document(scenario, overrides)
     sc = load_scenario(doc)
     if not _variable(sc, truth):
@@ -163,23 +215,15 @@ def prepare(scenario: str | Path, estimators: Sequence[str], truth: str,
     record = doc.setdefault("record", {}).setdefault("variables", [])
     needed = [truth]
     gives: dict[str, dict[str, Any]] = {}
-    for name in estimators:
-        if name not in sc.components:
-            raise StudyError(f"--estimator {name}: scenario '{sc.name}' has no component '{name}' "
-                             f"(components: {', '.join(sc.components)})")
-        if name in gives:
-            raise StudyError(f"--estimator {name} given twice")
-        comp = sc.components[name]
-        failures = check_estimator(comp.fmu, run=False)
-        if failures:
-            raise StudyError(f"--estimator {name}: {comp.fmu.name} does not meet the estimator "
-                             f"contract (docs/estimator_contract.md): {'; '.join(failures)}")
+    for name, comp in contract_estimators(sc, estimators).items():
         has_nees = all(_variable(sc, v) for v in (f"{name}.q_a_hat", f"{name}.P_x", f"{truth_comp}.q_a"))
         nis_out = next((v for v in ("nis", "innovation_norm") if comp.group(v)), None)
         dof = nis_dof.get(name) or next((m.dof for m in sc.metrics if m.kind == "nis"
                                          and m.estimate == f"{name}.{nis_out}"), None)
-        gives[name] = {"nees": has_nees, "nis": nis_out, "nis_dof": dof if nis_out else None}
+        arm = arm_estimates(sc, name, truth_comp)
+        gives[name] = {"nees": has_nees, "nis": nis_out, "nis_dof": dof if nis_out else None, "arm": arm}
         needed.append(f"{name}.p_tool_hat")
+        needed += [v for est in arm for v in (f"{name}.{est}", f"{truth_comp}.{ARM_TRUTH[est][0]}")]
         if has_nees:
             needed += [f"{name}.q_a_hat", f"{name}.P_x", f"{truth_comp}.q_a"]
         if nis_out:
@@ -206,21 +250,36 @@ def _consistency(stat: np.ndarray, dof: int | None) -> dict[str, Any]:
             "fraction_in_band": c["fraction_in_band"], "single_run_band_95": list(chi2_band(dof))}
 
 
+def errors_over_seeds(runs: Sequence[dict[str, np.ndarray]], estimate: str, truth: str,
+                      keep: np.ndarray) -> dict[str, Any]:
+    """The RMSE (eq. 27 of the 2012 paper, :func:`~orchestration.metrics.rmse`) of ``estimate``
+    against ``truth`` over the rows ``keep`` of each run: mean and standard deviation over the
+    runs, per run, and the largest error of any run."""
+    per_seed = [rmse(r[estimate][keep], r[truth][keep]) for r in runs]
+    return {"rmse_mean": float(np.mean(per_seed)),
+            "rmse_std": float(np.std(per_seed, ddof=1)) if len(runs) > 1 else 0.0,
+            "rmse_per_seed": per_seed,
+            "max_error": max(max_error(r[estimate][keep], r[truth][keep]) for r in runs)}
+
+
 def estimator_figures(runs: Sequence[dict[str, np.ndarray]], name: str, truth: str,
                       gives: dict[str, Any], after: float) -> dict[str, Any]:
-    """RMSE over the seeds ``runs`` (mean, std, per seed), the largest error, ANEES and ANIS."""
+    """RMSE over the seeds ``runs`` (mean, std, per seed), the largest error, the same for the
+    arm estimates it gives against the truth component's (``arm``), ANEES and ANIS."""
+    truth_comp = truth.partition(".")[0]
     keep = runs[0]["time"] >= after - 1e-12
     if not keep.any():
         raise StudyError(f"--after {after:g}: no sample left (the runs end at {runs[0]['time'][-1]:g} s)")
-    per_seed = [rmse(r[f"{name}.p_tool_hat"][keep], r[truth][keep]) for r in runs]
+    p = errors_over_seeds(runs, f"{name}.p_tool_hat", truth, keep)
     out: dict[str, Any] = {
-        "position_rmse_mean": float(np.mean(per_seed)),
-        "position_rmse_std": float(np.std(per_seed, ddof=1)) if len(runs) > 1 else 0.0,
-        "position_rmse_per_seed": per_seed,
-        "max_error": max(max_error(r[f"{name}.p_tool_hat"][keep], r[truth][keep]) for r in runs),
+        "position_rmse_mean": p["rmse_mean"], "position_rmse_std": p["rmse_std"],
+        "position_rmse_per_seed": p["rmse_per_seed"], "max_error": p["max_error"],
+        "arm": {est: {"truth": f"{truth_comp}.{ARM_TRUTH[est][0]}", "unit": ARM_TRUTH[est][1],
+                      **errors_over_seeds(runs, f"{name}.{est}", f"{truth_comp}.{ARM_TRUTH[est][0]}", keep)}
+                for est in gives.get("arm", ())},
         "nees": None, "nis": None}
     if gives["nees"]:
-        truth_q = f"{truth.partition('.')[0]}.q_a"
+        truth_q = f"{truth_comp}.q_a"
         try:
             stat = np.array([nees((r[f"{name}.q_a_hat"] - r[truth_q])[keep], r[f"{name}.P_x"][keep])
                              for r in runs])
@@ -290,6 +349,7 @@ def table_rows(data: dict[str, Any]) -> list[dict[str, Any]]:
                 row.update({f"a{kind}": c.get("mean"), f"a{kind}_band_lo": band[0],
                             f"a{kind}_band_hi": band[1],
                             f"a{kind}_fraction_in_band": c.get("fraction_in_band")})
+            row.update({f"{est}_rmse_mean": a["rmse_mean"] for est, a in f["arm"].items()})
             rows.append(row)
     return rows
 
@@ -345,6 +405,7 @@ def format_summary(data: dict[str, Any]) -> str:
                 if c:
                     band = f" band [{c['band_95'][0]:.3g}, {c['band_95'][1]:.3g}]" if c["band_95"] else ""
                     text += f", A{kind.upper()} {c['mean']:.3g}{band}"
+            text += "".join(f", {est} RMSE {a['rmse_mean']:.3g} {a['unit']}" for est, a in f["arm"].items())
             lines.append(text)
     return "\n".join(lines)
 
@@ -396,5 +457,6 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["sweep_points", "grid_axes", "lhs_points", "prepare", "run_job", "estimator_figures",
+__all__ = ["sweep_points", "grid_axes", "lhs_points", "contract_estimators", "arm_estimates", "prepare",
+           "run_job", "errors_over_seeds", "estimator_figures", "ARM_TRUTH",
            "run_study", "table_rows", "write_table", "plot", "format_summary", "register", "main"]

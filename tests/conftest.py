@@ -69,3 +69,14 @@ def toy_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def toy_fmus(toy_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Scenarios find their FMUs among the toys (``pytestmark = usefixtures("toy_fmus")``)."""
     monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(toy_dir))
+
+
+@pytest.fixture(scope="session")
+def third_party_fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The third-party-style estimators of tests/fmus/third_party (plain pythonfmu, nothing of
+    FlexFusion) by model identifier: ThirdPartyEstimator meets the estimator contract,
+    LeakyEstimator does not; built once per session."""
+    from orchestration.build import build_all
+    from toys import TOYS
+    return {p.stem: p for p in build_all(tmp_path_factory.mktemp("third_party"), quiet=True,
+                                         scripts=sorted((TOYS / "third_party").glob("*_fmu.py")))}

@@ -12,6 +12,7 @@ from orchestration import fork
 from orchestration.cli import main
 from orchestration.results import Result
 from orchestration.scenario import ScenarioError, scenario_document
+from orchestration.study import open_executor
 
 pytestmark = pytest.mark.usefixtures("fmu_env_module")      # scenarios find every FMU of this test run
 
@@ -127,6 +128,25 @@ def test_monte_carlo_after_a_common_warm_up(tmp_path: Path) -> None:
         fork.monte_carlo(SCENARIO, 0.02, [3, 3], stop, out_dir=tmp_path / "x")
 
 
+@pytest.mark.parametrize("scheduler", [None, "local"])
+def test_forks_in_parallel_equal_the_forks_one_after_the_other(tmp_path: Path, scheduler) -> None:
+    """``--forks N`` on the study executor (local processes, a Dask cluster): each fork's
+    results are those of the same fork run here, after the others."""
+    if scheduler:
+        pytest.importorskip("distributed")
+    stop = ["scenario.stop_time=0.05"]
+    one_by_one = fork.monte_carlo(SCENARIO, 0.02, [3, 4, 5], stop, out_dir=tmp_path / "seq")
+    with open_executor(workers=2, scheduler=scheduler) as ex:
+        parallel = fork.monte_carlo(SCENARIO, 0.02, [3, 4, 5], stop, out_dir=tmp_path / "par", executor=ex)
+    for s, a, b in zip((3, 4, 5), one_by_one, parallel):
+        assert b.out_dir == (tmp_path / "par" / f"seed-{s}").resolve()
+        assert b.columns == a.columns
+        assert_array_equal(b.time, a.time)
+        assert_array_equal(b.data, a.data)
+        assert_array_equal(Result.load(b.out_dir).data, a.data)
+    assert not np.array_equal(parallel[0].data, parallel[1].data)
+
+
 def test_a_fork_with_another_step_is_refused(saved, tmp_path: Path) -> None:
     _, state = saved
     with pytest.raises(ScenarioError, match=r"component 'ekf': step 0.001 differs from the state's 0.01"):
@@ -152,13 +172,13 @@ def test_cli_saves_and_forks(tmp_path: Path, capsys) -> None:
 
 
 def test_cli_monte_carlo_after_a_warm_up(tmp_path: Path, capsys) -> None:
-    """The forks' rows, and their metrics' mean and spread over the forks."""
+    """The forks' rows (run on 2 worker processes), and their metrics' mean and spread over the forks."""
     for name in (SCENARIO.name, "identified_robot.toml"):          # the scenario with a metric
         (tmp_path / name).write_text((SCENARIO.parent / name).read_text())
     with (tmp_path / SCENARIO.name).open("a") as f:
         f.write('\n[[metrics]]\nkind = "rmse"\nname = "ekf_rmse"\nestimate = "ekf.p_tool_hat"\n'
                 'truth = "plant.p_tool"\n')
-    assert main(["run", str(tmp_path / SCENARIO.name), "--set", "scenario.stop_time=0.03",
+    assert main(["run", str(tmp_path / SCENARIO.name), "--set", "scenario.stop_time=0.03", "--workers", "2",
                  "--no-progress", "--out", str(tmp_path), "--save-state-at", "0.02", "--forks", "2"]) == 0
     out = capsys.readouterr().out
     seed = scenario_document(SCENARIO)["scenario"]["seed"]
@@ -179,6 +199,8 @@ def test_cli_monte_carlo_after_a_warm_up(tmp_path: Path, capsys) -> None:
     (["--save-state-at", "0.0205", "--state-out", "x.json"], "must be a multiple of the base step"),
     (["--save-state-at", "0.05", "--state-out", "x.json"], "before stop_time"),
     (["--from-state", "nope.json"], "state file not found: nope.json"),
+    (["--workers", "2"], "--workers and --scheduler go with --forks N"),
+    (["--save-state-at", "0.02", "--forks", "2", "--workers", "0"], "--workers must be at least 1"),
 ])
 def test_cli_fork_errors_exit_2(tmp_path: Path, capsys, monkeypatch, extra, match) -> None:
     monkeypatch.chdir(tmp_path)

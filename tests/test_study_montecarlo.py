@@ -5,6 +5,7 @@ The FMUs are the test run's own build (tests/conftest.py), never a possibly stal
 from __future__ import annotations
 
 import json
+import re
 import time
 from pathlib import Path
 
@@ -13,6 +14,8 @@ import pytest
 from numpy.testing import assert_allclose
 
 from orchestration import cli, study, study_montecarlo
+from orchestration.scenario import scenario_document
+from toys import assert_same_document, with_third_party
 
 SCENARIO = Path(study_montecarlo.__file__).resolve().parent / "scenarios" / "axelsson2012.toml"
 SHORT = ["scenario.stop_time=0.5"]
@@ -345,3 +348,124 @@ def test_pf_algorithm_1_needs_many_particles(tmp_path):
         plots=False, sweep_runs=0, validation_runs=0, crlb=False)
     assert few["pf_vs_ekf"]["pf_alg1"]["position_ratio"] > 10
     assert few["pf_vs_ekf"]["pf_regularised"]["position_ratio"] <= 1.25
+
+
+# ---------------------------------------------------------------------------------------------
+# without --estimator: main's study; with it: any estimator, ours or anyone's
+# ---------------------------------------------------------------------------------------------
+REFERENCE = Path(__file__).parent / "data" / "montecarlo_main_reference.json"
+
+
+def test_without_estimator_the_study_is_mains(small):
+    """No --estimator: study.json of the paper's study is main's before the generic studies
+    (tests/data/montecarlo_main_reference.json; its "how" says how it was computed, with main's
+    code): every key, every number."""
+    out, _ = small
+    saved = json.loads((out / "study.json").read_text())
+    for key in ("wall_time_s", "executor", "scenario_file"):
+        saved.pop(key)
+    saved["engine"].pop("engine_wall_time_s")
+    assert_same_document(saved, json.loads(REFERENCE.read_text())["study"], rtol=study_montecarlo.CHECK_RTOL)
+
+
+@pytest.fixture(scope="module")
+def toy_scenarios(tmp_path_factory, third_party_fmus) -> dict[str, Path]:
+    """The section-4 scenario (0.5 s) with the third-party estimator ``toy`` (its own step: the
+    base step) fed by the encoder, and the same with ``leaky``, which misses the contract."""
+    folder = tmp_path_factory.mktemp("mc_toy")
+    ok = with_third_party(SCENARIO, third_party_fmus, folder / "axelsson2012_toy.toml", overrides=SHORT)
+    leaky = with_third_party(ok, third_party_fmus, folder / "axelsson2012_leaky.toml", "leaky",
+                             "LeakyEstimator", source="")
+    return {"ok": ok, "leaky": leaky}
+
+
+def _montecarlo(scenario: Path, out: Path, *extra: str) -> int:
+    return cli.main(["study", "montecarlo", str(scenario), "--runs", "2", "--after", "0.2", "--sweep-runs", "0",
+                     "--validation-runs", "0", "--workers", "1", "--no-progress", "--out", str(out), *extra])
+
+
+def test_a_third_party_estimator_runs_beside_ours(toy_scenarios, tmp_path, capsys):
+    """The issue's "must show": a contract-passing estimator that is not ours in the Monte Carlo
+    beside our EKF. The batched engine cannot run it: one line says so and every run goes
+    through the FMUs. Its tool-position RMSE (eq. 27 per time, averaged over t >= after) is that
+    of plain runs of the same seeds, computed here; our EKF keeps its bound and Table 1 row."""
+    out = tmp_path / "mc"
+    assert _montecarlo(toy_scenarios["ok"], out, "--estimator", "ekf_acc", "--estimator", "toy") == 0
+    captured = capsys.readouterr()
+    assert captured.err.strip().splitlines() == [
+        "montecarlo: the batched engine cannot run this study (it knows only the math of our FMUs, and "
+        "'toy' (ThirdPartyEstimator) is not one of them): every run goes through the FMUs"]
+    assert "toy" in captured.out
+    data = json.loads((out / "study.json").read_text())
+    assert data["engine"]["used"] == "fmu" and "'toy'" in data["engine"]["fallback"]
+    assert data["estimators"] == ["ekf_acc", "toy"] and data["tool_truth"] == "plant.p_tool"
+    toy, ekf = data["summary"]["toy"], data["summary"]["ekf_acc"]
+    assert [k for k in toy if k.startswith("rmse")] == ["rmse_tool_position"]     # no arm estimate
+    assert "crlb_position" in ekf and "anees" in ekf and "crlb_position" not in toy
+    assert "accelerometer" in data["table1"] and "no_accelerometer" not in data["table1"]
+
+    doc = scenario_document(toy_scenarios["ok"])
+    doc["record"]["variables"] += ["plant.p_tool", "toy.p_tool_hat", "ekf_acc.p_tool_hat"]
+    runs = [study.simulate(doc, [f"scenario.seed={s}"]) for s in (1, 2)]
+    rows = slice(1, None, 10)                       # t_j + h of the EKF's 100 Hz steps
+    keep = runs[0].time[rows] >= 0.2
+    for name in ("toy", "ekf_acc"):
+        e = np.stack([r[f"{name}.p_tool_hat"][rows] - r["plant.p_tool"][rows] for r in runs])
+        per_time = np.sqrt(np.mean(np.sum(e * e, axis=2), axis=0))
+        assert_allclose(data["per_time"][name]["tool_position"], per_time, rtol=1e-12)
+        assert_allclose(data["summary"][name]["rmse_tool_position"], np.mean(per_time[keep]), rtol=1e-12)
+    assert (out / "fig3.png").stat().st_size > 0 and (out / "tool_position.png").stat().st_size > 0
+
+
+def test_our_estimators_named_stay_on_the_batched_engine(small, tmp_path):
+    """``--estimator`` with ours only: the batched engine runs them (its check seeds agree with
+    the FMUs, tool position included), and their angle RMSE is the paper study's."""
+    out = tmp_path / "ours"
+    assert cli.main(["study", "montecarlo", str(SCENARIO), "--runs", "3", "--after", "0.2", "--sweep-runs", "0",
+                     "--validation-runs", "0", "--no-crlb", "--no-plots", "--check-seeds", "2", "--workers", "1",
+                     "--no-progress", "--set", SHORT[0], "--estimator", "ekf_motor", "--estimator", "ekf_acc",
+                     "--out", str(out)]) == 0
+    data = json.loads((out / "study.json").read_text())
+    assert data["engine"]["used"] == "batched" and data["engine"]["checked_seeds"] == [1, 3]
+    assert data["engine"]["max_relative_difference"] <= study_montecarlo.CHECK_RTOL
+    _, paper = small
+    for name in ("ekf_acc", "ekf_motor"):
+        s = data["summary"][name]
+        for key in ("rmse_position", "rmse_velocity", "rmse_acceleration", "anees"):
+            assert s[key] == paper["summary"][name][key], (name, key)
+        assert 0 < s["rmse_tool_position"] < 1e-2
+
+
+@pytest.mark.parametrize("name, message", [
+    ("nosuch", r"^error: --estimator nosuch: scenario 'axelsson2012' has no component 'nosuch' \(components: .*toy.*\)$"),
+    ("leaky", r"^error: --estimator leaky: LeakyEstimator.fmu does not meet the estimator contract "
+              r".*required-outputs: p_tool_hat\[1\] \(missing\).*$"),
+])
+def test_a_bad_or_non_contract_estimator_is_one_line_and_exit_2(toy_scenarios, tmp_path, capsys, name, message):
+    assert _montecarlo(toy_scenarios["leaky"], tmp_path / "bad", "--estimator", "toy", "--estimator", name) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.match(message, err[0]), err
+    assert not list((tmp_path / "bad" / "jobs").glob("*.pickle"))     # no run was started
+
+
+def test_an_estimator_of_some_arm_estimates_is_judged_on_those():
+    """An estimator giving only the arm angles (and the tool position): its errors are those
+    columns of the truth, its summary the angle and tool RMSE (eq. 27), no velocity, no NEES."""
+    rng = np.random.default_rng(5)
+    t = np.linspace(0.0, 1.0, 11)
+    plant = {f"plant.{v}": rng.standard_normal((11, 2)) for v in ("q_a", "dq_a", "ddq_a", "q_m", "dq_m", "p_tool")}
+    f = study_montecarlo.FilterInfo("mine", "Mine", False, 1, 0.1, {}, groups=("position",), tool=True, ours=False)
+    runs = []
+    for _ in range(3):
+        est = {"mine.q_a_hat": rng.standard_normal((11, 2)), "mine.p_tool_hat": rng.standard_normal((11, 2))}
+        values = {**plant, **est}
+        runs.append(study_montecarlo._errors(t, np.arange(11), values.__getitem__, values.__getitem__, [f], "plant"))
+        assert_allclose(runs[-1]["mine"], est["mine.q_a_hat"] - plant["plant.q_a"], rtol=0, atol=0)
+        assert_allclose(runs[-1]["mine.tool"], est["mine.p_tool_hat"] - plant["plant.p_tool"], rtol=0, atol=0)
+    summary, per_time = study_montecarlo._summarise(runs, [f], t >= 0.5)
+    e = np.stack([r["mine"] for r in runs])
+    assert_allclose(per_time["mine"]["position"], np.sqrt(np.mean(np.sum(e * e, 2), 0)), rtol=1e-12)
+    assert sorted(summary["mine"]) == ["fmu", "rmse_position", "rmse_tool_position", "use_accelerometer"]
+    assert study_montecarlo.needed([f], "plant") == [
+        "plant.q_a", "plant.dq_a", "plant.ddq_a", "plant.q_m", "plant.dq_m", "plant.p_tool",
+        "mine.q_a_hat", "mine.p_tool_hat"]

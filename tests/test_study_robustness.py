@@ -3,15 +3,20 @@ findings on the full runs (slow)."""
 from __future__ import annotations
 
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from orchestration import study_robustness as sr
+from orchestration import study, study_robustness as sr
+from orchestration.cli import main
+from orchestration.scenario import scenario_document
+from toys import assert_same_document, with_third_party
 
 
-def test_jobs_give_only_the_estimators_the_model_errors() -> None:
+def test_jobs_give_only_the_estimators_the_model_errors(fmu_env) -> None:
     """Each case's estimators take the identified set with its error; the controller keeps the
     identified set; joint 2 only changes joint 2; the identification error is 5 % on each
     identified parameter and nothing else."""
@@ -22,7 +27,9 @@ def test_jobs_give_only_the_estimators_the_model_errors() -> None:
     for (doc, overrides, variables), (key, _, _, error) in zip(jobs, sr.CASES):
         est = sr.estimators(doc)
         assert "rigid" in est and "observer" in est and len(est) == 7
-        assert variables == ["plant.p_tool"] + [f"{c}.p_tool_hat" for c in est]
+        assert variables[:8] == ["plant.p_tool"] + [f"{c}.p_tool_hat" for c in est]
+        assert {"ekf_motor.q_a_hat", "ekf_motor.ddq_a_hat", "observer.dq_a_hat", "rigid.q_a_hat",
+                "plant.q_a", "plant.dq_a", "plant.ddq_a"} <= set(variables[8:])
         assert overrides == ["scenario.stop_time=1.0"]
         assert doc["components"]["controller"]["parameter_sets"] == [sr.MODEL_SET]
         true_set = doc["parameter_sets"][sr.MODEL_SET]
@@ -94,7 +101,13 @@ def test_error_stats_of_a_known_error() -> None:
     assert s["band_mean"] == pytest.approx(2e-3 / np.pi, rel=0.02)
 
 
+REFERENCE = Path(__file__).parent / "data" / "robustness_main_reference.json"
+
+
 def test_short_robustness_table(fmu_env, tmp_path) -> None:
+    """The paper's table at 0.3 s: what it holds, and table.json is main's before the generic
+    studies (tests/data/robustness_main_reference.json; its "how" says how it was computed, with
+    main's code) but for the arm estimates' errors it has now."""
     table = sr.robustness(stop_time=0.3, after=0.05, progress=False, workers=1)
     cases = table["cases"]
     assert list(cases) == [c[0] for c in sr.CASES]
@@ -120,6 +133,12 @@ def test_short_robustness_table(fmu_env, tmp_path) -> None:
     assert js["findings"][3]["paper"]["EKF Motor"] == pytest.approx(2.063, abs=1e-3)
     md = (tmp_path / "table.md").read_text()
     assert "(0.221)" in md and "Model errors" in md and "Findings" in md
+    arm = [case.pop("arm_errors") for case in js["cases"].values()]
+    assert set(arm[0]["EKF Motor"]) == {"q_a_hat", "dq_a_hat", "ddq_a_hat"} and set(arm[0]["Rigid kinematics"]) == {"q_a_hat"}
+    for case in js["cases"].values():
+        case.pop("wall_time")
+    js.pop("wall_time"), js.pop("workers")
+    assert_same_document(js, json.loads(REFERENCE.read_text())["table"], rtol=1e-12)
 
 
 def test_runs_shorter_than_the_left_out_start_are_one_error(tmp_path, capsys) -> None:
@@ -128,6 +147,80 @@ def test_runs_shorter_than_the_left_out_start_are_one_error(tmp_path, capsys) ->
                      "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--stop-time 0.3 s" in err[0]
+
+
+@pytest.fixture(scope="module")
+def toy_scenarios(tmp_path_factory, third_party_fmus) -> dict[str, Path]:
+    """P1 with the third-party estimator ``toy`` fed by the encoder, and with ``leaky`` too,
+    which misses the contract."""
+    folder = tmp_path_factory.mktemp("robust_toy")
+    ok = with_third_party(sr.SCENARIOS / "henriksson2009_p1.toml", third_party_fmus, folder / "p1_toy.toml")
+    leaky = with_third_party(ok, third_party_fmus, folder / "p1_leaky.toml", "leaky", "LeakyEstimator", source="")
+    return {"ok": ok, "leaky": leaky}
+
+
+def _robustness(out: Path, *extra: str) -> int:
+    return main(["study", "robustness", "--stop-time", "0.7", "--workers", "1", "--no-progress", "--out", str(out),
+                 *extra])
+
+
+def test_a_third_party_estimator_beside_ours(fmu_env, toy_scenarios, tmp_path, capsys) -> None:
+    """The robustness cases on any scenario with any estimator: the toy's column is its
+    component's name, and its errors are those of a plain run of the scenario (computed here);
+    the model errors reach our EKF Motor, not the toy (its model is its own); without the
+    paper's five columns there are no findings; no tuning case without --other-path."""
+    out = tmp_path / "robust"
+    assert _robustness(out, "--scenario", str(toy_scenarios["ok"]), "--estimator", "ekf_motor",
+                       "--estimator", "toy") == 0
+    assert "toy" in capsys.readouterr().out
+    js = json.loads((out / "table.json").read_text())
+    cases = js["cases"]
+    assert list(cases) == ["nominal", "model_errors", "model_errors_joint2", "ident_errors"]
+    assert js["findings"] == [] and "skipped" not in js
+    for case in cases.values():
+        assert list(case["columns"]) == ["EKF Motor", "toy"]
+        assert case["columns"]["toy"] == cases["nominal"]["columns"]["toy"]
+        assert case["arm_errors"]["toy"] == {} and set(case["arm_errors"]["EKF Motor"]) == {"q_a_hat", "dq_a_hat", "ddq_a_hat"}
+    assert cases["model_errors"]["columns"]["EKF Motor"] != cases["nominal"]["columns"]["EKF Motor"]
+    doc = scenario_document(toy_scenarios["ok"])
+    doc["record"]["variables"] = ["plant.p_tool", "plant.q_a", "toy.p_tool_hat", "ekf_motor.q_a_hat"]
+    r = study.simulate(doc, ["scenario.stop_time=0.7"])
+    keep = r.time >= 0.5 - 1e-12
+    e = np.linalg.norm(r["toy.p_tool_hat"] - r["plant.p_tool"], axis=1)[keep]
+    assert_allclose([cases["nominal"]["columns"]["toy"][k] for k in ("all_max", "all_mean")], [e.max(), e.mean()],
+                    rtol=1e-12)
+    q = r["ekf_motor.q_a_hat"][keep] - r["plant.q_a"][keep]
+    assert_allclose(cases["nominal"]["arm_errors"]["EKF Motor"]["q_a_hat"]["rmse"],
+                    np.sqrt(np.mean(np.sum(q * q, axis=1))), rtol=1e-12)
+    assert (out / "fig4_nominal.png").stat().st_size > 0
+
+
+def test_a_model_error_no_studied_estimator_takes_is_left_out_and_said(fmu_env, toy_scenarios, tmp_path,
+                                                                       capsys) -> None:
+    out = tmp_path / "toy_only"
+    assert _robustness(out, "--scenario", str(toy_scenarios["ok"]), "--other-path",
+                       str(toy_scenarios["ok"]), "--estimator", "toy") == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"robustness: case '{k}' left out: no studied estimator takes the parameter set "
+                   "'identified_robot' the model error is put in"
+                   for k in ("model_errors", "model_errors_joint2", "ident_errors")]
+    js = json.loads((out / "table.json").read_text())
+    assert list(js["cases"]) == ["nominal", "tuning"] and set(js["skipped"]) == {
+        "model_errors", "model_errors_joint2", "ident_errors"}
+
+
+@pytest.mark.parametrize("name, message", [
+    ("nosuch", r"^error: --estimator nosuch: scenario 'henriksson2009_p1' has no component 'nosuch' \(components: .*toy.*\)$"),
+    ("leaky", r"^error: --estimator leaky: LeakyEstimator.fmu does not meet the estimator contract "
+              r".*required-outputs: p_tool_hat\[1\] \(missing\).*$"),
+])
+def test_a_bad_or_non_contract_estimator_is_one_line_and_exit_2(fmu_env, toy_scenarios, tmp_path, capsys,
+                                                                name, message) -> None:
+    assert _robustness(tmp_path / "bad", "--scenario", str(toy_scenarios["leaky"]), "--estimator", "toy",
+                       "--estimator", name) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.match(message, err[0]), err
+    assert not list((tmp_path / "bad" / "jobs").glob("*.pickle"))
 
 
 #: Reduced size of the slow test: the first 3 s of P1 and P2 (the full paths are 8 and 6.5 s),

@@ -13,46 +13,35 @@ import pytest
 from numpy.testing import assert_allclose
 
 from orchestration import study, study_sweep
-from orchestration.build import build_all
 from orchestration.cli import main
 from orchestration.master import run
 from orchestration.metrics import rmse
-from orchestration.scenario import scenario_document, toml_value
+from orchestration.scenario import scenario_document
+from toys import with_third_party
 
 pytestmark = pytest.mark.usefixtures("fmu_env_module")      # scenarios find every FMU of this test run
 
 REPO = Path(__file__).resolve().parent.parent
-THIRD_PARTY = Path(__file__).parent / "fmus" / "third_party"
 AFTER = 0.5                                                   # s, as the replay scenario's metrics
 
 
 @pytest.fixture(scope="module")
-def scenarios(tmp_path_factory) -> dict[str, Path]:
+def scenarios(tmp_path_factory, third_party_fmus) -> dict[str, Path]:
     """The replay scenario (1 s) with a third-party-style estimator beside ours, ``toy``, which
     meets the contract, and the same with ``leaky``, which does not (tests/fmus/third_party)."""
     folder = tmp_path_factory.mktemp("sweep")
-    built = {p.stem: p for p in build_all(folder / "fmus", quiet=True,
-                                          scripts=sorted(THIRD_PARTY.glob("*_fmu.py")))}
     doc = scenario_document(REPO / "orchestration" / "scenarios" / "replay_log.toml",
                             ["scenario.stop_time=1.0"])
-    doc["components"]["toy"] = {"fmu": str(built["ThirdPartyEstimator"])}
-    doc["connections"] += ["log.q_m_meas -> toy.q_m_meas"]
     doc["record"]["variables"] += ["toy.p_tool_hat"]
-    paths = {"ok": folder / "replay_third_party.toml", "leaky": folder / "replay_leaky.toml"}
-    paths["ok"].write_text(_toml(doc))
-    doc["components"]["leaky"] = {"fmu": str(built["LeakyEstimator"])}
-    paths["leaky"].write_text(_toml(doc))
-    return paths
+    ok = with_third_party(doc, third_party_fmus, folder / "replay_third_party.toml", source="log.q_m_meas")
+    leaky = with_third_party(ok, third_party_fmus, folder / "replay_leaky.toml", "leaky", "LeakyEstimator",
+                             source="")
+    return {"ok": ok, "leaky": leaky}
 
 
 @pytest.fixture
 def scenario(scenarios) -> Path:
     return scenarios["ok"]
-
-
-def _toml(doc: dict) -> str:
-    """A whole scenario document as TOML (a line of an inline table per top-level key)."""
-    return "".join(f"{k} = {toml_value(v)}\n" for k, v in doc.items())
 
 
 def _sweep(scenario: Path, out: Path, *extra: str) -> int:
@@ -62,7 +51,9 @@ def _sweep(scenario: Path, out: Path, *extra: str) -> int:
 
 def test_a_third_party_estimator_is_studied_beside_ours(scenario, tmp_path, capsys):
     """Its RMSE, and our EKF's RMSE, ANEES and ANIS, are those the scenario's own run gives
-    (metrics.compute on the recorded run: an independent path), every seed alike (a log)."""
+    (metrics.compute on the recorded run: an independent path), every seed alike (a log); the
+    EKF's arm angles are judged against the log's truth q_a (the log has no dq_a: no rate error),
+    the toy gives no arm estimate."""
     out = tmp_path / "study"
     assert _sweep(scenario, out, "--estimator", "toy", "--estimator", "ekf", "--runs", "2") == 0
     data = json.loads((out / "study.json").read_text())
@@ -78,9 +69,14 @@ def test_a_third_party_estimator_is_studied_beside_ours(scenario, tmp_path, caps
     assert ekf["nis"]["dof"] == 4 and ekf["nees"]["dof"] == 2      # the scenario's nis metric; q_a
     lo, hi = ekf["nees"]["band_95"]
     assert 0 < lo < 2 < hi                                          # the band of the mean of 2 runs
-    assert data["estimators"]["toy"]["gives"] == {"nees": False, "nis": None, "nis_dof": None}
+    assert_allclose(ekf["arm"]["q_a_hat"]["rmse_per_seed"],
+                    [rmse(r["ekf.q_a_hat"][keep], r["log.q_a"][keep])] * 2, rtol=1e-12)
+    assert list(ekf["arm"]) == ["q_a_hat"] and ekf["arm"]["q_a_hat"]["truth"] == "log.q_a"
+    assert data["estimators"]["toy"]["gives"] == {"nees": False, "nis": None, "nis_dof": None, "arm": []}
+    assert toy["arm"] == {}
     rows = list(csv.DictReader((out / "study.csv").open()))
     assert [row["estimator"] for row in rows] == ["toy", "ekf"]
+    assert rows[0]["q_a_hat_rmse_mean"] == "" and float(rows[1]["q_a_hat_rmse_mean"]) == ekf["arm"]["q_a_hat"]["rmse_mean"]
     assert (out / "study.png").stat().st_size > 0
     assert "toy" in capsys.readouterr().out
 
@@ -151,17 +147,24 @@ def test_resume_reuses_the_finished_runs(scenario, tmp_path):
 
 def test_seeds_are_the_scenarios_seed_on_the_flagship(tmp_path):
     """On a simulated robot the seeds change the sensor noise: run i is ``scenario.seed =
-    first_seed + i``, as a plain run with that seed gives; ANIS without degrees of freedom
-    (the flagship has no nis metric) has no band."""
+    first_seed + i``, as a plain run with that seed gives, the arm angles, rates and
+    accelerations against the plant's; ANIS without degrees of freedom (the flagship has no nis
+    metric) has no band."""
     flagship = REPO / "orchestration" / "scenarios" / "flagship.toml"
     out = tmp_path / "flagship"
     assert main(["study", "sweep", str(flagship), "--estimator", "ekf", "--runs", "2", "--first-seed", "3",
                  "--set", "scenario.stop_time=0.3", "--after", "0.1", "--workers", "1", "--no-progress",
                  "--no-plots", "--out", str(out)]) == 0
     ekf = json.loads((out / "study.json").read_text())["points"][0]["estimators"]["ekf"]
-    r = study.simulate(flagship, ["scenario.stop_time=0.3", "scenario.seed=4"])
+    doc = scenario_document(flagship)
+    doc["record"]["variables"] += ["plant.dq_a", "plant.ddq_a", "ekf.ddq_a_hat"]
+    r = study.simulate(doc, ["scenario.stop_time=0.3", "scenario.seed=4"])
     keep = r.time >= 0.1 - 1e-12
     assert_allclose(ekf["position_rmse_per_seed"][1], rmse(r["ekf.p_tool_hat"][keep], r["plant.p_tool"][keep]),
                     rtol=1e-12)
     assert ekf["position_rmse_std"] > 0
+    assert list(ekf["arm"]) == ["q_a_hat", "dq_a_hat", "ddq_a_hat"]
+    for est in ekf["arm"]:
+        assert_allclose(ekf["arm"][est]["rmse_per_seed"][1],
+                        rmse(r[f"ekf.{est}"][keep], r[f"plant.{est[:-4]}"][keep]), rtol=1e-12)
     assert ekf["nis"]["band_95"] is None and np.isfinite(ekf["nis"]["mean"])

@@ -9,6 +9,45 @@ from scipy.linalg import expm
 TOYS = Path(__file__).parent / "fmus"
 
 
+def toml_document(doc: dict) -> str:
+    """A whole scenario document as TOML (a line of an inline table per top-level key)."""
+    from orchestration.scenario import toml_value
+    return "".join(f"{k} = {toml_value(v)}\n" for k, v in doc.items())
+
+
+def with_third_party(scenario: Path | dict, fmus: dict[str, Path], path: Path, name: str = "toy",
+                     model: str = "ThirdPartyEstimator", source: str = "encoder.q_m_meas",
+                     overrides: tuple[str, ...] = ()) -> Path:
+    """``scenario`` (self-contained) with a third-party estimator ``name`` (the FMU ``model`` of
+    :func:`conftest.third_party_fmus`) fed the motor angles of ``source``, written to ``path``."""
+    from orchestration.scenario import scenario_document
+    doc = scenario_document(scenario, overrides)
+    doc["components"][name] = {"fmu": str(fmus[model])}
+    if source:
+        doc["connections"] += [f"{source} -> {name}.q_m_meas"]
+    path.write_text(toml_document(doc))
+    return path
+
+
+def assert_same_document(got, ref, rtol: float, path: str = "") -> None:
+    """Every key of ``ref`` (a JSON document) in ``got`` and no other, equal strings and flags,
+    numbers to ``rtol`` (a study's own tolerance between its engines: the last bits may move
+    with the order of floating-point operations, nothing more)."""
+    from numpy.testing import assert_allclose
+    if isinstance(ref, dict):
+        assert isinstance(got, dict) and set(got) == set(ref), (path, set(got) ^ set(ref))
+        for k in ref:
+            assert_same_document(got[k], ref[k], rtol, f"{path}.{k}")
+    elif isinstance(ref, list):
+        assert isinstance(got, list) and len(got) == len(ref), path
+        for i, (g, r) in enumerate(zip(got, ref)):
+            assert_same_document(g, r, rtol, f"{path}[{i}]")
+    elif isinstance(ref, float):
+        assert_allclose(got, ref, rtol=rtol, atol=0, err_msg=path)
+    else:
+        assert got == ref, path
+
+
 def write(tmp_path: Path, text: str, name: str = "s.toml") -> Path:
     """A scenario file with ``text`` in ``tmp_path``."""
     p = tmp_path / name

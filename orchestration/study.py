@@ -426,10 +426,8 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[Any], executor: Executor, *,
     errors: dict[int, BaseException] = {}
     todo: deque[int] = deque()
     for i in range(n):
-        found, value = folder.load(keys[i]) if folder else (False, None)
-        if found:
-            results[i] = value
-        else:
+        found, results[i] = folder.load(keys[i]) if folder else (False, None)
+        if not found:
             todo.append(i)
     restartable = isinstance(executor, ProcessPool)
     window = executor.max_workers if restartable else max(n, 1)
@@ -491,13 +489,20 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[Any], executor: Executor, *,
         if bar is not None:
             bar.close()
     if errors:
-        failed = sorted(errors)
-        first = "; ".join(f"job {i} ({_describe(jobs[i])}): {type(errors[i]).__name__}: {errors[i]}"
-                          for i in failed[:3])
-        more = f" (and {len(failed) - 3} more)" if len(failed) > 3 else ""
-        kept = f"; the {n - len(failed)} finished are kept in {folder.path}" if folder else ""
-        raise StudyError(f"{len(failed)} of {n} jobs failed: {first}{more}{kept}", results)
+        raise _failed(jobs, errors, results, folder)
     return results
+
+
+def _failed(jobs: Sequence[Any], errors: dict[int, BaseException], results: list[Any],
+            folder: StudyFolder | None) -> StudyError:
+    """The :class:`StudyError` of :func:`map_jobs` whose jobs ``errors`` failed: the first
+    three named with their errors, the others' ``results`` kept."""
+    failed = sorted(errors)
+    first = "; ".join(f"job {i} ({_describe(jobs[i])}): {type(errors[i]).__name__}: {errors[i]}"
+                      for i in failed[:3])
+    more = f" (and {len(failed) - 3} more)" if len(failed) > 3 else ""
+    kept = f"; the {len(jobs) - len(failed)} finished are kept in {folder.path}" if folder else ""
+    return StudyError(f"{len(failed)} of {len(jobs)} jobs failed: {first}{more}{kept}", results)
 
 
 def _describe(job: Any, limit: int = 120) -> str:

@@ -92,6 +92,8 @@ from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators.ekf_accelerometer_batched import BatchedEkfModel, BatchedMeasurement
 
+from .metrics import rmse_over_runs
+
 
 class CrlbError(ValueError):
     """The Riccati equation of the bound has no stabilising solution (or bad input shapes)."""
@@ -464,7 +466,7 @@ def validation_case(ekf: am.EkfAccelerometerParameters, q_true: float, runs: int
     groups = ("position", "velocity", "acceleration")
     for k, (q, acc) in variants.items():
         e = err[k]
-        rmse = np.stack([np.sqrt(np.mean(np.sum(e[:, :, s:s + 2] ** 2, axis=2), axis=0)) for s in (0, 2, 4)])
+        rmse = np.stack([rmse_over_runs(e[:, :, s:s + 2]) for s in (0, 2, 4)])
         b_true, b_filter = bounds[q_true, acc], bounds[q, acc]
         out[k] = {"q_jerk": q, "use_accelerometer": acc,
                   **{name: {g: float(np.mean(v[gi][keep])) for gi, g in enumerate(groups)}

@@ -37,14 +37,14 @@ import tempfile
 import threading
 import time
 import warnings
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from .scenario import Component, Overrides, Scenario, ScenarioError, check_metric_windows, override_strings
+from .scenario import Component, Overrides, Scenario, ScenarioError, check_metric_windows
 
 if TYPE_CHECKING:
     from .results import Result
@@ -681,6 +681,7 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Overrides =
     exception's ``out_dir`` is the folder.
     """
     from .results import OutputError, own_folder
+    from .scenario import override_strings
 
     overrides = override_strings(overrides)
     sc = load(scenario, overrides)
@@ -706,7 +707,7 @@ def load(scenario: str | Path | Scenario | dict[str, Any], overrides: Overrides 
     ScenarioError
         The scenario is wrong; overrides of a scenario that was not loaded from a file.
     """
-    from .scenario import load_scenario
+    from .scenario import load_scenario, override_strings
 
     overrides = override_strings(overrides)
     if not isinstance(scenario, Scenario):
@@ -752,6 +753,8 @@ def run_loaded(sc: Scenario, folder: RunFolder | None = None, progress: bool = F
     ScenarioError, RunError, OutputError, Interrupted, KeyboardInterrupt
         As :func:`run`; with a folder, its ``run.json`` says how the run ended first.
     """
+    from contextlib import nullcontext
+
     recorder = _Recorder()
     t0 = time.perf_counter()
     with (folder.stepping(t0) if folder is not None else nullcontext()) as writer, \

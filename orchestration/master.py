@@ -755,26 +755,24 @@ def run_loaded(sc: Scenario, folder: RunFolder | None = None, progress: bool = F
     """
     from contextlib import nullcontext
 
-    recorder = _Recorder()
     t0 = time.perf_counter()
-    with (folder.stepping(t0) if folder is not None else nullcontext()) as writer, \
+    with (folder.stepping(t0) if folder is not None else nullcontext(_Recorder())) as recorder, \
             _progress_bar(sc, progress) as report:
-        recorder.writer = writer
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CouplingWarning)
-            notes = simulate(sc, recorder, report, hook)
+            recorder.notes = simulate(sc, recorder, report, hook)
         for w in caught:  # re-issued once, outside the recording context
             if folder is not None or not issubclass(w.category, CouplingWarning):
                 warnings.warn(w.message, w.category, stacklevel=3)
     wall = time.perf_counter() - t0
-    result = recorder.result(sc.record_columns(), notes, wall)
+    result = recorder.result(sc.record_columns(), wall)
     try:
         described = evaluate_metrics(sc, result)
         if folder is not None:
-            folder.ok(described, wall, notes)
+            folder.ok(described, wall)
     except BaseException as exc:
         if folder is not None:
-            folder.failed_after_run(exc, wall, notes)
+            folder.failed_after_run(exc, wall)
         raise
     result.set_metrics(described)
     result.out_dir = folder.out if folder is not None else None
@@ -783,12 +781,14 @@ def run_loaded(sc: Scenario, folder: RunFolder | None = None, progress: bool = F
 
 class _Recorder:
     """The sink of a run: every recorded row kept in memory and, with a ``writer``
-    (:class:`~orchestration.results.CsvWriter`), written to disk as it comes."""
+    (:class:`~orchestration.results.CsvWriter`), written to disk as it comes; ``notes`` the
+    run's coupling warnings once it has stepped to its end."""
 
-    def __init__(self) -> None:
-        self.writer: Sink | None = None
+    def __init__(self, writer: Sink | None = None) -> None:
+        self.writer = writer
         self.times: list[float] = []
         self.rows: list[np.ndarray] = []
+        self.notes: list[str] = []
 
     def __call__(self, t: float, values: np.ndarray) -> None:
         self.times.append(t)
@@ -796,10 +796,10 @@ class _Recorder:
         if self.writer is not None:
             self.writer(t, values)
 
-    def result(self, columns: list[str], notes: list[str], wall: float) -> "Result":
+    def result(self, columns: list[str], wall: float) -> "Result":
         from .results import Result
         data = np.array(self.rows).reshape(len(self.rows), len(columns))
-        return Result(None, np.array(self.times), columns, data, warnings=notes, wall_time=wall)
+        return Result(None, np.array(self.times), columns, data, warnings=self.notes, wall_time=wall)
 
 
 @contextmanager
@@ -836,21 +836,22 @@ class RunFolder:
                                      "versions": versions(), "status": "running", "error": None,
                                      "rows": 0, "time_reached": None}
         self.writer: Any = None
+        self.recorder = _Recorder()
         self.t0 = 0.0                       # perf_counter() when the stepping began
 
     @contextmanager
-    def stepping(self, t0: float) -> Iterator[Any]:
-        """``run.json`` says ``running``; the :class:`~orchestration.results.CsvWriter` of
-        ``results.csv`` is given. If the stepping (begun at ``perf_counter()`` ``t0``) ends in
-        an exception, ``run.json`` gets the true end with the rows computed before:
-        ``failed`` (an OS error becomes :class:`~orchestration.results.OutputError`) or
-        ``interrupted`` (KeyboardInterrupt)."""
+    def stepping(self, t0: float) -> Iterator[_Recorder]:
+        """``run.json`` says ``running``; the sink given records the rows and writes them to
+        ``results.csv`` (:class:`~orchestration.results.CsvWriter`). If the stepping (begun at
+        ``perf_counter()`` ``t0``) ends in an exception, ``run.json`` gets the true end with the
+        rows computed before: ``failed`` (an OS error becomes
+        :class:`~orchestration.results.OutputError`) or ``interrupted`` (KeyboardInterrupt)."""
         from .results import CSV_NAME, RUN_NAME, CsvWriter, OutputError, write_json
         self.t0 = t0
         try:
             write_json(self.out / RUN_NAME, self.info)
-            self.writer = CsvWriter(self.out / CSV_NAME, self.columns)
-            yield self.writer
+            self.writer = self.recorder.writer = CsvWriter(self.out / CSV_NAME, self.columns)
+            yield self.recorder
             self.writer.close()
             self.info.update(rows=self.writer.rows, time_reached=self.writer.time_reached)
         except RunError as exc:
@@ -881,23 +882,25 @@ class RunFolder:
             except OSError:
                 pass          # the rows of the failed block are cut off; the rest stays
             self.info.update(rows=self.writer.rows, time_reached=self.writer.time_reached)
-        self.info.update(status=status, error=error, wall_time_s=time.perf_counter() - self.t0, warnings=[])
+        self.info.update(status=status, error=error, wall_time_s=time.perf_counter() - self.t0,
+                         warnings=self.recorder.notes)
         write_json(self.out / RUN_NAME, self.info)
 
-    def ok(self, described: dict[str, dict[str, Any]], wall: float, notes: list[str]) -> None:
+    def ok(self, described: dict[str, dict[str, Any]], wall: float) -> None:
         """Write ``metrics.json``, then ``run.json`` with status ``ok``."""
         from .results import METRICS_NAME, RUN_NAME, write_json
         write_json(self.out / METRICS_NAME, described)
         self.info.update(status="ok", wall_time_s=wall, real_time_factor=self.stop_time / wall if wall > 0 else None,
-                         warnings=notes)
+                         warnings=self.recorder.notes)
         write_json(self.out / RUN_NAME, self.info)
 
-    def failed_after_run(self, exc: BaseException, wall: float, notes: list[str]) -> None:
+    def failed_after_run(self, exc: BaseException, wall: float) -> None:
         """``run.json`` says ``failed`` after the run (the metrics): an OS error is raised as
         :class:`~orchestration.results.OutputError`. If ``run.json`` cannot be written, it still
         says ``running``: :meth:`Result.load` reports that, never as ok."""
         from .results import RUN_NAME, OutputError, write_json
-        self.info.update(status="failed", error=f"after the run: {exc}", wall_time_s=wall, warnings=notes)
+        self.info.update(status="failed", error=f"after the run: {exc}", wall_time_s=wall,
+                         warnings=self.recorder.notes)
         try:
             write_json(self.out / RUN_NAME, self.info)
         except OSError:

@@ -92,6 +92,8 @@ from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators.ekf_accelerometer_batched import BatchedEkfModel, BatchedMeasurement
 
+from .metrics import rmse_over_runs
+
 
 class CrlbError(ValueError):
     """The Riccati equation of the bound has no stabilising solution (or bad input shapes)."""
@@ -450,37 +452,58 @@ def validation_case(ekf: am.EkfAccelerometerParameters, q_true: float, runs: int
         of eq. 27's RMSE and of ``sqrt(mean over runs of trace P)``, plus the per-time angle
         RMSE and bounds (``"per_time"``).
     """
+    if runs < 1:
+        raise CrlbError(f"runs must be at least 1, not {runs}")
+    t = np.arange(int(round(stop_time / T)) + 1) * T
+    variants = {f"{tag}_{'acc' if acc else 'motor'}": (q, acc)
+                for tag, q in (("matched", q_true), ("overtuned", overtune * q_true))
+                for acc in (True, False)}
+    truth, err = _validation_runs(ekf, q_true, variants, runs, t, T, path, seed)
+    bounds = {(q, acc): _bound_over_runs(ekf, q, acc, truth, T) for q, acc in variants.values()}
+    keep = t >= after
+    out: dict = {"time": t, "q_true": q_true, "runs": runs, "after": after, "stop_time": stop_time,
+                 "T": T, "path": path, "per_time": {}}
+    groups = ("position", "velocity", "acceleration")
+    for k, (q, acc) in variants.items():
+        e = err[k]
+        rmse = np.stack([rmse_over_runs(e[:, :, s:s + 2]) for s in (0, 2, 4)])
+        b_true, b_filter = bounds[q_true, acc], bounds[q, acc]
+        out[k] = {"q_jerk": q, "use_accelerometer": acc,
+                  **{name: {g: float(np.mean(v[gi][keep])) for gi, g in enumerate(groups)}
+                     for name, v in (("rmse", rmse), ("crlb_true_q", b_true), ("crlb_filter_q", b_filter))}}
+        out["per_time"][k] = {"rmse_position": rmse[0], "crlb_true_q_position": b_true[0],
+                              "crlb_filter_q_position": b_filter[0]}
+    return out
+
+
+def _validation_runs(ekf: am.EkfAccelerometerParameters, q_true: float, variants: dict[str, tuple[float, bool]],
+                     runs: int, t: np.ndarray, T: float, path: str, seed: int
+                     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """:func:`validation_case`'s Monte Carlo, all runs at once (a leading run axis): the true
+    states ``(runs, K, 6)`` and each filter's estimation error (same shape) at the samples
+    ``t`` (period ``T``); filter ``k`` of ``variants`` has ``q_jerk, use_accelerometer = variants[k]``. Run
+    ``j`` draws from ``default_rng([seed, j])`` in the order x_0 (6), then per sample the
+    measurement noise (4) and the jerk noise (2)."""
     from dataclasses import replace
 
     from fmus.robot_plant.motion_control_model import arm_reference
     from fmus.robot_plant.trajectory import make_path
 
-    if runs < 1:
-        raise CrlbError(f"runs must be at least 1, not {runs}")
     robot = ekf.robot()
-    t = np.arange(int(round(stop_time / T)) + 1) * T
     pr, vr, ar, jr = make_path(path, ekf.p_tool0).evaluate_many(t)
     u = arm_reference(pr, vr, ar, jr, robot.l1, robot.l2)[3]       # jerk reference, (K, 2)
-    keep = t >= after
-    variants = {f"{tag}_{'acc' if acc else 'motor'}": (q, acc)
-                for tag, q in (("matched", q_true), ("overtuned", overtune * q_true))
-                for acc in (True, False)}
-    params = {k: replace(ekf, q_jerk=q, use_accelerometer=acc, use_bias=False)
-              for k, (q, acc) in variants.items()}
     layout = am.Layout(True, False)
     F, Gu, Gw = am.transition_matrices(T, layout)
-    meas = am.MeasurementModel(robot, layout)
+    h = BatchedMeasurement(am.MeasurementModel(robot, layout))
     Lr = np.sqrt(np.diag(am.measurement_noise(ekf, layout)))
     x0 = np.concatenate([ekf.initial_angles(), np.zeros(4)])
     L0 = np.linalg.cholesky(am.initial_covariance(ekf, am.Layout(False, False)))
-    # all runs at once (a leading run axis); run j draws from default_rng([seed, j]) in the
-    # order x_0 (6), then per sample the measurement noise (4) and the jerk noise (2)
     K = len(t)
     draws = np.stack([np.random.default_rng([seed, j]).standard_normal(6 + 6 * K) for j in range(runs)])
     noise = draws[:, 6:].reshape(runs, K, 6)
     x = x0 + (L0 @ draws[:, :6, None])[:, :, 0]
-    h = BatchedMeasurement(meas)
-    filters = {k: BatchedEkfModel(p) for k, p in params.items()}
+    filters = {k: BatchedEkfModel(replace(ekf, q_jerk=q, use_accelerometer=acc, use_bias=False))
+               for k, (q, acc) in variants.items()}
     est = {k: (np.repeat(f.single.x[None], runs, 0), np.repeat(f.single.P[None], runs, 0))
            for k, f in filters.items()}
     err = {k: np.zeros((runs, K, 6)) for k in variants}
@@ -495,32 +518,23 @@ def validation_case(ekf: am.EkfAccelerometerParameters, q_true: float, runs: int
             err[k][:, i] = xf[:, 0:6] - x
             est[k] = f.predicted(ui, T, xf, Pf)
         x = (x @ F.T + u[i] @ Gu.T) + (math.sqrt(q_true) * noise[:, i, 4:6]) @ Gw2.T
+    return truth, err
+
+
+def _bound_over_runs(ekf: am.EkfAccelerometerParameters, q_jerk: float, use_accelerometer: bool,
+                     truth: np.ndarray, T: float) -> np.ndarray:
+    """The bound of :func:`robot_crlb` (``dynamics="ekf"``, tuning ``q_jerk``) along every
+    run's true states ``(runs, K, 6)``: ``sqrt(mean over runs of trace P)`` per time for the
+    position, velocity and acceleration, ``(3, K)``."""
+    from dataclasses import replace
+
+    runs, K = truth.shape[:2]
     flat = truth.reshape(-1, 6)
     zeros = np.zeros((len(flat), 2))
-    bounds: dict[tuple, RobotCrlb] = {}
-
-    def bound(q: float, acc: bool) -> np.ndarray:
-        """sqrt(mean over runs of trace P) per time and group, (3, K)."""
-        if (q, acc) not in bounds:
-            b = robot_crlb(flat[:, 0:2], flat[:, 2:4], flat[:, 4:6], zeros, zeros, zeros, T,
-                           replace(ekf, q_jerk=q), acc, dynamics="ekf")
-            bounds[q, acc] = np.stack([np.sqrt(np.mean(np.reshape(g ** 2, (runs, len(t))), axis=0))
-                                       for g in (b.position, b.velocity, b.acceleration)])
-        return bounds[q, acc]
-
-    out: dict = {"time": t, "q_true": q_true, "runs": runs, "after": after, "stop_time": stop_time,
-                 "T": T, "path": path, "per_time": {}}
-    groups = ("position", "velocity", "acceleration")
-    for k, (q, acc) in variants.items():
-        e = err[k]
-        rmse = np.stack([np.sqrt(np.mean(np.sum(e[:, :, s:s + 2] ** 2, axis=2), axis=0)) for s in (0, 2, 4)])
-        b_true, b_filter = bound(q_true, acc), bound(q, acc)
-        out[k] = {"q_jerk": q, "use_accelerometer": acc,
-                  **{name: {g: float(np.mean(v[gi][keep])) for gi, g in enumerate(groups)}
-                     for name, v in (("rmse", rmse), ("crlb_true_q", b_true), ("crlb_filter_q", b_filter))}}
-        out["per_time"][k] = {"rmse_position": rmse[0], "crlb_true_q_position": b_true[0],
-                              "crlb_filter_q_position": b_filter[0]}
-    return out
+    b = robot_crlb(flat[:, 0:2], flat[:, 2:4], flat[:, 4:6], zeros, zeros, zeros, T,
+                   replace(ekf, q_jerk=q_jerk), use_accelerometer, dynamics="ekf")
+    return np.stack([np.sqrt(np.mean(np.reshape(g ** 2, (runs, K)), axis=0))
+                     for g in (b.position, b.velocity, b.acceleration)])
 
 
 __all__ = ["CrlbError", "crlb_linear", "RobotCrlbModel", "discretise", "RobotCrlb", "robot_crlb",

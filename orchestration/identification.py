@@ -505,75 +505,100 @@ def fit(experiments: Sequence[Experiment], nominal: RobotParameters, *, noise: N
     """
     from scipy.optimize import least_squares
 
-    map_fn = map_fn or _serial_map
     exps = list(experiments)
-    assemble = Residual(exps, noise, criterion)
     x0 = np.log(initial_guess(nominal)) if theta0 is None else np.asarray(theta0, dtype=float)
-    best: dict[str, Any] = {"cost": math.inf, "x": x0.copy(), "f": None, "outputs": None}
-    nfev = [0]
+    objective = _Objective(exps, nominal, Residual(exps, noise, criterion), map_fn or _serial_map,
+                           diff_step, progress)
+    f0 = objective.residual(x0)
+    if not np.all(np.isfinite(f0)):
+        raise IdentificationError("the residual is not finite at the initial guess (the model "
+                                  "diverges in the experiment's closed loop)", None)
+    res = least_squares(objective.residual, x0, jac=objective.jacobian, method="trf", x_scale=1.0,
+                        max_nfev=max_nfev, xtol=xtol, ftol=ftol, gtol=1e-12)
+    best = objective.best
+    if best.f is None or not np.all(np.isfinite(best.f)):
+        raise IdentificationError("the residual is not finite at the end of the fit", None)
+    if res.status == 0:
+        raise IdentificationError(f"the identification did not converge within {max_nfev} residual "
+                                  f"evaluations (cost {best.cost:.6g}); best fit so far kept",
+                                  objective.result(False, res.message))
+    return objective.result(True, res.message)
 
-    def residual(x: np.ndarray) -> np.ndarray:
-        if best["f"] is not None and np.array_equal(best["x"], x):
-            return best["f"]
-        outputs = map_fn(model_outputs, [(x, e, nominal) for e in exps])
-        f = assemble(outputs)
-        nfev[0] += 1
+
+@dataclass
+class _Point:
+    """A point of the fit: ``log`` parameters ``x``, whitened residual ``f``, its cost
+    ``f @ f / 2`` and the experiments' model outputs."""
+    cost: float = math.inf
+    x: np.ndarray | None = None
+    f: np.ndarray | None = None
+    outputs: list[Any] | None = None
+
+
+class _Objective:
+    """:func:`fit`'s residual and its forward-difference Jacobian (step ``diff_step`` in
+    ``log`` space), the model outputs of each mapped over the experiments (and the parameters)
+    with ``map_fn``. Keeps the best point seen (the one reported, which the optimiser's last
+    need not be) and the last Jacobian (the optimiser asks again for the same point)."""
+
+    def __init__(self, experiments: list[Experiment], nominal: RobotParameters, assemble: Residual,
+                 map_fn: Mapper, diff_step: float, progress: Callable[[float], None] | None) -> None:
+        self.experiments, self.nominal, self.assemble = experiments, nominal, assemble
+        self.map_fn, self.diff_step, self.progress = map_fn, diff_step, progress
+        self.best = _Point()
+        self.nfev = 0                                   # residual evaluations
+        self._jacobian: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+
+    def residual(self, x: np.ndarray) -> np.ndarray:
+        """The whitened residual at ``log`` parameters ``x``."""
+        best = self.best
+        if best.f is not None and np.array_equal(best.x, x):
+            return best.f
+        outputs = self.map_fn(model_outputs, [(x, e, self.nominal) for e in self.experiments])
+        f = self.assemble(outputs)
+        self.nfev += 1
         cost = 0.5 * float(f @ f) if np.all(np.isfinite(f)) else math.inf
-        if cost < best["cost"]:
-            best.update(cost=cost, x=np.array(x), f=f, outputs=outputs)
-        if progress is not None:
-            progress(cost)
+        if cost < best.cost:
+            self.best = _Point(cost, np.array(x), f, outputs)
+        if self.progress is not None:
+            self.progress(cost)
         return f
 
-    last_jac: dict[str, Any] = {"x": None, "J": None}
-
-    def jacobian(x: np.ndarray) -> np.ndarray:
-        if last_jac["x"] is not None and np.array_equal(last_jac["x"], x):
-            return last_jac["J"]
-        f0 = residual(x)
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """Forward differences of the residual at ``x``, one column per parameter."""
+        if self._jacobian[0] is not None and np.array_equal(self._jacobian[0], x):
+            return self._jacobian[1]
+        f0 = self.residual(x)
         jobs = []
         for k in range(len(x)):
             xk = np.array(x)
-            xk[k] += diff_step
-            jobs += [(xk, e, nominal) for e in exps]
-        outputs = map_fn(model_outputs, jobs)
-        m = len(exps)
-        cols = [(assemble(outputs[k * m:(k + 1) * m]) - f0) / diff_step for k in range(len(x))]
-        last_jac.update(x=np.array(x), J=np.column_stack(cols))
-        return last_jac["J"]
+            xk[k] += self.diff_step
+            jobs += [(xk, e, self.nominal) for e in self.experiments]
+        outputs = self.map_fn(model_outputs, jobs)
+        m = len(self.experiments)
+        cols = [(self.assemble(outputs[k * m:(k + 1) * m]) - f0) / self.diff_step for k in range(len(x))]
+        self._jacobian = (np.array(x), np.column_stack(cols))
+        return self._jacobian[1]
 
-    def result(x: np.ndarray, f: np.ndarray, converged: bool, message: str) -> Fit:
+    def result(self, converged: bool, message: str) -> Fit:
+        """The :class:`Fit` at the best point: values, their standard deviations from the
+        Jacobian there (the delta method on ``log`` values) and correlations."""
+        x, f = self.best.x, self.best.f
         values = np.exp(x)
-        jac = jacobian(x)
-        calibration = assemble.calibration(best["outputs"])
+        jac = self.jacobian(x)
+        calibration = self.assemble.calibration(self.best.outputs)
         n_res = len(f)
         n_par = len(x) + (0 if calibration is None else calibration.size)
         s2 = float(f @ f) / max(n_res - n_par, 1)
         cov = _covariance(jac, s2)
         std_log = np.sqrt(np.maximum(np.diag(cov), 0.0))
         d = np.where((std_log > 0) & np.isfinite(std_log), std_log, 1.0)
-        return Fit(robot=robot_from_values(values, nominal),
+        return Fit(robot=robot_from_values(values, self.nominal),
                    values=dict(zip(NAMES, map(float, values))),
                    std=dict(zip(NAMES, map(float, values * std_log))),     # delta method
-                   s2=s2, cost=0.5 * float(f @ f), n_residuals=n_res, nfev=nfev[0],
+                   s2=s2, cost=0.5 * float(f @ f), n_residuals=n_res, nfev=self.nfev,
                    converged=converged, message=message, correlation=cov / np.outer(d, d),
                    acc_calibration=calibration)
-
-    f0 = residual(x0)
-    if not np.all(np.isfinite(f0)):
-        raise IdentificationError("the residual is not finite at the initial guess (the model "
-                                  "diverges in the experiment's closed loop)", None)
-    res = least_squares(residual, x0, jac=jacobian, method="trf", x_scale=1.0, max_nfev=max_nfev,
-                        xtol=xtol, ftol=ftol, gtol=1e-12)
-    x, f = best["x"], best["f"]
-    if f is None or not np.all(np.isfinite(f)):
-        raise IdentificationError("the residual is not finite at the end of the fit", None)
-    if res.status == 0:
-        fit_so_far = result(x, f, False, res.message)
-        raise IdentificationError(f"the identification did not converge within {max_nfev} residual "
-                                  f"evaluations (cost {best['cost']:.6g}); best fit so far kept",
-                                  fit_so_far)
-    return result(x, f, True, res.message)
 
 
 # ---------------------------------------------------------------------------------------------

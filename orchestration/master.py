@@ -635,7 +635,7 @@ def _check_nan(s: _Slot, values: np.ndarray, t: float) -> None:
 
 
 # ---------------------------------------------------------------------------------------------
-# the public entry point
+# the one run path: a loaded scenario into a Result, in memory and, given a folder, on disk
 # ---------------------------------------------------------------------------------------------
 def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Overrides = (),
         out_dir: str | Path | None = None, progress: bool = False, force: bool = False,
@@ -681,15 +681,10 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Overrides =
     exception's ``out_dir`` is the folder.
     """
     from .results import OutputError, own_folder
-    from .scenario import load_scenario, override_strings
+    from .scenario import override_strings
 
     overrides = override_strings(overrides)
-    if isinstance(scenario, Scenario):
-        sc = load_scenario(scenario.path, scenario.overrides + overrides) if (overrides and scenario.path) else scenario
-        if overrides and not scenario.path:
-            raise ScenarioError("overrides need a scenario loaded from a file or a document")
-    else:
-        sc = load_scenario(scenario, overrides)
+    sc = load(scenario, overrides)
     plan(sc)  # reject an algebraic loop before anything is written
     check_metric_windows(sc)
     if _STOP[0]:      # a signal while the scenario was loading: stop before writing anything
@@ -697,107 +692,227 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Overrides =
     out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix=f"flexfusion_{sc.name}_"))
     with own_folder(out, force):
         try:
-            return _run_into(sc, overrides, out, progress, hook)
+            return run_loaded(sc, RunFolder(out, sc, overrides), progress, hook)
         except (RunError, OutputError, KeyboardInterrupt) as exc:
             exc.out_dir = out  # type: ignore[union-attr]
             raise
 
 
-def _run_into(sc: Scenario, overrides: tuple[str, ...], out: Path, progress: bool, hook: Any) -> "Result":
-    """:func:`run`'s work in the owned folder ``out``: ``run.json`` says ``running`` first,
-    then the true end."""
-    from .results import (CSV_NAME, METRICS_NAME, RUN_NAME, CsvWriter, OutputError, Result, ResultWarning,
-                          versions, write_json)
+def load(scenario: str | Path | Scenario | dict[str, Any], overrides: Overrides = ()) -> Scenario:
+    """The scenario to run: a file or a document loaded with the overrides, or a loaded
+    :class:`Scenario` (loaded again from its file with its overrides and these, if any).
 
-    info: dict[str, Any] = {"scenario": sc.describe(), "overrides": list(overrides or sc.overrides),
-                            "versions": versions(), "status": "running", "error": None, "rows": 0,
-                            "time_reached": None}
+    Raises
+    ------
+    ScenarioError
+        The scenario is wrong; overrides of a scenario that was not loaded from a file.
+    """
+    from .scenario import load_scenario, override_strings
+
+    overrides = override_strings(overrides)
+    if not isinstance(scenario, Scenario):
+        return load_scenario(scenario, overrides)
+    if not overrides:
+        return scenario
+    if not scenario.path:
+        raise ScenarioError("overrides need a scenario loaded from a file or a document")
+    return load_scenario(scenario.path, scenario.overrides + overrides)
+
+
+def run_loaded(sc: Scenario, folder: RunFolder | None = None, progress: bool = False,
+               hook: Any = None) -> "Result":
+    """Run a loaded scenario into a :class:`~orchestration.results.Result`: the one run path,
+    of :func:`run` (into its run folder) and of the studies' :func:`orchestration.study.simulate`
+    (in memory, ``folder`` None).
+
+    The recorded rows are kept in memory and, with a ``folder``, written to its ``results.csv``
+    as they come; the scenario's metrics are evaluated on them (:func:`evaluate_metrics`).
+    Coupling warnings are issued for a run into a folder; in memory (a study runs a scenario
+    many times) they are only on ``Result.warnings``.
+
+    Parameters
+    ----------
+    sc
+        The loaded scenario.
+    folder
+        The run folder that gets ``results.csv``, ``metrics.json`` and ``run.json``
+        (:class:`RunFolder`); None: nothing is written.
+    progress
+        Show a tqdm progress bar on stderr.
+    hook
+        Save the state at a time, or start from a saved one (:mod:`orchestration.fork`).
+
+    Returns
+    -------
+    Result
+        The recorded signals and the metrics; ``out_dir`` the folder (None in memory),
+        ``wall_time`` the seconds the stepping took (and the writing of the rows).
+
+    Raises
+    ------
+    ScenarioError, RunError, OutputError, Interrupted, KeyboardInterrupt
+        As :func:`run`; with a folder, its ``run.json`` says how the run ended first.
+    """
+    from contextlib import nullcontext
+
     t0 = time.perf_counter()
-    bar = None
-    notes: list[str] = []
-    writer: CsvWriter | None = None
-
-    def finish(status: str, error: str | None) -> None:
-        """Flush what was computed, then write the true status (whatever else fails)."""
-        if writer is not None:
-            try:
-                writer.close()
-            except OSError:
-                pass          # the rows of the failed block are cut off; the rest stays
-            info.update(rows=writer.rows, time_reached=writer.time_reached)
-        info.update(status=status, error=error, wall_time_s=time.perf_counter() - t0, warnings=notes)
-        write_json(out / RUN_NAME, info)
-
-    try:
-        write_json(out / RUN_NAME, info)
-        writer = CsvWriter(out / CSV_NAME, sc.record_columns())
-        if progress:
-            from tqdm import tqdm
-            bar = tqdm(total=sc.n_steps, unit="step", desc=sc.name, file=sys.stderr, leave=False)
-            last = [0]
-
-            def report(k: int) -> None:
-                bar.update(k - last[0])
-                last[0] = k
-        else:
-            report = None  # type: ignore[assignment]
+    with (folder.stepping(t0) if folder is not None else nullcontext(_Recorder())) as recorder, \
+            _progress_bar(sc, progress) as report:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CouplingWarning)
-            notes = simulate(sc, writer, report, hook)
-        for w in caught:  # re-issue once, outside the recording context
-            warnings.warn(w.message, w.category, stacklevel=3)
-        writer.close()
-        info.update(rows=writer.rows, time_reached=writer.time_reached)
-    except RunError as exc:
-        finish("failed", str(exc))
-        raise
-    except OSError as exc:
-        at = f" after t = {writer.time_reached:.6g} s" if writer and writer.time_reached is not None else ""
-        message = f"cannot write the results{at}: {exc.strerror or exc}"
-        try:
-            finish("failed", message)
-        except OSError:
-            message += f" ({RUN_NAME} could not be updated either)"
-        raise OutputError(message + ("; the rows written before are kept, whole" if at else "")) from None
-    except KeyboardInterrupt as exc:
-        finish("interrupted", str(exc) or "KeyboardInterrupt")
-        raise
-    except BaseException as exc:
-        finish("failed", f"{type(exc).__name__}: {exc}")
-        raise
-    finally:
-        if bar is not None:
-            bar.close()
+            recorder.notes = simulate(sc, recorder, report, hook)
+        for w in caught:  # re-issued once, outside the recording context
+            if folder is not None or not issubclass(w.category, CouplingWarning):
+                warnings.warn(w.message, w.category, stacklevel=3)
     wall = time.perf_counter() - t0
-    with warnings.catch_warnings():     # it still says "running": the status comes below
-        warnings.simplefilter("ignore", ResultWarning)
-        result = Result.load(out)
+    result = recorder.result(sc.record_columns(), wall)
     try:
         described = evaluate_metrics(sc, result)
-        write_json(out / METRICS_NAME, described)
-        info.update(status="ok", wall_time_s=wall, real_time_factor=sc.stop_time / wall if wall > 0 else None,
-                    warnings=notes)
-        write_json(out / RUN_NAME, info)
+        if folder is not None:
+            folder.ok(described, wall)
     except BaseException as exc:
-        info.update(status="failed", error=f"after the run: {exc}", wall_time_s=wall, warnings=notes)
+        if folder is not None:
+            folder.failed_after_run(exc, wall)
+        raise
+    result.set_metrics(described)
+    result.out_dir = folder.out if folder is not None else None
+    return result
+
+
+class _Recorder:
+    """The sink of a run: every recorded row kept in memory and, with a ``writer``
+    (:class:`~orchestration.results.CsvWriter`), written to disk as it comes; ``notes`` the
+    run's coupling warnings once it has stepped to its end."""
+
+    def __init__(self, writer: Sink | None = None) -> None:
+        self.writer = writer
+        self.times: list[float] = []
+        self.rows: list[np.ndarray] = []
+        self.notes: list[str] = []
+
+    def __call__(self, t: float, values: np.ndarray) -> None:
+        self.times.append(t)
+        self.rows.append(np.array(values, dtype=float))
+        if self.writer is not None:
+            self.writer(t, values)
+
+    def result(self, columns: list[str], wall: float) -> "Result":
+        from .results import Result
+        data = np.array(self.rows).reshape(len(self.rows), len(columns))
+        return Result(None, np.array(self.times), columns, data, warnings=self.notes, wall_time=wall)
+
+
+@contextmanager
+def _progress_bar(sc: Scenario, shown: bool) -> Iterator[Callable[[int], None] | None]:
+    """A tqdm bar on stderr over the run's base steps, moved by the callable given (None when
+    not ``shown``)."""
+    if not shown:
+        yield None
+        return
+    from tqdm import tqdm
+    bar = tqdm(total=sc.n_steps, unit="step", desc=sc.name, file=sys.stderr, leave=False)
+    last = [0]
+
+    def report(k: int) -> None:
+        bar.update(k - last[0])
+        last[0] = k
+    try:
+        yield report
+    finally:
+        bar.close()
+
+
+class RunFolder:
+    """The files of one run in its folder ``out`` (owned by
+    :func:`orchestration.results.own_folder`): ``run.json`` says ``running`` first, then the
+    true end; ``results.csv`` gets the rows as they come; ``metrics.json`` the metrics."""
+
+    def __init__(self, out: Path, sc: Scenario, overrides: tuple[str, ...] = ()) -> None:
+        from .results import versions
+        self.out = Path(out)
+        self.columns = sc.record_columns()
+        self.stop_time = sc.stop_time
+        self.info: dict[str, Any] = {"scenario": sc.describe(), "overrides": list(overrides or sc.overrides),
+                                     "versions": versions(), "status": "running", "error": None,
+                                     "rows": 0, "time_reached": None}
+        self.writer: Any = None
+        self.recorder = _Recorder()
+        self.t0 = 0.0                       # perf_counter() when the stepping began
+
+    @contextmanager
+    def stepping(self, t0: float) -> Iterator[_Recorder]:
+        """``run.json`` says ``running``; the sink given records the rows and writes them to
+        ``results.csv`` (:class:`~orchestration.results.CsvWriter`). If the stepping (begun at
+        ``perf_counter()`` ``t0``) ends in an exception, ``run.json`` gets the true end with the
+        rows computed before: ``failed`` (an OS error becomes
+        :class:`~orchestration.results.OutputError`) or ``interrupted`` (KeyboardInterrupt)."""
+        from .results import CSV_NAME, RUN_NAME, CsvWriter, OutputError, write_json
+        self.t0 = t0
         try:
-            write_json(out / RUN_NAME, info)
+            write_json(self.out / RUN_NAME, self.info)
+            self.writer = self.recorder.writer = CsvWriter(self.out / CSV_NAME, self.columns)
+            yield self.recorder
+            self.writer.close()
+            self.info.update(rows=self.writer.rows, time_reached=self.writer.time_reached)
+        except RunError as exc:
+            self._finish("failed", str(exc))
+            raise
+        except OSError as exc:
+            reached = self.writer.time_reached if self.writer is not None else None
+            at = f" after t = {reached:.6g} s" if reached is not None else ""
+            message = f"cannot write the results{at}: {exc.strerror or exc}"
+            try:
+                self._finish("failed", message)
+            except OSError:
+                message += f" ({RUN_NAME} could not be updated either)"
+            raise OutputError(message + ("; the rows written before are kept, whole" if at else "")) from None
+        except KeyboardInterrupt as exc:
+            self._finish("interrupted", str(exc) or "KeyboardInterrupt")
+            raise
+        except BaseException as exc:
+            self._finish("failed", f"{type(exc).__name__}: {exc}")
+            raise
+
+    def _finish(self, status: str, error: str) -> None:
+        """Flush what was computed, then write the true status (whatever else fails)."""
+        from .results import RUN_NAME, write_json
+        if self.writer is not None:
+            try:
+                self.writer.close()
+            except OSError:
+                pass          # the rows of the failed block are cut off; the rest stays
+            self.info.update(rows=self.writer.rows, time_reached=self.writer.time_reached)
+        self.info.update(status=status, error=error, wall_time_s=time.perf_counter() - self.t0,
+                         warnings=self.recorder.notes)
+        write_json(self.out / RUN_NAME, self.info)
+
+    def ok(self, described: dict[str, dict[str, Any]], wall: float) -> None:
+        """Write ``metrics.json``, then ``run.json`` with status ``ok``."""
+        from .results import METRICS_NAME, RUN_NAME, write_json
+        write_json(self.out / METRICS_NAME, described)
+        self.info.update(status="ok", wall_time_s=wall, real_time_factor=self.stop_time / wall if wall > 0 else None,
+                         warnings=self.recorder.notes)
+        write_json(self.out / RUN_NAME, self.info)
+
+    def failed_after_run(self, exc: BaseException, wall: float) -> None:
+        """``run.json`` says ``failed`` after the run (the metrics): an OS error is raised as
+        :class:`~orchestration.results.OutputError`. If ``run.json`` cannot be written, it still
+        says ``running``: :meth:`Result.load` reports that, never as ok."""
+        from .results import RUN_NAME, OutputError, write_json
+        self.info.update(status="failed", error=f"after the run: {exc}", wall_time_s=wall,
+                         warnings=self.recorder.notes)
+        try:
+            write_json(self.out / RUN_NAME, self.info)
         except OSError:
-            pass              # run.json still says "running": Result.load reports it, never as ok
+            pass
         if isinstance(exc, OSError):
             raise OutputError(f"cannot write the metrics after the run: {exc.strerror or exc}") from None
-        raise
-    result.status = "ok"
-    result.error = None
-    result.set_metrics(described)
-    result.warnings = notes
-    return result
 
 
 def evaluate_metrics(sc: Scenario, result: "Result") -> dict[str, dict[str, Any]]:
     """The scenario's metrics on a run's recorded signals, as ``metrics.json`` holds them:
     ``{name: {"value", "unit", "against", ...}}`` (:func:`orchestration.metrics.entries`).
-    The one evaluation of both run paths (:func:`run` and :func:`orchestration.study.simulate`).
+    The one evaluation of a run's metrics (:func:`run_loaded`).
 
     Raises
     ------
@@ -827,4 +942,4 @@ def metric_unit(sc: Scenario, ref: str) -> str:
 
 
 __all__ = ["RunError", "CouplingWarning", "Interrupted", "stop_on_signals", "metric_unit", "Plan", "plan", "wiring", "due",
-           "find_algebraic_loop", "simulate", "run", "evaluate_metrics"]
+           "find_algebraic_loop", "simulate", "run", "load", "run_loaded", "RunFolder", "evaluate_metrics"]

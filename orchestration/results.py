@@ -243,9 +243,10 @@ class Result:
 
     ``result["plant.p_tool[1]"]`` gives one column; a scalar variable gives an (n,) array.
     ``status`` is ``"ok"`` only for a run that ended ok with all its rows; otherwise
-    ``error`` says why (and :meth:`load` warns). The one container of a run's results: read
-    from a run folder (:meth:`load`) or kept in memory (:func:`orchestration.study.simulate`:
-    ``out_dir`` None, ``wall_time`` the seconds the stepping took).
+    ``error`` says why (and :meth:`load` warns). The one container of a run's results: as a
+    run returns it (:func:`orchestration.master.run_loaded`: ``wall_time`` the seconds the
+    stepping took; ``out_dir`` None for a run in memory) or read from a run folder
+    (:meth:`load`; ``wall_time`` NaN, run.json has it).
     """
     out_dir: Path | None
     time: np.ndarray

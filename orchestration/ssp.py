@@ -456,56 +456,87 @@ def ssp_document(ssd: Path, label: str) -> dict[str, Any]:
     SSD ``ssd``, whose relative URIs resolve against its folder; ``label`` names it in errors."""
     base = ssd.parent
     root = _read_xml(label, ssd)
+    system = _system(label, root)
+    components: dict[str, dict[str, Any]] = {}
+    declared: dict[str, dict[str, ParamValue]] = {}       # each component's bound parameters
+    sizes: dict[str, int] = {}
+    for el in _children(_child(system, "ssd", "Elements"), "ssd", "Component"):
+        name = el.get("name") or ""
+        components[name], declared[name], variables = _component(f"{label}: component '{name}'", el, base)
+        sizes.update(_vector_sizes(variables, f"{name}."))
+    if not components:
+        raise ScenarioError(f"{label}: the system has no FMU components")
+    _bind_system_parameters(label, system, base, declared)
+    connections = _group(_scalar_connections(label, system, components), sizes)
+    experiment = _child(root, "ssd", "DefaultExperiment")
+    doc: dict[str, Any] = {"scenario": _head(label, root, ssd, system, experiment),
+                           "components": components, "connections": connections}
+    ours = [e for e in _annotations(experiment, FF_ANNOTATION) if e.tag == _q("ff", "Scenario")]
+    if ours:
+        try:
+            _read_flexfusion(ours[0], doc, declared)
+        except (TypeError, ValueError) as exc:
+            raise ScenarioError(f"{label}: malformed {FF_ANNOTATION} annotation: {exc}") from None
+    for name, params in declared.items():
+        components[name]["parameters"] = _packed_files(f"{label}: component '{name}'", base, params)
+    return doc
+
+
+def _system(label: str, root: Element) -> Element:
+    """The one ``ssd:System`` of an SSD's root, a system of FMUs (no nested systems)."""
     if root.tag != _q("ssd", "SystemStructureDescription"):
         raise ScenarioError(f"{label}: not a system structure description (root <{_local(root)}>)")
     system = _child(root, "ssd", "System")
     if system is None:
         raise ScenarioError(f"{label}: no ssd:System")
-    elements = _child(system, "ssd", "Elements")
-    if _children(elements, "ssd", "System"):
+    if _children(_child(system, "ssd", "Elements"), "ssd", "System"):
         raise ScenarioError(f"{label}: nested systems are not supported (one system of FMUs)")
+    return system
 
-    components: dict[str, dict[str, Any]] = {}
-    sizes: dict[str, int] = {}
-    declared: dict[str, dict[str, str]] = {}
-    for el in _children(elements, "ssd", "Component"):
-        name = el.get("name") or ""
-        where = f"{label}: component '{name}'"
-        kind = el.get("type", "application/x-fmu-sharedlibrary")
-        if kind != "application/x-fmu-sharedlibrary":
-            raise ScenarioError(f"{where}: component type {kind!r} is not supported (FMUs only)")
-        if el.get("implementation", "any") not in ("any", "CoSimulation"):
-            raise ScenarioError(f"{where}: implementation {el.get('implementation')!r} is not supported")
-        fmu = _inside(where, base, el.get("source"), "FMU")
-        try:
-            variables = read_variables(fmu)[2]
-        except ScenarioError as exc:
-            raise ScenarioError(f"{where}: {exc}") from None
-        except Exception as exc:  # noqa: BLE001 - a broken FMU file is a user error
-            raise ScenarioError(f"{where}: cannot read the modelDescription of {el.get('source')}: {exc}") from None
-        for c in _children(_child(el, "ssd", "Connectors"), "ssd", "Connector"):
-            if c.get("name") not in variables:
-                raise ScenarioError(f"{where}: connector '{c.get('name')}' is not a variable of "
-                                    f"{el.get('source')}")
-        declared[name] = {}
-        for binding in _children(_child(el, "ssd", "ParameterBindings"), "ssd", "ParameterBinding"):
-            declared[name].update(_parameter_values(where, binding, base))
-        step = None
-        for hint in _annotations(el, OSP_ANNOTATION):
-            if hint.tag == _q("osp", "StepSizeHint"):
-                step = _float(f"{where}: osp:StepSizeHint", hint.get("value"))
-        components[name] = {"fmu": str(fmu), **({"step": step} if step is not None else {})}
-        sizes.update(_vector_sizes(variables, f"{name}."))
-    if not components:
-        raise ScenarioError(f"{label}: the system has no FMU components")
+
+def _component(where: str, el: Element, base: Path) -> tuple[dict[str, Any], dict[str, ParamValue], dict[str, Any]]:
+    """An ``ssd:Component``: its scenario entry (``fmu``, and ``step`` from an
+    ``osp:StepSizeHint``), its bound parameters and its FMU's variables (connectors checked)."""
+    kind = el.get("type", "application/x-fmu-sharedlibrary")
+    if kind != "application/x-fmu-sharedlibrary":
+        raise ScenarioError(f"{where}: component type {kind!r} is not supported (FMUs only)")
+    if el.get("implementation", "any") not in ("any", "CoSimulation"):
+        raise ScenarioError(f"{where}: implementation {el.get('implementation')!r} is not supported")
+    fmu = _inside(where, base, el.get("source"), "FMU")
+    try:
+        variables = read_variables(fmu)[2]
+    except ScenarioError as exc:
+        raise ScenarioError(f"{where}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - a broken FMU file is a user error
+        raise ScenarioError(f"{where}: cannot read the modelDescription of {el.get('source')}: {exc}") from None
+    for c in _children(_child(el, "ssd", "Connectors"), "ssd", "Connector"):
+        if c.get("name") not in variables:
+            raise ScenarioError(f"{where}: connector '{c.get('name')}' is not a variable of "
+                                f"{el.get('source')}")
+    params: dict[str, ParamValue] = {}
+    for binding in _children(_child(el, "ssd", "ParameterBindings"), "ssd", "ParameterBinding"):
+        params.update(_parameter_values(where, binding, base))
+    step = None
+    for hint in _annotations(el, OSP_ANNOTATION):
+        if hint.tag == _q("osp", "StepSizeHint"):
+            step = _float(f"{where}: osp:StepSizeHint", hint.get("value"))
+    return {"fmu": str(fmu), **({"step": step} if step is not None else {})}, params, variables
+
+
+def _bind_system_parameters(label: str, system: Element, base: Path,
+                            declared: dict[str, dict[str, ParamValue]]) -> None:
+    """The system's own parameter bindings (``comp.param``) over the components' ones."""
     for binding in _children(_child(system, "ssd", "ParameterBindings"), "ssd", "ParameterBinding"):
         for pname, value in _parameter_values(f"{label}: system '{system.get('name')}'", binding, base):
             cname, _, var = pname.partition(".")
-            if cname not in components or not var:
+            if cname not in declared or not var:
                 raise ScenarioError(f"{label}: system parameter {pname!r} names no component's "
-                                    f"parameter (components: {', '.join(components)})")
+                                    f"parameter (components: {', '.join(declared)})")
             declared[cname][var] = value      # the system's binding wins (as in OMSimulator)
 
+
+def _scalar_connections(label: str, system: Element, components: dict[str, Any]) -> list[tuple[str, str]]:
+    """The system's connections as scalar pairs ``("a.x[1]", "b.y[1]")``, in order."""
     scalars: list[tuple[str, str]] = []
     for c in _children(_child(system, "ssd", "Connections"), "ssd", "Connection"):
         a, av, b, bv = (c.get(k) for k in ("startElement", "startConnector", "endElement", "endConnector"))
@@ -516,9 +547,12 @@ def ssp_document(ssd: Path, label: str) -> dict[str, Any]:
             if e not in components:
                 raise ScenarioError(f"{where}: no element '{e}' (components: {', '.join(components)})")
         scalars.append((f"{a}.{av}", f"{b}.{bv}"))
-    connections = _group(scalars, sizes)
+    return scalars
 
-    experiment = _child(root, "ssd", "DefaultExperiment")
+
+def _head(label: str, root: Element, ssd: Path, system: Element, experiment: Element | None) -> dict[str, Any]:
+    """The scenario's ``[scenario]`` table: name, stop time (``ssd:DefaultExperiment``, which
+    must start at 0) and base step."""
     head: dict[str, Any] = {"name": root.get("name") or ssd.stem}
     if experiment is not None:
         start = _float(f"{label}: DefaultExperiment startTime", experiment.get("startTime", "0"))
@@ -527,21 +561,15 @@ def ssp_document(ssd: Path, label: str) -> dict[str, Any]:
         if experiment.get("stopTime") is not None:
             head["stop_time"] = _float(f"{label}: DefaultExperiment stopTime", experiment.get("stopTime"))
     head["base_step"] = _base_step(label, system, experiment)
-    doc: dict[str, Any] = {"scenario": head, "components": components, "connections": connections}
+    return head
 
-    ours = [e for e in _annotations(experiment, FF_ANNOTATION) if e.tag == _q("ff", "Scenario")]
-    if ours:
-        try:
-            _read_flexfusion(ours[0], doc, declared)
-        except (TypeError, ValueError) as exc:
-            raise ScenarioError(f"{label}: malformed {FF_ANNOTATION} annotation: {exc}") from None
-    for name, params in declared.items():
-        for pname, value in params.items():     # packed files: relative to the package
-            if pname.endswith("_file") and isinstance(value, str) and value and not Path(value).is_absolute():
-                params[pname] = str(_inside(f"{label}: component '{name}': parameter '{pname}'",
-                                            base, value, "file"))
-        components[name]["parameters"] = params
-    return doc
+
+def _packed_files(where: str, base: Path, params: dict[str, ParamValue]) -> dict[str, ParamValue]:
+    """``params`` with each relative ``*_file`` value resolved inside the package (in place)."""
+    for pname, value in params.items():
+        if pname.endswith("_file") and isinstance(value, str) and value and not Path(value).is_absolute():
+            params[pname] = str(_inside(f"{where}: parameter '{pname}'", base, value, "file"))
+    return params
 
 
 def _base_step(label: str, system: Element, experiment: Element | None) -> float:

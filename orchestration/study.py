@@ -39,8 +39,6 @@ from contextvars import ContextVar
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from .results import Result
 from .safe_io import FolderLock, FolderLockedError, atomic_write_bytes, atomic_write_json
 
@@ -68,7 +66,9 @@ RunArrays = Result
 def simulate(scenario: str | Path | dict[str, Any], overrides: Overrides = (),
              variables: Sequence[str] | None = None) -> Result:
     """Run a scenario in memory (no files) and return its recorded signals and metrics as a
-    :class:`~orchestration.results.Result` with no ``out_dir`` and the stepping's ``wall_time``.
+    :class:`~orchestration.results.Result` with no ``out_dir`` and the stepping's ``wall_time``:
+    the run path of :func:`orchestration.master.run` (:func:`~orchestration.master.run_loaded`)
+    without a folder.
 
     Parameters
     ----------
@@ -85,34 +85,18 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Overrides = (),
     ScenarioError, RunError
         As :func:`orchestration.master.run`.
     """
-    from .master import CouplingWarning, evaluate_metrics
-    from .master import simulate as _simulate
-    from .scenario import ScenarioError, load_scenario
+    from .master import load, run_loaded
+    from .scenario import ScenarioError
 
-    sc = load_scenario(scenario, overrides)
-    columns = sc.record_columns()
+    sc = load(scenario, overrides)
     missing = unrecorded(sc, variables or ())
     if missing:                                  # before the run, not after it
         raise ScenarioError(f"{sc.name}: not recorded: {', '.join(missing)}")
-    rows: list[np.ndarray] = []
-    times: list[float] = []
-
-    def sink(t: float, values: np.ndarray) -> None:
-        times.append(t)
-        rows.append(np.array(values, dtype=float))
-
-    t0 = time.perf_counter()
-    with warnings.catch_warnings():      # returned on Result.warnings, not printed per run
-        warnings.simplefilter("ignore", CouplingWarning)
-        notes = _simulate(sc, sink)
-    wall = time.perf_counter() - t0
-    data = np.array(rows).reshape(len(rows), len(columns))
-    run = Result(None, np.array(times), columns, data, warnings=notes, wall_time=wall)
-    run.set_metrics(evaluate_metrics(sc, run))
+    run = run_loaded(sc)
     if variables is not None:
-        keep = [i for i, c in enumerate(columns) if c.split("[", 1)[0] in set(variables)]
-        run.columns = [columns[i] for i in keep]
-        run.data = data[:, keep]
+        keep = [i for i, c in enumerate(run.columns) if c.split("[", 1)[0] in set(variables)]
+        run.columns = [run.columns[i] for i in keep]
+        run.data = run.data[:, keep]
     return run
 
 
@@ -442,10 +426,8 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[Any], executor: Executor, *,
     errors: dict[int, BaseException] = {}
     todo: deque[int] = deque()
     for i in range(n):
-        found, value = folder.load(keys[i]) if folder else (False, None)
-        if found:
-            results[i] = value
-        else:
+        found, results[i] = folder.load(keys[i]) if folder else (False, None)
+        if not found:
             todo.append(i)
     restartable = isinstance(executor, ProcessPool)
     window = executor.max_workers if restartable else max(n, 1)
@@ -507,13 +489,20 @@ def map_jobs(fn: Callable[..., Any], jobs: Sequence[Any], executor: Executor, *,
         if bar is not None:
             bar.close()
     if errors:
-        failed = sorted(errors)
-        first = "; ".join(f"job {i} ({_describe(jobs[i])}): {type(errors[i]).__name__}: {errors[i]}"
-                          for i in failed[:3])
-        more = f" (and {len(failed) - 3} more)" if len(failed) > 3 else ""
-        kept = f"; the {n - len(failed)} finished are kept in {folder.path}" if folder else ""
-        raise StudyError(f"{len(failed)} of {n} jobs failed: {first}{more}{kept}", results)
+        raise _failed(jobs, errors, results, folder)
     return results
+
+
+def _failed(jobs: Sequence[Any], errors: dict[int, BaseException], results: list[Any],
+            folder: StudyFolder | None) -> StudyError:
+    """The :class:`StudyError` of :func:`map_jobs` whose jobs ``errors`` failed: the first
+    three named with their errors, the others' ``results`` kept."""
+    failed = sorted(errors)
+    first = "; ".join(f"job {i} ({_describe(jobs[i])}): {type(errors[i]).__name__}: {errors[i]}"
+                      for i in failed[:3])
+    more = f" (and {len(failed) - 3} more)" if len(failed) > 3 else ""
+    kept = f"; the {len(jobs) - len(failed)} finished are kept in {folder.path}" if folder else ""
+    return StudyError(f"{len(failed)} of {len(jobs)} jobs failed: {first}{more}{kept}", results)
 
 
 def _describe(job: Any, limit: int = 120) -> str:

@@ -18,6 +18,14 @@ def test_rmse_is_root_mean_squared_euclidean_error():
     assert_allclose(m.rmse(est, 0.0), m.rmse(est, truth))               # RMS of a signal
 
 
+def test_rmse_over_runs_is_eq_27_per_time():
+    """Per time, the RMSE over runs is the RMSE of the runs' errors at that time taken as
+    samples; a hand case: errors (3, 4), (0, 0), (0, 5) at one time give sqrt(50 / 3)."""
+    e = np.random.default_rng(2).standard_normal((7, 5, 2))
+    assert_allclose(m.rmse_over_runs(e), [m.rmse(e[:, k], 0.0) for k in range(5)], rtol=1e-15)
+    assert_allclose(m.rmse_over_runs([[[3.0, 4.0]], [[0.0, 0.0]], [[0.0, 5.0]]]), [np.sqrt(50 / 3)])
+
+
 def test_bandpass_halves_a_sine_at_a_corner_and_keeps_the_shape():
     # a Butterworth band-pass has gain 1/sqrt(2) at either corner; forwards and backwards squares it
     fs = 1000.0

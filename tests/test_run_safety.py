@@ -91,6 +91,28 @@ def test_disk_full_ends_in_one_error_line_and_keeps_the_whole_rows(tmp_path, cap
         assert Result.load(out).status == "failed"
 
 
+def test_a_metric_that_fails_after_the_run_keeps_every_row_and_says_so(tmp_path, capsys):
+    """A band-pass over too short a record passes the load but cannot be computed: one error
+    line, run.json says failed "after the run" with every row counted, no metrics.json; a
+    study's in-memory run of the same scenario ends in the same error (one run path)."""
+    from orchestration import study
+    path = write(tmp_path, CHAIN.format(stop=0.02) + '''
+[[metrics]]
+kind = "bandpass"
+name = "band"
+estimate = "g.y"
+truth = "src.y"
+''')
+    out = tmp_path / "o"
+    assert main(["run", str(path), "--out", str(out), "--no-progress"]) == 2
+    one_error_line(capsys.readouterr().err, "metric 'band': band-pass needs more than 27 samples, got 21")
+    info = json.loads((out / "run.json").read_text())
+    assert info["status"] == "failed" and info["error"].startswith("after the run: chain: metric 'band'")
+    assert info["rows"] == 21 and len(whole_rows(out)) == 21 and not (out / "metrics.json").exists()
+    with pytest.raises(ScenarioError, match="metric 'band': band-pass needs more than 27 samples, got 21"):
+        study.simulate(path)
+
+
 def test_a_real_full_disk(tmp_path, capsys):
     """The same on a 64 KiB tmpfs (needs root and mount: skipped otherwise)."""
     disk = tmp_path / "disk"

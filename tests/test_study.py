@@ -53,6 +53,9 @@ def test_simulate_equals_a_run_written_to_disk(tmp_path):
     assert_allclose(mem["b.x"], analytic(mem.time)[:, 1], atol=0.05)
     assert mem.variables() == ["a.x", "b.x"]
     assert not (tmp_path / "results.csv").exists()
+    # the coupling note of the cycle: on both results and in run.json (printed for the run only)
+    assert len(mem.warnings) == 1 and "b.x -> a.x_other" in mem.warnings[0]
+    assert mem.warnings == disk.warnings == json.loads((tmp_path / "out" / "run.json").read_text())["warnings"]
 
 
 def test_simulate_and_run_evaluate_the_same_metrics(tmp_path):

@@ -169,6 +169,7 @@ def effective_sample_size(w: np.ndarray) -> float:
     return float(1.0 / np.dot(w, w))
 
 
+@kernel
 def systematic_resample(w: np.ndarray, u: float) -> np.ndarray:
     """Indices (N,) of systematic resampling (Algorithm 1, step 3) of the particles with the
     weights ``w`` (N,), non-negative and normalised here by their sum, with one uniform ``u`` in
@@ -176,26 +177,49 @@ def systematic_resample(w: np.ndarray, u: float) -> np.ndarray:
 
     The points ``(u + j) / N``, ``j = 0..N-1``, select the particle whose cumulative weight
     interval contains them: particle ``i`` is copied ``floor(N g_i)`` or ``ceil(N g_i)`` times
-    (unbiased: the expected count is ``N g_i``) and never when ``g_i = 0``.
+    (unbiased: the expected count is ``N g_i``) and never when ``g_i = 0``. One pass over the
+    points and the cumulative weights (both ascend).
     """
     n = w.shape[0]
     c = np.cumsum(w)
     c /= c[-1]                                   # exactly 1 at the end
-    idx = np.searchsorted(c, (u + np.arange(n)) / n, side="right")
-    return np.minimum(idx, n - 1)
+    idx = np.empty(n, np.int64)
+    i = 0
+    for j in range(n):
+        t = (u + j) / n
+        while i < n - 1 and c[i] <= t:           # the first i with c_i > t (the last at most)
+            i += 1
+        idx[j] = i
+    return idx
 
 
+@kernel
 def weighted_mean_cov(X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The MMSE estimate ``sum g_i x_i`` (eq. 6) and the weighted covariance
     ``sum g_i (x_i - x_hat)(x_i - x_hat)^T`` of the particles ``X`` (N, n) with the normalised
     weights ``w`` (N,) (summing to 1; the covariance is the plug-in one, not debiased)."""
-    x = w @ X
-    d = X - x
-    return x, (d * w[:, None]).T @ d
+    N, n = X.shape
+    x = np.zeros(n)
+    for i in range(N):
+        for p in range(n):
+            x[p] += w[i] * X[i, p]
+    P = np.zeros((n, n))
+    d = np.empty(n)
+    for i in range(N):
+        for p in range(n):
+            d[p] = X[i, p] - x[p]
+        for p in range(n):
+            wd = w[i] * d[p]
+            for q in range(p + 1):
+                P[p, q] += wd * d[q]
+    for p in range(n):
+        for q in range(p):
+            P[q, p] = P[p, q]
+    return x, P
 
 
 def kernel_move(X: np.ndarray, x: np.ndarray, P: np.ndarray, h: float, Z: np.ndarray,
-                sum_w2: float = 0.0) -> np.ndarray:
+                sum_w2: float = 0.0, idx: np.ndarray | None = None) -> np.ndarray:
     """Regularisation after resampling: ``x_i <- a x_i + (1 - a) x_hat + c S z_i``.
 
     Each resampled particle is replaced by a draw from a Gaussian kernel centred on it and
@@ -211,7 +235,8 @@ def kernel_move(X: np.ndarray, x: np.ndarray, P: np.ndarray, h: float, Z: np.nda
     Parameters
     ----------
     X
-        Resampled particles (N, n), equally weighted.
+        Resampled particles (N, n), equally weighted; or, with ``idx``, the particles before
+        resampling, and ``X[idx]`` the resampled ones (the copies are not made).
     x, P
         The weighted mean (eq. 6) and covariance of the particles before resampling.
     h
@@ -220,18 +245,52 @@ def kernel_move(X: np.ndarray, x: np.ndarray, P: np.ndarray, h: float, Z: np.nda
         Standard normals (N, n).
     sum_w2
         ``sum g_i^2`` of the weights before resampling (``1 / ESS``); 0: no debiasing.
+    idx
+        Indices (N,) of the resampled particles in ``X`` (:func:`systematic_resample`); None:
+        ``X`` is resampled already.
 
     Returns
     -------
     numpy.ndarray
-        The moved particles (N, n). ``S`` is the symmetric square root of ``P`` with negative
-        round-off eigenvalues set to zero (``P`` may be singular, e.g. one survivor).
+        The moved particles (N, n). ``S = V sqrt(Lambda)`` (``S S^T = P``) from the
+        eigendecomposition of ``P`` with negative round-off eigenvalues set to zero (``P`` may
+        be singular, e.g. one survivor).
     """
     lam, V = np.linalg.eigh(0.5 * (P + P.T))
     S = V * np.sqrt(np.clip(lam, 0.0, None))
     a = math.sqrt(1.0 - h * h)
     c = math.sqrt(1.0 / (1.0 - sum_w2) - a * a) if sum_w2 < 1.0 else h
-    return a * X + (1.0 - a) * x + c * (Z @ S.T)
+    out = np.empty((Z.shape[0], X.shape[1]))
+    _move(X, np.arange(len(X)) if idx is None else idx, x, np.ascontiguousarray(S), a, c, Z, out)
+    return out
+
+
+@kernel
+def _move(X, idx, x, S, a, c, Z, out):
+    """``out_j = a X_idx_j + (1 - a) x + c S z_j`` (:func:`kernel_move`), row by row."""
+    n = X.shape[1]
+    for j in range(idx.shape[0]):
+        i = idx[j]
+        for p in range(n):
+            s = 0.0
+            for q in range(n):
+                s += Z[j, q] * S[p, q]
+            out[j, p] = a * X[i, p] + (1.0 - a) * x[p] + c * s
+
+
+@kernel
+def affine_rows(X: np.ndarray, F: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``X F^T + b``: ``F x_i + b`` for every row ``x_i`` of ``X`` (N, n) (the time update of
+    eq. 13 for all particles), with ``F`` (n, n) and ``b`` (n,)."""
+    N, n = X.shape
+    out = np.empty((N, n))
+    for i in range(N):
+        for p in range(n):
+            s = 0.0
+            for q in range(n):
+                s += F[p, q] * X[i, q]
+            out[i, p] = s + b[p]
+    return out
 
 
 @kernel
@@ -455,11 +514,11 @@ class ParticleFilterModel:
             Gu_u = self.Gu @ np.asarray(u, float)
             if self._predicted:                    # the prior of an update periods ahead
                 x_prior = self.F @ self.x_prior + Gu_u
-                M = self.M @ self.F.T + Gu_u
+                M = affine_rows(np.ascontiguousarray(self.M), self.F, Gu_u)
                 L = np.hstack([self.F @ self.L, self.Lw])     # L L^T = F L L^T F^T + Gw Q Gw^T
             else:
                 x_prior = self.F @ self.x + Gu_u
-                M = self.X @ self.F.T + Gu_u
+                M = affine_rows(np.ascontiguousarray(self.X), self.F, Gu_u)
                 L = self.Lw
         if not np.all(np.isfinite(x_prior)):
             raise FilterDivergence("particle filter diverged in the time update: the predicted "
@@ -487,10 +546,11 @@ class ParticleFilterModel:
         ess = effective_sample_size(w)
         if self.resample_always or ess < self.ess_min:
             idx = systematic_resample(w, float(rng.random()))
-            X = X[idx]
             if self.bandwidth > 0.0:
                 h = self.bandwidth * optimal_bandwidth(ess, self.layout.n)
-                X = kernel_move(X, x, P, h, rng.standard_normal(X.shape), float(np.dot(w, w)))
+                X = kernel_move(X, x, P, h, rng.standard_normal(X.shape), float(np.dot(w, w)), idx)
+            else:
+                X = X[idx]
             return X, np.full(self.N, -math.log(self.N)), True
         return X, logw, False
 
@@ -546,5 +606,5 @@ class ParticleFilterModel:
 
 
 __all__ = ["ParticleFilterParameters", "ParticleFilterModel", "FilterStep", "propose_and_weigh",
-           "systematic_resample", "kernel_move", "optimal_bandwidth", "effective_sample_size",
+           "systematic_resample", "kernel_move", "affine_rows", "optimal_bandwidth", "effective_sample_size",
            "normalise_log_weights", "weighted_mean_cov", "PROPOSALS", "RESAMPLING", "DQ_", "DDQ_", "Q_"]

@@ -187,3 +187,28 @@ def propose_and_weigh(batch: NumpyMeasurement, proposal, r_inv, M, L, logw_prev,
         logw = logw_prev - 0.5 * (nu * nu) @ r_inv + dlog
         ok = np.isfinite(logw) & finite_rows(X)
     return np.where(ok[:, None], X, 0.0), np.where(ok, logw, -np.inf)
+
+
+def systematic_resample(w, u):
+    """The former ``systematic_resample`` (cumulative sum and a sorted search)."""
+    n = w.shape[0]
+    c = np.cumsum(w)
+    c /= c[-1]
+    idx = np.searchsorted(c, (u + np.arange(n)) / n, side="right")
+    return np.minimum(idx, n - 1)
+
+
+def weighted_mean_cov(X, w):
+    """The former ``weighted_mean_cov`` (matrix products)."""
+    x = w @ X
+    d = X - x
+    return x, (d * w[:, None]).T @ d
+
+
+def kernel_move(X, x, P, h, Z, sum_w2=0.0):
+    """The former ``kernel_move`` of resampled particles ``X``."""
+    lam, V = np.linalg.eigh(0.5 * (P + P.T))
+    S = V * np.sqrt(np.clip(lam, 0.0, None))
+    a = np.sqrt(1.0 - h * h)
+    c = np.sqrt(1.0 / (1.0 - sum_w2) - a * a) if sum_w2 < 1.0 else h
+    return a * X + (1.0 - a) * x + c * (Z @ S.T)

@@ -14,6 +14,7 @@ from fmus.common.parameters import ParameterError, validate
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators import particle_filter_model as pm
+from tests import pf_numpy_reference as numpy_reference
 from tests.pf_numpy_reference import NumpyMeasurement
 from tests.pf_numpy_reference import propose_and_weigh as propose_and_weigh_numpy
 
@@ -331,6 +332,30 @@ def test_compiled_sampling_and_weighting_equal_the_numpy_code(proposal: str, acc
         # the log-weight -nu^2 / 2R cancels h(x) (motor angles about 20 rad) down to an innovation
         # nu of about 1e-3: its round-off is about eps |h| |nu| / R, 5e-12 per unit (3e-11 seen)
         assert_allclose(logw, logw_ref, rtol=1e-12, atol=1e-10)
+
+
+def test_compiled_resampling_moments_and_time_update_equal_the_numpy_code() -> None:
+    rng = np.random.default_rng(9)
+    for n in (1, 2, 17, 1000, 5000):
+        w = rng.exponential(size=n) ** rng.uniform(0, 8)
+        w[rng.random(n) < 0.3] = 0.0
+        w[0] += 1e-3
+        for u in (0.0, rng.random(), 1 - 1e-12):
+            assert_array_equal(pm.systematic_resample(w, u), numpy_reference.systematic_resample(w, u))
+        w /= w.sum()
+        X = rng.normal(size=(n, 6)) * [1e-5, 1e-5, 1e-3, 1e-3, 1e-1, 1e-1] + [0.3, -0.2, 0, 0, 0, 0]
+        x, P = pm.weighted_mean_cov(X, w)
+        x_ref, P_ref = numpy_reference.weighted_mean_cov(X, w)
+        assert_allclose(x, x_ref, rtol=1e-12, atol=0)
+        assert_allclose(P, P_ref, rtol=1e-12, atol=1e-12 * np.abs(P_ref).max())
+        idx = pm.systematic_resample(w, 0.5)
+        Z = rng.normal(size=(n, 6))
+        moved = numpy_reference.kernel_move(X[idx], x, P, 0.4, Z, float(w @ w))
+        scale = np.abs(moved).max(axis=0)        # per state: entries near zero are differences
+        assert_allclose(pm.kernel_move(X, x, P, 0.4, Z, float(w @ w), idx) / scale, moved / scale,
+                        rtol=1e-12, atol=1e-12)
+        F, b = rng.normal(size=(6, 6)), rng.normal(size=6)
+        assert_allclose(pm.affine_rows(X, F, b), X @ F.T + b, rtol=1e-12, atol=1e-15)
 
 
 # ---- regularisation after resampling (the cloud keeps its spread) --------------------------------

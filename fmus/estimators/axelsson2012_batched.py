@@ -13,9 +13,9 @@ about 1 of 1200 draws here): the exponent :data:`POW_EXPONENT` is read from the 
 vector at run time, so that the compiler cannot fold ``pow(t, 2)`` into ``t * t``. So each
 row's numbers are the scalar model's bit for bit (tested), and a batched run is its single
 filter. Without ``exact`` (the particle filter, which has no scalar twin) the square is
-``t * t``: one ``pow`` less per Newton step on the critical path of the deflection's iteration
-(measured 235 -> 143 ns per deflection), and a difference of at most one unit in the last place
-per square.
+``t * t`` (one ``pow`` less per Newton step on the critical path of the iteration: measured
+235 -> 143 ns per deflection) and the iteration stops as soon as Newton's error bound says the
+tolerance is met (:func:`deflections`): the same root within the same tolerance.
 
 The model (the scalar one's docstring has the details): arm torque ``tau_a = M(q) ddq + C(q, dq)
 dq + G(q)`` (eq. 11), gearbox deflection ``D = tau_s^{-1}(tau_a)`` by Newton's method on
@@ -60,27 +60,39 @@ def layout_offsets(layout: Layout) -> tuple[int, int, int]:
             -1 if layout.bias_acc is None else layout.bias_acc.start)
 
 
+#: ``max |d^2/dx^2 tanh(x)| / 2 = 2 / (3 sqrt(3))``: bounds Newton's next residual (:func:`deflections`)
+_HALF_MAX_TANH2 = 2.0 / (3.0 * math.sqrt(3.0))
+
+
 @kernel
 def _newton_step(d, tau, k_hi, k_soft, delta, tol, two, exact):
-    """One Newton step of ``tau_s(d) = tau`` in the scalar model's order: ``(d_next, done)``,
-    ``done`` when the residual at ``d`` (before the step) is within ``tol``."""
+    """One Newton step of ``tau_s(d) = tau``: ``(d_next, done)`` (:func:`deflections`)."""
     t = math.tanh(d / delta)
     f = k_hi * d - k_soft * delta * t - tau
-    d -= f / (k_hi - k_soft * (1.0 - (t ** two if exact else t * t)))
-    return d, abs(f) <= tol
+    k = k_hi - k_soft * (1.0 - (t ** two if exact else t * t))
+    d -= f / k
+    if abs(f) <= tol:
+        return d, True
+    # |tau_s(d_next) - tau| <= max|tau_s''| / 2 (f / k)^2, tau_s'' = -(k_soft / delta) tanh''
+    return d, not exact and _HALF_MAX_TANH2 * k_soft / delta * (f / k) * (f / k) <= tol
 
 
 @kernel
 def deflections(tau, k_hi, k_soft, delta, two, exact, D0, D):
     """The gearbox deflections ``D`` (N,) of one joint with ``tau_s(D_i) = tau_i`` (eq. 16's
     spring: ``k_hi``, ``k_soft = k_hi - k_lo``, ``delta``), by Newton's method from ``D0`` (N,;
-    NaN: from the high-stiffness asymptote shifted by the soft zone), each row in the scalar
-    model's order: step, then stop once the residual before the step is within
-    ``1e-12 max(1, |tau_i|)`` (at most 50 steps). The rows' iterations are interleaved (a sweep
-    over the rows per step: independent chains of ``tanh``, where one row's Newton is a chain of
-    dependent ones). ``exact``: square ``tanh`` with C's ``pow`` and the exponent ``two``
-    (:data:`POW_EXPONENT`, read at run time: the scalar model's bits) or as ``t * t`` (the
-    exactly rounded square; faster)."""
+    NaN: from the high-stiffness asymptote shifted by the soft zone) to the residual
+    ``|tau_s(D_i) - tau_i| <= 1e-12 max(1, |tau_i|)`` (at most 50 steps). The rows' iterations
+    are interleaved (a sweep over the rows per step: independent chains of ``tanh``, where one
+    row's Newton is a chain of dependent ones).
+
+    With ``exact``, each row in the scalar model's order and rounding: step, then stop once the
+    residual before the step is within the tolerance; ``tanh`` squared with C's ``pow`` and the
+    exponent ``two`` (:data:`POW_EXPONENT`, read at run time). Without (faster; the same root
+    within the tolerance): squares as ``t * t``, and stop already when Newton's bound on the
+    next residual, ``max|tau_s''| / 2 (f / k)^2`` with ``max|tau_s''| = 4 / (3 sqrt 3)
+    k_soft / delta``, is within the tolerance (one ``tanh`` less per row and joint).
+    """
     N = tau.shape[0]
     done = np.zeros(N, np.bool_)
     for i in range(N):

@@ -279,22 +279,7 @@ def _move(X, idx, x, S, a, c, Z, out):
 
 
 @kernel
-def affine_rows(X: np.ndarray, F: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``X F^T + b``: ``F x_i + b`` for every row ``x_i`` of ``X`` (N, n) (the time update of
-    eq. 13 for all particles), with ``F`` (n, n) and ``b`` (n,)."""
-    N, n = X.shape
-    out = np.empty((N, n))
-    for i in range(N):
-        for p in range(n):
-            s = 0.0
-            for q in range(n):
-                s += F[p, q] * X[i, q]
-            out[i, p] = s + b[p]
-    return out
-
-
-@kernel
-def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, c, m, bias_m, bias_acc, X, logw):
+def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, c, m, bias_m, bias_acc, D, X, logw):
     """Algorithm 1, steps 2 and 4, in one compiled call over the particles: sample
     ``x_i = m_i + L e_i`` from the proposal and weight it (the module docstring's formulas).
 
@@ -314,6 +299,10 @@ def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, c, m, bias_m, bias_acc,
     c, m, bias_m, bias_acc
         The measurement model (:func:`~fmus.estimators.axelsson2012_batched.measure_many`,
         squares rounded exactly: ``exact`` false there).
+    D
+        In: the gearbox deflections (N, 2) of the particles the means ``M`` were predicted
+        from (NaN: none), where the Newton iterations start (for the means, then for the new
+        particles from the means'); out: those of the new particles ``X``.
     X, logw
         Outputs: the particles (N, n) and their unnormalised log-weights (N,):
         ``logw_prev - nu^T R^-1 nu / 2`` (+ ``log N(e; 0, I) - log N(e; mu, A^-1)``), ``-inf``
@@ -322,12 +311,10 @@ def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, c, m, bias_m, bias_acc,
     N, n = M.shape
     k = L.shape[1]
     Yh = np.empty((N, m))
-    D0 = np.full((N, 2), np.nan)              # the deflections' Newton start: cold
-    D = np.empty((N, 2))
     dlog = np.zeros(N)
     if ekf:                                    # eq. 30: one EKF update per particle, at m_i
         Hm = np.zeros((N, m, n))
-        measure_many(M, c, m, bias_m, bias_acc, False, D0, Yh, Hm, D)
+        measure_many(M, c, m, bias_m, bias_acc, False, D, Yh, Hm, D)
         He, C = np.empty((m, k)), np.empty((k, k))
         nu, e, z = np.empty(m), np.empty(k), np.empty(k)
     for i in range(N):
@@ -401,8 +388,8 @@ def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, c, m, bias_m, bias_acc,
                 for j in range(k):
                     s += L[p, j] * Z[i, j]
                 X[i, p] = M[i, p] + s
-    # p(y | x) (Gaussian e_t); Newton from the deflections at the means (EKF proposal)
-    measure_many(X, c, m, bias_m, bias_acc, False, D if ekf else D0, Yh, np.zeros((N, 0, 0)), D)
+    # p(y | x) (Gaussian e_t)
+    measure_many(X, c, m, bias_m, bias_acc, False, D, Yh, np.zeros((N, 0, 0)), D)
     for i in range(N):
         q, total = 0.0, 0.0
         for a in range(m):
@@ -427,6 +414,7 @@ class FilterStep:
     x: np.ndarray            #: MMSE estimate (eq. 6), before resampling
     P: np.ndarray            #: weighted covariance, before resampling
     ess: float               #: effective sample size before resampling
+    D: np.ndarray            #: gearbox deflections of the particles ``X`` (before their move)
     resampled: bool
     reinit: str              #: "" or why the cloud was re-initialised
     rng_state: dict
@@ -476,6 +464,7 @@ class ParticleFilterModel:
         self.ess = float(self.N)
         self.n_reinit = 0
         self.X: np.ndarray | None = None             # no particles before the first update
+        self.D = np.full((self.N, 2), np.nan)        # their gearbox deflections (Newton's start)
         self.logw = np.full(self.N, -math.log(self.N))
         # the prior of the next update: means M (N, n), factor L (n, k); and the last good
         # estimate propagated to the time of the next update
@@ -514,11 +503,11 @@ class ParticleFilterModel:
             Gu_u = self.Gu @ np.asarray(u, float)
             if self._predicted:                    # the prior of an update periods ahead
                 x_prior = self.F @ self.x_prior + Gu_u
-                M = affine_rows(np.ascontiguousarray(self.M), self.F, Gu_u)
+                M = self.M @ self.F.T + Gu_u
                 L = np.hstack([self.F @ self.L, self.Lw])     # L L^T = F L L^T F^T + Gw Q Gw^T
             else:
                 x_prior = self.F @ self.x + Gu_u
-                M = affine_rows(np.ascontiguousarray(self.X), self.F, Gu_u)
+                M = self.X @ self.F.T + Gu_u
                 L = self.Lw
         if not np.all(np.isfinite(x_prior)):
             raise FilterDivergence("particle filter diverged in the time update: the predicted "
@@ -527,22 +516,23 @@ class ParticleFilterModel:
         return x_prior
 
     # -- Algorithm 1, steps 2-4, one measurement
-    def _sample_and_weight(self, M, L, logw_prev, y, rng) -> tuple | None:
-        """Sample ``x = M + L e`` from the proposal and weight it (:func:`propose_and_weigh`);
-        ``None`` if no particle has a finite weight and state."""
+    def _sample_and_weight(self, M, L, logw_prev, D, y, rng) -> tuple | None:
+        """Sample ``x = M + L e`` from the proposal and weight it (:func:`propose_and_weigh`;
+        ``D``, the deflections to start from, is overwritten); ``None`` if no particle has a
+        finite weight and state."""
         Z = rng.standard_normal((M.shape[0], L.shape[1]))
         X, logw = np.empty(M.shape), np.empty(M.shape[0])
         propose_and_weigh(np.ascontiguousarray(M), np.ascontiguousarray(L), logw_prev, y, self.r_inv, Z,
-                          self.proposal == "ekf", self.batch.constants, *self.batch.offsets, X, logw)
+                          self.proposal == "ekf", self.batch.constants, *self.batch.offsets, D, X, logw)
         if not np.isfinite(logw).any():
             return None
         w, logw = normalise_log_weights(logw)
         x, P = weighted_mean_cov(X, w)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
             return None
-        return X, w, logw, x, P
+        return X, D, w, logw, x, P
 
-    def _resample(self, X, w, logw, x, P, rng) -> tuple[np.ndarray, np.ndarray, bool]:
+    def _resample(self, X, D, w, logw, x, P, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
         ess = effective_sample_size(w)
         if self.resample_always or ess < self.ess_min:
             idx = systematic_resample(w, float(rng.random()))
@@ -551,8 +541,8 @@ class ParticleFilterModel:
                 X = kernel_move(X, x, P, h, rng.standard_normal(X.shape), float(np.dot(w, w)), idx)
             else:
                 X = X[idx]
-            return X, np.full(self.N, -math.log(self.N)), True
-        return X, logw, False
+            return X, D[idx], np.full(self.N, -math.log(self.N)), True
+        return X, D, logw, False
 
     def filtered(self, y) -> FilterStep:
         """The update with the measurement ``y`` (Algorithm 1, steps 2-4, eq. 6), not committed.
@@ -567,11 +557,11 @@ class ParticleFilterModel:
         rng.bit_generator.state = self.rng_state
         reinit = ""
         with np.errstate(all="ignore"):           # non-finite weights and states are handled
-            r = self._sample_and_weight(self.M, self.L, self.logw, y, rng)
+            r = self._sample_and_weight(self.M, self.L, self.logw, self.D.copy(), y, rng)
             if r is None:
                 reinit = "all particle weights underflowed or were not finite"
                 M0 = np.broadcast_to(self.x_prior, (self.N, self.layout.n))
-                r = self._sample_and_weight(M0, self.L0, np.zeros(self.N), y, rng)
+                r = self._sample_and_weight(M0, self.L0, np.zeros(self.N), np.full((self.N, 2), np.nan), y, rng)
                 if r is None:                     # the measurement cannot be fused at all
                     reinit += "; the measurement was skipped"
                     X = M0 + rng.standard_normal((self.N, self.layout.n)) @ self.L0.T
@@ -580,15 +570,15 @@ class ParticleFilterModel:
                     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
                         raise FilterDivergence("particle filter diverged: the re-initialised "
                                                "particle cloud is not finite")
-                    r = X, w, np.log(w), x, P
-            X, w, logw, x, P = r
+                    r = X, np.full((self.N, 2), np.nan), w, np.log(w), x, P
+            X, D, w, logw, x, P = r
             ess = effective_sample_size(w)
-            X, logw, resampled = self._resample(X, w, logw, x, P, rng)
-        return FilterStep(X, logw, x, P, ess, resampled, reinit, rng.bit_generator.state)
+            X, D, logw, resampled = self._resample(X, D, w, logw, x, P, rng)
+        return FilterStep(X, logw, x, P, ess, D, resampled, reinit, rng.bit_generator.state)
 
     def commit(self, s: FilterStep) -> np.ndarray:
         """Store the update ``s`` (from :meth:`filtered` on the current state); returns ``x_hat``."""
-        self.X, self.logw, self.x, self.P, self.ess = s.X, s.logw, s.x, s.P, s.ess
+        self.X, self.logw, self.x, self.P, self.ess, self.D = s.X, s.logw, s.x, s.P, s.ess, s.D
         self.n_reinit += bool(s.reinit)
         self.rng_state = s.rng_state
         self._predicted = False
@@ -606,5 +596,5 @@ class ParticleFilterModel:
 
 
 __all__ = ["ParticleFilterParameters", "ParticleFilterModel", "FilterStep", "propose_and_weigh",
-           "systematic_resample", "kernel_move", "affine_rows", "optimal_bandwidth", "effective_sample_size",
+           "systematic_resample", "kernel_move", "optimal_bandwidth", "effective_sample_size",
            "normalise_log_weights", "weighted_mean_cov", "PROPOSALS", "RESAMPLING", "DQ_", "DDQ_", "Q_"]

@@ -79,9 +79,10 @@ def _newton_step(d, tau, k_hi, k_soft, delta, tol, two, exact):
 
 @kernel
 def deflections(tau, k_hi, k_soft, delta, two, exact, D0, D):
-    """The gearbox deflections ``D`` (N,) of one joint with ``tau_s(D_i) = tau_i`` (eq. 16's
-    spring: ``k_hi``, ``k_soft = k_hi - k_lo``, ``delta``), by Newton's method from ``D0`` (N,;
-    NaN: from the high-stiffness asymptote shifted by the soft zone) to the residual
+    """The gearbox deflections ``D`` (N,) of one joint with ``tau_s(D_i) = tau_i`` for the arm
+    torques ``tau`` (N,) (eq. 16's spring: ``k_hi``, ``k_soft = k_hi - k_lo``, ``delta``), by
+    Newton's method from ``D0`` (N,; NaN: from the high-stiffness asymptote shifted by the soft
+    zone) to the residual
     ``|tau_s(D_i) - tau_i| <= 1e-12 max(1, |tau_i|)`` (at most 50 steps). The rows' iterations
     are interleaved (a sweep over the rows per step: independent chains of ``tanh``, where one
     row's Newton is a chain of dependent ones).

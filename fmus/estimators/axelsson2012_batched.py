@@ -13,8 +13,8 @@ about 1 of 1200 draws here): the exponent :data:`POW_EXPONENT` is read from the 
 vector at run time, so that the compiler cannot fold ``pow(t, 2)`` into ``t * t``. So each
 row's numbers are the scalar model's bit for bit (tested), and a batched run is its single
 filter. Without ``exact`` (the particle filter, which has no scalar twin) the square is
-``t * t`` (one ``pow`` less per Newton step on the critical path of the iteration: measured
-235 -> 143 ns per deflection) and the iteration stops as soon as Newton's error bound says the
+``t * t`` (one ``pow`` less per Newton step on the critical path of the iteration: 235 -> 143
+ns per deflection, measured on a loaded machine) and the iteration stops as soon as Newton's error bound says the
 tolerance is met (:func:`deflections`): the same root within the same tolerance.
 
 The model (the scalar one's docstring has the details): arm torque ``tau_a = M(q) ddq + C(q, dq)
@@ -220,29 +220,27 @@ class BatchedMeasurement:
         self.constants = model_constants(meas)
         self.offsets = layout_offsets(meas.layout)
 
-    def _evaluate(self, X: np.ndarray, D0: np.ndarray | None, jacobian: bool):
+    def _evaluate(self, X: np.ndarray, jacobian: bool):
         X = np.ascontiguousarray(X, dtype=float)
         N, L = X.shape[0], self.layout
-        D0 = np.full((N, 2), np.nan) if D0 is None else np.ascontiguousarray(D0, dtype=float)
-        Y, D = np.empty((N, L.m)), np.empty((N, 2))
+        Y, D = np.empty((N, L.m)), np.full((N, 2), np.nan)      # D: Newton starts cold
         H = np.zeros((N, L.m, L.n) if jacobian else (N, 0, 0))
-        measure_many(X, self.constants, *self.offsets, True, D0, Y, H, D)
+        measure_many(X, self.constants, *self.offsets, True, D, Y, H, D)
         return Y, H, D
 
-    def h(self, X: np.ndarray, D0: np.ndarray | None = None) -> np.ndarray:
-        """``h(x)`` (N, m) for the rows of ``X`` (N, n); the deflections' Newton iterations
-        from ``D0`` (N, 2) if given (e.g. those of nearby states), else cold."""
-        return self._evaluate(X, D0, False)[0]
+    def h(self, X: np.ndarray) -> np.ndarray:
+        """``h(x)`` (N, m) for the rows of ``X`` (N, n)."""
+        return self._evaluate(X, False)[0]
 
     def h_and_jacobian(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``h(x)`` (N, m) and ``H = dh/dx`` (N, m, n) for the rows of ``X`` (N, n)."""
-        Y, H, _ = self._evaluate(X, None, True)
+        Y, H, _ = self._evaluate(X, True)
         return Y, H
 
     def deflection(self, X: np.ndarray) -> np.ndarray:
         """The gearbox deflections ``D = tau_s^{-1}(tau_a)`` (eq. 16), (N, 2), of the rows of
         ``X`` (N, n)."""
-        return self._evaluate(X, None, False)[2]
+        return self._evaluate(X, False)[2]
 
 
 __all__ = ["BatchedMeasurement", "measure_many", "deflections", "model_constants",

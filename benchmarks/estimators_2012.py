@@ -38,6 +38,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from fmus.estimators import axelsson2012_model as am  # noqa: E402
+from fmus.estimators.axelsson2012_batched import BatchedMeasurement  # noqa: E402
 from fmus.estimators import ekf_accelerometer_model as em  # noqa: E402
 from fmus.estimators import particle_filter_model as pm  # noqa: E402
 
@@ -53,7 +54,7 @@ def signals(n: int, T: float, p) -> tuple[np.ndarray, ...]:
     S = 1 - c
     x = np.column_stack([q0 + A * S * S, 2 * A * w * S * s, 2 * A * w * w * (s * s + S * c)])
     u = 2 * A * w ** 3 * (3 * s * c - S * s)
-    batch = pm.BatchMeasurementModel(am.MeasurementModel(p.robot(), am.Layout(True, False)))
+    batch = BatchedMeasurement(am.MeasurementModel(p.robot(), am.Layout(True, False)))
     rng = np.random.default_rng(0)
     y = batch.h(x) + rng.normal(0, 1, (n, 4)) * [1e-3, 1e-3, 1e-2, 1e-2]
     acc = np.column_stack([y[:, 2], np.zeros(n), y[:, 3]])

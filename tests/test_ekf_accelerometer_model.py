@@ -163,15 +163,6 @@ def test_arm_torque_jacobian_against_finite_differences() -> None:
         assert_allclose(mm.arm_torque_jacobian(x[0:2], x[2:4], x[4:6]), num, rtol=1e-6, atol=1e-4)
 
 
-def test_arm_torque_jacobian_many_is_the_scalar_one_per_row() -> None:
-    """The vectorised Jacobian (the particle filter's and the batched engine's) against the
-    scalar one (the EKF's), row by row."""
-    mm = am.MeasurementModel(RobotParameters(), am.Layout(False, False))
-    X = np.array(_states(am.Layout(False, False), 6, seed=5))
-    assert_allclose(mm.arm_torque_jacobian_many(X),
-                    [mm.arm_torque_jacobian(x[0:2], x[2:4], x[4:6]) for x in X], rtol=1e-14, atol=1e-12)
-
-
 @pytest.mark.parametrize("layout", LAYOUTS, ids=str)
 def test_measurement_jacobian_against_finite_differences(layout: am.Layout) -> None:
     """H of eq. 4c (analytic) against central differences of h (eq. 15)."""

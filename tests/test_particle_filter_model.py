@@ -1,5 +1,6 @@
-"""The particle filter's math (Axelsson et al. 2012, Algorithm 1, eqs. 6, 28, 30): batched model
-against the EKF's scalar one, resampling, the Kalman filter limit, tracking, degeneracy."""
+"""The particle filter's math (Axelsson et al. 2012, Algorithm 1, eqs. 6, 28, 30): the compiled
+sampling and weighting against the numpy code, resampling, the Kalman filter limit, tracking,
+degeneracy."""
 from __future__ import annotations
 
 import math
@@ -13,6 +14,9 @@ from fmus.common.parameters import ParameterError, validate
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators import particle_filter_model as pm
+from tests import pf_numpy_reference as numpy_reference
+from tests.pf_numpy_reference import NumpyMeasurement
+from tests.pf_numpy_reference import propose_and_weigh as propose_and_weigh_numpy
 
 T = 0.01
 
@@ -48,46 +52,6 @@ def test_signals_are_consistent() -> None:
     assert_allclose((xp[:, 4:6] - xm[:, 4:6]) / (2 * h), u, atol=1e-7)
     assert_allclose(x[0], [0.2, -0.1, 0, 0, 0, 0], atol=1e-15)
     assert_allclose(u[0], 0.0, atol=1e-15)
-
-
-# ---- the batched measurement model ----------------------------------------------------------
-LAYOUTS = [(True, False), (True, True), (False, False), (False, True)]
-
-
-def _states(n_states: int, n: int = 25, seed: int = 3) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    X = rng.normal(size=(n, n_states)) * np.r_[0.8, 0.8, 1.0, 1.0, 5.0, 5.0, [1e-3] * (n_states - 6)]
-    X[:3, 4:6] *= 1e-5        # some particles in the soft zone of the gearbox (tiny torque) ...
-    X[:3, 0:2] = [0.0, math.pi / 2]   # ... where gravity is zero
-    return X
-
-
-@pytest.mark.parametrize("acc,bias", LAYOUTS)
-def test_batched_h_and_jacobian_equal_the_scalar_ekf_model(acc: bool, bias: bool) -> None:
-    p = pm.ParticleFilterParameters(use_accelerometer=acc, use_bias=bias)
-    f = pm.ParticleFilterModel(p)
-    X = _states(f.layout.n)
-    Y, H = f.batch.h(X), f.batch.jacobian(X)
-    assert Y.shape == (len(X), f.layout.m) and H.shape == (len(X), f.layout.m, f.layout.n)
-    for i, x in enumerate(X):
-        assert_allclose(Y[i], f.meas.h(x), rtol=1e-13, atol=1e-13)
-        assert_allclose(H[i], f.meas.jacobian(x), rtol=1e-12, atol=1e-12)
-
-
-@pytest.mark.parametrize("acc,bias", LAYOUTS)
-def test_batched_jacobian_equals_finite_differences(acc: bool, bias: bool) -> None:
-    p = pm.ParticleFilterParameters(use_accelerometer=acc, use_bias=bias)
-    f = pm.ParticleFilterModel(p)
-    X = _states(f.layout.n)[3:]             # away from the soft zone's curvature
-    H = f.batch.jacobian(X)
-    eps = 1e-6
-    Hfd = np.empty_like(H)
-    for j in range(f.layout.n):
-        dX = np.zeros_like(X)
-        dX[:, j] = eps
-        Hfd[:, :, j] = (f.batch.h(X + dX) - f.batch.h(X - dX)) / (2 * eps)
-    # central differences: truncation O(eps^2 h''') and rounding about 1e-16 |h| / eps
-    assert_allclose(H, Hfd, rtol=1e-6, atol=1e-6)
 
 
 # ---- resampling, weights -----------------------------------------------------------------------
@@ -338,17 +302,60 @@ def test_resampling_rule() -> None:
     assert steps["never"].ess == steps["always"].ess == steps["ess1"].ess       # same draws
 
 
-def test_batched_cholesky_solve_closed_form_equals_lapack() -> None:
-    rng = np.random.default_rng(4)
-    for k in (2, 3, 6):
-        B = rng.normal(size=(50, k, k))
-        A = np.eye(k) + B @ np.swapaxes(B, 1, 2) * 10.0 ** rng.uniform(-3, 6, (50, 1, 1))
-        b, Z = rng.normal(size=(50, k)), rng.normal(size=(50, k))
-        x, v, half_logdet = pm._chol_solve(A, b, Z)
-        assert_allclose(np.einsum("nij,nj->ni", A, x), b, rtol=1e-8, atol=1e-8)
-        C = np.linalg.cholesky(A)
-        assert_allclose(np.einsum("nji,nj->ni", C, v), Z, rtol=1e-10, atol=1e-10)     # C^T v = Z
-        assert_allclose(half_logdet, 0.5 * np.linalg.slogdet(A)[1], rtol=1e-12)
+@pytest.mark.parametrize("proposal", pm.PROPOSALS)
+@pytest.mark.parametrize("acc,bias", [(True, False), (True, True), (False, True)])
+def test_compiled_sampling_and_weighting_equal_the_numpy_code(proposal: str, acc: bool, bias: bool) -> None:
+    """propose_and_weigh against the numpy code it replaced (tests/pf_numpy_reference.py), on a
+    cloud after 20 updates, with the prior of one period (k = 2 or 4 noise inputs) and of two
+    (k = 4 or 8: the Cholesky loop against LAPACK), with a few overflowed particles."""
+    p = pm.ParticleFilterParameters(q_a0=(0.2, -0.1), proposal=proposal, n_particles=500, p0_q=1e-5,
+                                    use_accelerometer=acc, use_bias=bias)
+    f = pm.ParticleFilterModel(p)
+    qm, acc_xz, u, _ = signals_from_rest(24, p, seed=5)
+    for k in range(20):
+        f.update(f.measurement_vector(qm[k], acc_xz[k]))
+        f.predict(u[k], T)
+    one = (f.M.copy(), f.L)
+    f.predict(u[20], T)
+    y = f.measurement_vector(qm[21], acc_xz[21])
+    ref = NumpyMeasurement(f.meas)
+    for M, L in (one, (f.M, f.L)):
+        M = np.array(M)
+        M[[3, 7]] = [np.inf, np.nan, 0, 0, 0, 0, *[0] * (f.layout.n - 6)][:f.layout.n]
+        Z = np.random.default_rng(2).standard_normal((len(M), L.shape[1]))
+        X, logw = np.empty_like(M), np.empty(len(M))
+        D = f.D.copy()                         # the deflections Newton starts from
+        pm.propose_and_weigh(M, np.ascontiguousarray(L), f.logw, y, f.r_inv, Z, proposal == "ekf",
+                             f.batch.constants, *f.batch.offsets, D, X, logw)
+        X_ref, logw_ref = propose_and_weigh_numpy(ref, proposal, f.r_inv, M, L, f.logw, y, Z)
+        assert np.isneginf(logw[[3, 7]]).all() and not X[[3, 7]].any()
+        assert_allclose(D[:3], NumpyMeasurement(f.meas).deflection(X[:3]), rtol=1e-12)
+        assert_allclose(X, X_ref, rtol=1e-12, atol=0)
+        # the log-weight -nu^2 / 2R cancels h(x) (motor angles about 20 rad) down to an innovation
+        # nu of about 1e-3: its round-off is about eps |h| |nu| / R, 5e-12 per unit (3e-11 seen)
+        assert_allclose(logw, logw_ref, rtol=1e-12, atol=1e-10)
+
+
+def test_compiled_resampling_and_moments_equal_the_numpy_code() -> None:
+    rng = np.random.default_rng(9)
+    for n in (1, 2, 17, 1000, 5000):
+        w = rng.exponential(size=n) ** rng.uniform(0, 8)
+        w[rng.random(n) < 0.3] = 0.0
+        w[0] += 1e-3
+        for u in (0.0, rng.random(), 1 - 1e-12):
+            assert_array_equal(pm.systematic_resample(w, u), numpy_reference.systematic_resample(w, u))
+        w /= w.sum()
+        X = rng.normal(size=(n, 6)) * [1e-5, 1e-5, 1e-3, 1e-3, 1e-1, 1e-1] + [0.3, -0.2, 0, 0, 0, 0]
+        x, P = pm.weighted_mean_cov(X, w)
+        x_ref, P_ref = numpy_reference.weighted_mean_cov(X, w)
+        assert_allclose(x, x_ref, rtol=1e-12, atol=0)
+        assert_allclose(P, P_ref, rtol=1e-12, atol=1e-12 * np.abs(P_ref).max())
+        idx = pm.systematic_resample(w, 0.5)
+        Z = rng.normal(size=(n, 6))
+        moved = numpy_reference.kernel_move(X[idx], x, P, 0.4, Z, float(w @ w))
+        scale = np.abs(moved).max(axis=0)        # per state: entries near zero are differences
+        assert_allclose(pm.kernel_move(X, x, P, 0.4, Z, float(w @ w), idx) / scale, moved / scale,
+                        rtol=1e-12, atol=1e-12)
 
 
 # ---- regularisation after resampling (the cloud keeps its spread) --------------------------------
@@ -461,15 +468,3 @@ def test_bandwidth_is_checked_and_zero_is_plain_algorithm_1() -> None:
     assert_array_equal(s[0.0].x, s[1.0].x)           # the same draws and weights: same estimate
     # plain: the resampled particles are copies of the weighted ones; with the kernel all differ
     assert len(np.unique(s[0.0].X[:, 0])) < 300 and len(np.unique(s[1.0].X[:, 0])) == 300
-
-
-def test_finite_rows_flags_every_nan_and_infinity() -> None:
-    """The row-sum test of the hot path agrees with np.isfinite(...).all(axis=1), also for rows
-    holding +inf and -inf together (their sum is NaN)."""
-    rng = np.random.default_rng(2)
-    X = rng.normal(size=(200, 6))
-    for v in (np.nan, np.inf, -np.inf):
-        X[rng.integers(0, 200, 15), rng.integers(0, 6, 15)] = v
-    X[7] = (np.inf, -np.inf, 1.0, 2.0, 3.0, 4.0)     # a sum of NaN, no NaN entry
-    assert_array_equal(pm.finite_rows(X), np.isfinite(X).all(axis=1))
-    assert not pm.finite_rows(X)[7] and pm.finite_rows(X).any()

@@ -281,26 +281,6 @@ class MeasurementModel:
                  2 * bd * dq2, 2 * bd * (dq1 + dq2), self.a + 2 * b, self.c + b),
                 (gsp, bd * a1 - bdd * dq1 * dq1 + gsp, -2 * bd * dq1, 0.0, self.c + b, self.c))
 
-    def arm_torque_jacobian_many(self, X: np.ndarray) -> np.ndarray:
-        """:meth:`arm_torque_jacobian` vectorised over the rows of the states ``X`` (N, n):
-        (N, 2, 6); the same arithmetic for the particle filter's particles and the batched
-        engine's runs."""
-        q1, q2, dq1, dq2, a1, a2 = X[:, 0], X[:, 1], X[:, 2], X[:, 3], X[:, 4], X[:, 5]
-        s2, c2 = np.sin(q2), np.cos(q2)
-        gs = self.g2 * np.sin(q1 + q2)
-        b, bd, bdd = -self.e * s2, -self.e * c2, self.e * s2
-        J = np.zeros((X.shape[0], 2, 6))
-        J[:, 0, 0] = -self.g1 * np.cos(q1) + gs
-        J[:, 1, 0] = gs
-        J[:, 0, 1] = 2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + gs
-        J[:, 1, 1] = bd * a1 - bdd * dq1 * dq1 + gs
-        J[:, 0, 2] = 2 * bd * dq2
-        J[:, 0, 3] = 2 * bd * (dq1 + dq2)
-        J[:, 1, 2] = -2 * bd * dq1
-        J[:, 0, 4], J[:, 0, 5] = self.a + 2 * b, self.c + b
-        J[:, 1, 4], J[:, 1, 5] = self.c + b, self.c
-        return J
-
     # -- eq. 16: motor angles
     def motor_angles(self, x) -> np.ndarray:
         """``q_m = r (q_a + D(tau_a))`` (eq. 16 without the damping term), motor side."""

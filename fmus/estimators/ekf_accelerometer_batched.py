@@ -2,15 +2,14 @@
 covariances ``(runs, n, n)``, for the batched study engine (:mod:`orchestration.batched`).
 
 The model is :mod:`fmus.estimators.ekf_accelerometer_model` (eqs. 3, 12-19, 26), whose
-constants (``F``, ``G_u``, ``G_w Q G_w^T``, ``R``, the inertia, gravity, spring and mount
-constants) are used as they are; this module only repeats its per-sample arithmetic with a
-leading run axis, expression by expression in the same order and with Python's scalar
-``math.tanh`` and ``** 2`` (C's ``pow``) where the model uses them,
-so that each run's numbers are the single filter's (measured: bit for bit on the 2012
-scenario; numpy's batched matrix products and solves call the same LAPACK/BLAS kernels per
-matrix). :class:`BatchedEkfAccelerometer` repeats the FMU adapter
-(``ekf_accelerometer_fmu.py``) and its base
-:class:`~fmus.estimators.filter_adapter.FilterAdapter`: the same commit / predict /
+constants (``F``, ``G_u``, ``G_w Q G_w^T``, ``R``) are used as they are; this module only
+repeats its per-sample arithmetic with a leading run axis, so that each run's numbers are the
+single filter's (measured: bit for bit on the 2012 scenario; numpy's batched matrix products
+and solves call the same LAPACK/BLAS kernels per matrix). The measurement model over runs is
+:class:`~fmus.estimators.axelsson2012_batched.BatchedMeasurement`, the compiled one the
+particle filter uses over particles (each row the scalar model's numbers, bit for bit).
+:class:`BatchedEkfAccelerometer` repeats the FMU adapter (``ekf_accelerometer_fmu.py``) and its
+base :class:`~fmus.estimators.filter_adapter.FilterAdapter`: the same commit / predict /
 update order and the same sample-time rule.
 """
 from __future__ import annotations
@@ -25,111 +24,14 @@ from fmus.common.sample_time import TIME_TOL, UNSTAMPED, intervals, measurement_
 from fmus.common.kalman import FilterDivergence
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
+from fmus.estimators.axelsson2012_batched import BatchedMeasurement
 
 _TRIL = np.tril_indices(6)
-
-
-_math_tanh = np.frompyfunc(math.tanh, 1, 1)
-_math_tanh_squared = np.frompyfunc(lambda v: math.tanh(v) ** 2, 1, 1)
-
-
-def _tanh(x: np.ndarray) -> np.ndarray:
-    """``math.tanh`` elementwise: the single filter's bits (numpy's tanh differs in the last bit)."""
-    return _math_tanh(x).astype(float)
-
-
-def _tanh_squared(x: np.ndarray) -> np.ndarray:
-    """``math.tanh(x) ** 2`` elementwise: Python's ``**`` is C's ``pow``, which is not always
-    the correctly rounded square numpy's ``** 2`` computes."""
-    return _math_tanh_squared(x).astype(float)
 
 
 def _T(a: np.ndarray) -> np.ndarray:
     """The transpose of each matrix of a stack."""
     return np.swapaxes(a, -1, -2)
-
-
-class BatchedMeasurement:
-    """:class:`~fmus.estimators.ekf_accelerometer_model.MeasurementModel`'s ``h_and_jacobian``
-    on ``(runs, n)`` states (eqs. 11, 15-19)."""
-
-    def __init__(self, meas: am.MeasurementModel) -> None:
-        self.m = meas
-
-    def _torque_deflection(self, x: np.ndarray) -> tuple[tuple, tuple]:
-        m = self.m
-        q1, q2, dq1, dq2, a1, a2 = (x[:, i] for i in range(6))
-        s2, c2 = np.sin(q2), np.cos(q2)
-        b, bd = -m.e * s2, -m.e * c2
-        cp = np.cos(q1 + q2)
-        tau = ((m.a + 2 * b) * a1 + (m.c + b) * a2 + bd * (2 * dq1 * dq2 + dq2 * dq2)
-               - m.g1 * np.sin(q1) - m.g2 * cp,
-               (m.c + b) * a1 + m.c * a2 - bd * dq1 * dq1 - m.g2 * cp)
-        D = []
-        for i in range(2):
-            k_hi, k_soft, delta, t = m._k_hi[i], m._k_soft[i], m._delta[i], tau[i]
-            d = (t + np.copysign(k_soft * delta * _tanh(np.abs(t) / (k_hi * delta)), t)) / k_hi
-            tol = 1e-12 * np.maximum(1.0, np.abs(t))
-            active = np.ones(d.shape, dtype=bool)     # Newton per run, each stops on its own
-            for _ in range(50):
-                da, ta = d[active], t[active]
-                f = k_hi * da - k_soft * delta * _tanh(da / delta) - ta
-                d[active] = da - f / (k_hi - k_soft * (1.0 - _tanh_squared(da / delta)))
-                active[active] = ~(np.abs(f) <= tol[active])
-                if not active.any():
-                    break
-            D.append(d)
-        return tau, (D[0], D[1])
-
-    def _specific_force_and_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        m = self.m
-        q1, q2 = x[:, 0], x[:, 1]
-        dq1, dphi = x[:, 2], x[:, 2] + x[:, 3]
-        a1, aphi = x[:, 4], x[:, 4] + x[:, 5]
-        c2, s2 = np.cos(q2), np.sin(q2)
-        phi = q1 + q2
-        cp, sp = np.cos(phi), np.sin(phi)
-        u1, u2 = a1, -dq1 * dq1
-        l1, v, Sv, g = m.l1, m.v, m.Sv, m.g
-        f = np.empty((x.shape[0], 2))
-        f[:, 0] = l1 * (c2 * u1 - s2 * u2) + Sv[0] * aphi - v[0] * dphi * dphi - g * sp
-        f[:, 1] = l1 * (s2 * u1 + c2 * u2) + Sv[1] * aphi - v[1] * dphi * dphi + g * cp
-        J = np.empty((x.shape[0], 2, 6))
-        dg0, dg1 = -g * cp, -g * sp
-        J[:, 0, 0], J[:, 1, 0] = dg0, dg1
-        J[:, 0, 1] = dg0 + l1 * (-s2 * u1 - c2 * u2)
-        J[:, 1, 1] = dg1 + l1 * (c2 * u1 - s2 * u2)
-        J[:, 0, 2] = l1 * (s2 * 2 * dq1) - 2 * v[0] * dphi
-        J[:, 1, 2] = l1 * (-c2 * 2 * dq1) - 2 * v[1] * dphi
-        J[:, 0, 3] = -2 * v[0] * dphi
-        J[:, 1, 3] = -2 * v[1] * dphi
-        J[:, 0, 4] = l1 * c2 + Sv[0]
-        J[:, 1, 4] = l1 * s2 + Sv[1]
-        J[:, 0, 5], J[:, 1, 5] = Sv[0], Sv[1]
-        return f, J
-
-    def h_and_jacobian(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``h(x)`` (runs, m) and ``H`` (runs, m, n) of eq. 15."""
-        m, L = self.m, self.m.layout
-        runs = x.shape[0]
-        _, D = self._torque_deflection(x)
-        y = np.empty((runs, L.m))
-        H = np.zeros((runs, L.m, L.n))
-        Jt = m.arm_torque_jacobian_many(x)
-        for i in range(2):
-            k = m._k_hi[i] - m._k_soft[i] * (1.0 - _tanh_squared(D[i] / m._delta[i]))
-            y[:, i] = m.r[i] * (x[:, i] + D[i])
-            H[:, i, 0:6] = (m.r[i] / k)[:, None] * Jt[:, i]
-            H[:, i, i] += m.r[i]
-        if L.bias_m is not None:
-            y[:, 0:2] += x[:, L.bias_m]
-            H[:, 0:2, L.bias_m] = np.eye(2)
-        if L.use_accelerometer:
-            y[:, 2:4], H[:, 2:4, 0:6] = self._specific_force_and_jacobian(x)
-            if L.bias_acc is not None:
-                y[:, 2:4] += x[:, L.bias_acc]
-                H[:, 2:4, L.bias_acc] = np.eye(2)
-        return y, H
 
 
 class Estimate(NamedTuple):

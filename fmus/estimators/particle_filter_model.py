@@ -5,9 +5,10 @@ Model
 -----
 Exactly the model of :mod:`fmus.estimators.axelsson2012_model` (section 3.2, eqs. 12-19):
 the state, the transition matrices ``F, G_u, G_w`` (eq. 14), ``Q`` and ``R`` (eq. 26, the
-EKF's parameters) and the measurement function ``h`` (eq. 15). :class:`BatchMeasurementModel`
-evaluates ``h`` and its Jacobian for all particles at once (checked against the scalar
-:class:`~fmus.estimators.axelsson2012_model.MeasurementModel` in the tests).
+EKF's parameters) and the measurement function ``h`` (eq. 15), evaluated for all particles by
+the compiled :mod:`fmus.estimators.axelsson2012_batched` (each particle's numbers the scalar
+:class:`~fmus.estimators.axelsson2012_model.MeasurementModel`'s). Sampling and weighting run as
+one compiled pass over the particles (:func:`propose_and_weigh`).
 
 Algorithm (section 2.2, Algorithm 1)
 ------------------------------------
@@ -99,10 +100,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fmus.common import dynamics, kinematics
+from fmus.common import kinematics
 from fmus.common.noise import make_rng
 from fmus.common.kalman import FilterDivergence
+from fmus.common.jit import kernel
 from fmus.common.parameters import param
+from fmus.estimators.axelsson2012_batched import BatchedMeasurement, measure_many
 from fmus.estimators.axelsson2012_model import (DDQ_, DQ_, Q_, EkfAccelerometerParameters, Layout,
                                                 MeasurementModel, initial_covariance, measurement_noise,
                                                 process_noise, transition_matrices)
@@ -147,138 +150,6 @@ def optimal_bandwidth(n_eff: float, n_states: int) -> float:
     return (4.0 / (max(n_eff, 1.0) * (n_states + 2))) ** (1.0 / (n_states + 4))
 
 
-# ---- eqs. 15-19 for all particles at once --------------------------------------------------------
-class BatchMeasurementModel:
-    """``h(x)`` of eq. 15 and its Jacobian, vectorised over particles (``X`` of shape (N, n)).
-
-    Parameters
-    ----------
-    meas
-        The scalar :class:`MeasurementModel` (the EKF's) whose robot model, state layout and
-        constants this one takes, so both evaluate the same model.
-    """
-
-    def __init__(self, meas: MeasurementModel) -> None:
-        self.meas = meas
-        self.p = meas.p
-        self.layout = meas.layout
-        self.a, self.c, self.e = meas.a, meas.c, meas.e
-        self.g1, self.g2, self.g, self.l1 = meas.g1, meas.g2, meas.g, meas.l1
-        self.v, self.Sv, self.r = meas.v, meas.Sv, meas.r
-        p = self.p
-        self.k_hi = np.asarray(p.k_hi, float)
-        self.k_soft = self.k_hi - np.asarray(p.k_lo, float)
-        self.delta = np.asarray(p.delta, float)
-
-    def arm_torque(self, X: np.ndarray) -> np.ndarray:
-        """``tau_a = M(q) ddq + C(q, dq) dq + G(q)`` (eq. 11), (N, 2)."""
-        q1, q2, dq1, dq2, a1, a2 = X[:, 0], X[:, 1], X[:, 2], X[:, 3], X[:, 4], X[:, 5]
-        b = -self.e * np.sin(q2)
-        bd = -self.e * np.cos(q2)
-        gc = self.g2 * np.cos(q1 + q2)
-        tau = np.empty((X.shape[0], 2))
-        tau[:, 0] = (self.a + 2 * b) * a1 + (self.c + b) * a2 + bd * (2 * dq1 * dq2 + dq2 * dq2) \
-            - self.g1 * np.sin(q1) - gc
-        tau[:, 1] = (self.c + b) * a1 + self.c * a2 - bd * dq1 * dq1 - gc
-        return tau
-
-    def specific_force(self, X: np.ndarray) -> np.ndarray:
-        """Accelerometer reading (sensor x, z) of eqs. 17-19, (N, 2)."""
-        q1, q2, dq1 = X[:, 0], X[:, 1], X[:, 2]
-        dphi, a1, aphi = dq1 + X[:, 3], X[:, 4], X[:, 4] + X[:, 5]
-        c2, s2 = np.cos(q2), np.sin(q2)
-        phi = q1 + q2
-        u2 = -dq1 * dq1
-        d2 = dphi * dphi
-        f = np.empty((X.shape[0], 2))
-        f[:, 0] = self.l1 * (c2 * a1 - s2 * u2) + self.Sv[0] * aphi - self.v[0] * d2 - self.g * np.sin(phi)
-        f[:, 1] = self.l1 * (s2 * a1 + c2 * u2) + self.Sv[1] * aphi - self.v[1] * d2 + self.g * np.cos(phi)
-        return f
-
-    def specific_force_jacobian(self, X: np.ndarray) -> np.ndarray:
-        """``d f / d(q, dq, ddq)``, (N, 2, 6), analytic."""
-        q1, q2, dq1 = X[:, 0], X[:, 1], X[:, 2]
-        dphi, a1 = dq1 + X[:, 3], X[:, 4]
-        c2, s2 = np.cos(q2), np.sin(q2)
-        phi = q1 + q2
-        cp, sp = np.cos(phi), np.sin(phi)
-        u2 = -dq1 * dq1
-        l1, v, Sv, g = self.l1, self.v, self.Sv, self.g
-        J = np.zeros((X.shape[0], 2, 6))
-        J[:, 0, 0] = -g * cp
-        J[:, 1, 0] = -g * sp
-        J[:, 0, 1] = -g * cp + l1 * (-s2 * a1 - c2 * u2)
-        J[:, 1, 1] = -g * sp + l1 * (c2 * a1 - s2 * u2)
-        J[:, 0, 2] = 2 * l1 * s2 * dq1 - 2 * v[0] * dphi
-        J[:, 1, 2] = -2 * l1 * c2 * dq1 - 2 * v[1] * dphi
-        J[:, 0, 3] = -2 * v[0] * dphi
-        J[:, 1, 3] = -2 * v[1] * dphi
-        J[:, 0, 4] = l1 * c2 + Sv[0]
-        J[:, 1, 4] = l1 * s2 + Sv[1]
-        J[:, 0, 5] = Sv[0]
-        J[:, 1, 5] = Sv[1]
-        return J
-
-    def deflection(self, X: np.ndarray, D0: np.ndarray | None = None) -> np.ndarray:
-        """Gearbox deflections ``D = tau_s^{-1}(tau_a)`` (eq. 16), (N, 2).
-
-        The spring and the tolerance of :func:`fmus.common.dynamics.spring_deflection`
-        (``tau_s(D) = k_hi D - (k_hi - k_lo) delta tanh(D / delta)``, Newton until
-        ``|tau_s(D) - tau| <= 1e-12 max(1, |tau|)``), with one ``tanh`` per iteration
-        (``1/cosh^2 = 1 - tanh^2``) and from ``D0`` if given (the deflections of nearby states,
-        e.g. the particles' prior means: one or two iterations).
-        """
-        tau = self.arm_torque(X)
-        k_hi, k_soft, delta = self.k_hi, self.k_soft, self.delta
-        if D0 is None:      # the high-stiffness asymptote, shifted by the soft zone
-            D = (tau + np.sign(tau) * k_soft * delta * np.tanh(np.abs(tau) / (k_hi * delta))) / k_hi
-        else:
-            D = np.array(D0, float)
-        tol = 1e-12 * np.maximum(1.0, np.abs(tau))
-        for _ in range(50):
-            t = np.tanh(D / delta)
-            f = k_hi * D - k_soft * delta * t - tau
-            if np.all(np.abs(f) <= tol):
-                break
-            D = D - f / (k_hi - k_soft * (1.0 - t * t))
-        return D
-
-    def h(self, X: np.ndarray, D: np.ndarray | None = None) -> np.ndarray:
-        """``h(x)`` of eq. 15 for every row of ``X``: motor angles (eq. 16, motor side, plus the
-        bias), then the accelerometer (eqs. 17-19, plus its bias); (N, m). ``D``: the
-        deflections of ``X`` if known (:meth:`deflection`)."""
-        L = self.layout
-        Y = np.empty((X.shape[0], L.m))
-        Y[:, 0:2] = self.r * (X[:, 0:2] + (self.deflection(X) if D is None else D))
-        if L.bias_m is not None:
-            Y[:, 0:2] += X[:, L.bias_m]
-        if L.use_accelerometer:
-            Y[:, 2:4] = self.specific_force(X)
-            if L.bias_acc is not None:
-                Y[:, 2:4] += X[:, L.bias_acc]
-        return Y
-
-    def jacobian(self, X: np.ndarray, D: np.ndarray | None = None) -> np.ndarray:
-        """``H = dh/dx`` (eq. 4c) for every row of ``X``, (N, m, n): ``r (I + K(D)^-1 d tau_a/dx)``
-        for the motors, :meth:`specific_force_jacobian` for the accelerometer, identities for the
-        biases (as :meth:`MeasurementModel.jacobian`). ``D`` as in :meth:`h`."""
-        L = self.layout
-        H = np.zeros((X.shape[0], L.m, L.n))
-        k = dynamics.spring_stiffness(self.deflection(X) if D is None else D, self.p)
-        H[:, 0:2, 0:6] = (self.r / k)[:, :, None] * self.meas.arm_torque_jacobian_many(X)
-        H[:, 0, 0] += self.r[0]
-        H[:, 1, 1] += self.r[1]
-        if L.bias_m is not None:
-            H[:, 0, L.bias_m.start] += 1.0
-            H[:, 1, L.bias_m.start + 1] += 1.0
-        if L.use_accelerometer:
-            H[:, 2:4, 0:6] = self.specific_force_jacobian(X)
-            if L.bias_acc is not None:
-                H[:, 2, L.bias_acc.start] += 1.0
-                H[:, 3, L.bias_acc.start + 1] += 1.0
-        return H
-
-
 # ---- Algorithm 1, building blocks -------------------------------------------------------------
 def normalise_log_weights(logw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Normalised weights ``g_i`` (Algorithm 1, step 2) and their logarithms, by log-sum-exp,
@@ -292,21 +163,13 @@ def normalise_log_weights(logw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return w / s, logw - (lmax + math.log(s))
 
 
-def finite_rows(X: np.ndarray) -> np.ndarray:
-    """Whether each row of ``X`` (N, k) is finite, from its sum (a matrix-vector product, ten
-    times faster than ``np.isfinite(X).all(axis=1)``; a NaN or an infinity makes the sum
-    non-finite). A finite row whose sum overflows (entries near 1e308) counts as non-finite:
-    such a particle's measurement overflows as well, and its weight is zero either way."""
-    with np.errstate(invalid="ignore"):       # inf - inf: the NaN that flags the row
-        return np.isfinite(X @ np.ones(X.shape[1]))
-
-
 def effective_sample_size(w: np.ndarray) -> float:
     """``1 / sum g_i^2`` of the normalised weights ``w`` (N,) (Kish's effective sample size: N for
     equal weights, 1 for one particle)."""
     return float(1.0 / np.dot(w, w))
 
 
+@kernel
 def systematic_resample(w: np.ndarray, u: float) -> np.ndarray:
     """Indices (N,) of systematic resampling (Algorithm 1, step 3) of the particles with the
     weights ``w`` (N,), non-negative and normalised here by their sum, with one uniform ``u`` in
@@ -314,26 +177,49 @@ def systematic_resample(w: np.ndarray, u: float) -> np.ndarray:
 
     The points ``(u + j) / N``, ``j = 0..N-1``, select the particle whose cumulative weight
     interval contains them: particle ``i`` is copied ``floor(N g_i)`` or ``ceil(N g_i)`` times
-    (unbiased: the expected count is ``N g_i``) and never when ``g_i = 0``.
+    (unbiased: the expected count is ``N g_i``) and never when ``g_i = 0``. One pass over the
+    points and the cumulative weights (both ascend).
     """
     n = w.shape[0]
     c = np.cumsum(w)
     c /= c[-1]                                   # exactly 1 at the end
-    idx = np.searchsorted(c, (u + np.arange(n)) / n, side="right")
-    return np.minimum(idx, n - 1)
+    idx = np.empty(n, np.int64)
+    i = 0
+    for j in range(n):
+        t = (u + j) / n
+        while i < n - 1 and c[i] <= t:           # the first i with c_i > t (the last at most)
+            i += 1
+        idx[j] = i
+    return idx
 
 
+@kernel
 def weighted_mean_cov(X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The MMSE estimate ``sum g_i x_i`` (eq. 6) and the weighted covariance
     ``sum g_i (x_i - x_hat)(x_i - x_hat)^T`` of the particles ``X`` (N, n) with the normalised
     weights ``w`` (N,) (summing to 1; the covariance is the plug-in one, not debiased)."""
-    x = w @ X
-    d = X - x
-    return x, (d * w[:, None]).T @ d
+    N, n = X.shape
+    x = np.zeros(n)
+    for i in range(N):
+        for p in range(n):
+            x[p] += w[i] * X[i, p]
+    P = np.zeros((n, n))
+    d = np.empty(n)
+    for i in range(N):
+        for p in range(n):
+            d[p] = X[i, p] - x[p]
+        for p in range(n):
+            wd = w[i] * d[p]
+            for q in range(p + 1):
+                P[p, q] += wd * d[q]
+    for p in range(n):
+        for q in range(p):
+            P[q, p] = P[p, q]
+    return x, P
 
 
 def kernel_move(X: np.ndarray, x: np.ndarray, P: np.ndarray, h: float, Z: np.ndarray,
-                sum_w2: float = 0.0) -> np.ndarray:
+                sum_w2: float = 0.0, idx: np.ndarray | None = None) -> np.ndarray:
     """Regularisation after resampling: ``x_i <- a x_i + (1 - a) x_hat + c S z_i``.
 
     Each resampled particle is replaced by a draw from a Gaussian kernel centred on it and
@@ -349,7 +235,8 @@ def kernel_move(X: np.ndarray, x: np.ndarray, P: np.ndarray, h: float, Z: np.nda
     Parameters
     ----------
     X
-        Resampled particles (N, n), equally weighted.
+        Resampled particles (N, n), equally weighted; or, with ``idx``, the particles before
+        resampling, and ``X[idx]`` the resampled ones (the copies are not made).
     x, P
         The weighted mean (eq. 6) and covariance of the particles before resampling.
     h
@@ -358,41 +245,164 @@ def kernel_move(X: np.ndarray, x: np.ndarray, P: np.ndarray, h: float, Z: np.nda
         Standard normals (N, n).
     sum_w2
         ``sum g_i^2`` of the weights before resampling (``1 / ESS``); 0: no debiasing.
+    idx
+        Indices (N,) of the resampled particles in ``X`` (:func:`systematic_resample`); None:
+        ``X`` is resampled already.
 
     Returns
     -------
     numpy.ndarray
-        The moved particles (N, n). ``S`` is the symmetric square root of ``P`` with negative
-        round-off eigenvalues set to zero (``P`` may be singular, e.g. one survivor).
+        The moved particles (N, n). ``S = V sqrt(Lambda)`` (``S S^T = P``) from the
+        eigendecomposition of ``P`` with negative round-off eigenvalues set to zero (``P`` may
+        be singular, e.g. one survivor).
     """
     lam, V = np.linalg.eigh(0.5 * (P + P.T))
     S = V * np.sqrt(np.clip(lam, 0.0, None))
     a = math.sqrt(1.0 - h * h)
     c = math.sqrt(1.0 / (1.0 - sum_w2) - a * a) if sum_w2 < 1.0 else h
-    return a * X + (1.0 - a) * x + c * (Z @ S.T)
+    out = np.empty((Z.shape[0], X.shape[1]))
+    _move(X, np.arange(len(X)) if idx is None else idx, x, np.ascontiguousarray(S), a, c, Z, out)
+    return out
 
 
-def _chol_solve(A: np.ndarray, b: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For symmetric positive definite ``A`` (N, k, k): ``A^-1 b``, ``C^-T Z`` (a sample of
-    ``N(0, A^-1)`` from standard normals ``Z``) and ``sum log diag C``, ``A = C C^T`` (rows (N, k))."""
-    if A.shape[1] == 2:                         # closed form (no bias states): no LAPACK per particle
-        c11 = np.sqrt(A[:, 0, 0])
-        c21 = A[:, 1, 0] / c11
-        c22 = np.sqrt(A[:, 1, 1] - c21 * c21)
-        z1 = b[:, 0] / c11                      # C z = b
-        z2 = (b[:, 1] - c21 * z1) / c22
-        x2 = z2 / c22                           # C^T x = z
-        x1 = (z1 - c21 * x2) / c11
-        v2 = Z[:, 1] / c22                      # C^T v = Z
-        v1 = (Z[:, 0] - c21 * v2) / c11
-        return (np.column_stack([x1, x2]), np.column_stack([v1, v2]),
-                np.log(c11) + np.log(c22))
-    C = np.linalg.cholesky(A)
-    Ct = np.swapaxes(C, 1, 2)
-    z = np.linalg.solve(C, b[:, :, None])
-    x = np.linalg.solve(Ct, z)[:, :, 0]
-    v = np.linalg.solve(Ct, Z[:, :, None])[:, :, 0]
-    return x, v, np.log(np.diagonal(C, axis1=1, axis2=2)).sum(axis=1)
+@kernel
+def _move(X, idx, x, S, a, c, Z, out):
+    """``out_j = a X_idx_j + (1 - a) x + c S z_j`` (:func:`kernel_move`), row by row."""
+    n = X.shape[1]
+    for j in range(idx.shape[0]):
+        i = idx[j]
+        for p in range(n):
+            s = 0.0
+            for q in range(n):
+                s += Z[j, q] * S[p, q]
+            out[j, p] = a * X[i, p] + (1.0 - a) * x[p] + c * s
+
+
+@kernel
+def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, c, m, bias_m, bias_acc, D, X, logw):
+    """Algorithm 1, steps 2 and 4, in one compiled call over the particles: sample
+    ``x_i = m_i + L e_i`` from the proposal and weight it (the module docstring's formulas).
+
+    Parameters
+    ----------
+    M, L
+        The prior: means (N, n) and noise factor (n, k).
+    logw_prev
+        The particles' log-weights before the update (N,).
+    y, r_inv
+        The measurement (m,) and the inverse of the diagonal of ``R`` (m,).
+    Z
+        Standard normals (N, k), one row per particle.
+    ekf
+        True: the EKF proposal (eq. 30), ``e = A^-1 H_e^T R^-1 (y - h(m_i)) + C^-T z`` with
+        ``A = I + H_e^T R^-1 H_e = C C^T``, ``H_e = H(m_i) L``; false: the prior (eq. 28), ``e = z``.
+    c, m, bias_m, bias_acc
+        The measurement model (:func:`~fmus.estimators.axelsson2012_batched.measure_many`,
+        squares rounded exactly: ``exact`` false there).
+    D
+        In: the gearbox deflections (N, 2) of the particles the means ``M`` were predicted
+        from (NaN: none), where the Newton iterations start (for the means, then for the new
+        particles from the means'); out: those of the new particles ``X``.
+    X, logw
+        Outputs: the particles (N, n) and their unnormalised log-weights (N,):
+        ``logw_prev - nu^T R^-1 nu / 2`` (+ ``log N(e; 0, I) - log N(e; mu, A^-1)``), ``-inf``
+        (and the particle zero) where the weight or the state is not finite.
+    """
+    N, n = M.shape
+    k = L.shape[1]
+    Yh = np.empty((N, m))
+    dlog = np.zeros(N)
+    if ekf:                                    # eq. 30: one EKF update per particle, at m_i
+        Hm = np.zeros((N, m, n))
+        measure_many(M, c, m, bias_m, bias_acc, False, D, Yh, Hm, D)
+        He, C = np.empty((m, k)), np.empty((k, k))
+        nu, e, z = np.empty(m), np.empty(k), np.empty(k)
+    for i in range(N):
+        if ekf:
+            H = Hm[i]
+            for a in range(m):
+                nu[a] = y[a] - Yh[i, a]
+                for j in range(k):
+                    s = 0.0
+                    for p in range(n):
+                        s += H[a, p] * L[p, j]
+                    He[a, j] = s
+            # A's lower triangle into C and b into z; then C: its Cholesky factor, in place
+            total = 0.0
+            for j in range(k):
+                for l in range(j + 1):
+                    s = 0.0
+                    for a in range(m):
+                        s += He[a, j] * r_inv[a] * He[a, l]
+                    C[j, l] = s + 1.0 if j == l else s
+                    total += C[j, l]
+                s = 0.0
+                for a in range(m):
+                    s += He[a, j] * r_inv[a] * nu[a]
+                z[j] = s
+                total += s
+            if not math.isfinite(total):      # an overflowed particle: any proposal, weight 0 below
+                for j in range(k):
+                    for l in range(j + 1):
+                        C[j, l] = 1.0 if j == l else 0.0
+                    z[j] = 0.0
+            logdet_half = 0.0
+            for j in range(k):
+                s = C[j, j]
+                for p in range(j):
+                    s -= C[j, p] * C[j, p]
+                C[j, j] = math.sqrt(s)
+                logdet_half += math.log(C[j, j])
+                for l in range(j + 1, k):
+                    s = C[l, j]
+                    for p in range(j):
+                        s -= C[l, p] * C[j, p]
+                    C[l, j] = s / C[j, j]
+            for j in range(k):                 # C z = b
+                s = z[j]
+                for p in range(j):
+                    s -= C[j, p] * z[p]
+                z[j] = s / C[j, j]
+            for j in range(k - 1, -1, -1):     # C^T mu = z (into z), C^T v = Z_i (into e)
+                s, t = z[j], Z[i, j]
+                for p in range(j + 1, k):
+                    s -= C[p, j] * z[p]
+                    t -= C[p, j] * e[p]
+                z[j] = s / C[j, j]
+                e[j] = t / C[j, j]
+            zz, ee = 0.0, 0.0
+            for j in range(k):                 # e = mu + v
+                zz += Z[i, j] * Z[i, j]
+                e[j] += z[j]
+                ee += e[j] * e[j]
+            # log N(e; 0, I) - log N(e; mu, A^-1), (e - mu)^T A (e - mu) = Z^T Z
+            dlog[i] = 0.5 * (zz - ee) - logdet_half
+            for p in range(n):
+                s = 0.0
+                for j in range(k):
+                    s += L[p, j] * e[j]
+                X[i, p] = M[i, p] + s
+        else:                                  # eq. 28: the prior
+            for p in range(n):
+                s = 0.0
+                for j in range(k):
+                    s += L[p, j] * Z[i, j]
+                X[i, p] = M[i, p] + s
+    # p(y | x) (Gaussian e_t)
+    measure_many(X, c, m, bias_m, bias_acc, False, D, Yh, np.zeros((N, 0, 0)), D)
+    for i in range(N):
+        q, total = 0.0, 0.0
+        for a in range(m):
+            d = y[a] - Yh[i, a]
+            q += d * d * r_inv[a]
+        for p in range(n):
+            total += X[i, p]
+        lw = logw_prev[i] - 0.5 * q + dlog[i]
+        if math.isfinite(lw) and math.isfinite(total):
+            logw[i] = lw
+        else:
+            logw[i] = -math.inf
+            X[i] = 0.0
 
 
 @dataclass
@@ -404,6 +414,7 @@ class FilterStep:
     x: np.ndarray            #: MMSE estimate (eq. 6), before resampling
     P: np.ndarray            #: weighted covariance, before resampling
     ess: float               #: effective sample size before resampling
+    D: np.ndarray            #: gearbox deflections of the particles ``X`` (before their move)
     resampled: bool
     reinit: str              #: "" or why the cloud was re-initialised
     rng_state: dict
@@ -431,7 +442,7 @@ class ParticleFilterModel:
         self.p = p
         self.layout = Layout(bool(p.use_accelerometer), bool(p.use_bias))
         self.meas = MeasurementModel(p.robot(), self.layout)
-        self.batch = BatchMeasurementModel(self.meas)
+        self.batch = BatchedMeasurement(self.meas)
         self.Q = process_noise(p, self.layout)
         self.R = measurement_noise(p, self.layout)
         self.r_inv = 1.0 / np.diag(self.R)
@@ -453,6 +464,7 @@ class ParticleFilterModel:
         self.ess = float(self.N)
         self.n_reinit = 0
         self.X: np.ndarray | None = None             # no particles before the first update
+        self.D = np.full((self.N, 2), np.nan)        # their gearbox deflections (Newton's start)
         self.logw = np.full(self.N, -math.log(self.N))
         # the prior of the next update: means M (N, n), factor L (n, k); and the last good
         # estimate propagated to the time of the next update
@@ -504,54 +516,33 @@ class ParticleFilterModel:
         return x_prior
 
     # -- Algorithm 1, steps 2-4, one measurement
-    def _sample_and_weight(self, M, L, logw_prev, y, rng) -> tuple | None:
-        """Sample ``x = M + L e`` from the proposal and weight it; ``None`` if no particle has a
+    def _sample_and_weight(self, M, L, logw_prev, D, y, rng) -> tuple | None:
+        """Sample ``x = M + L e`` from the proposal and weight it (:func:`propose_and_weigh`;
+        ``D``, the deflections to start from, is overwritten); ``None`` if no particle has a
         finite weight and state."""
-        n_p, k = M.shape[0], L.shape[1]
-        Z = rng.standard_normal((n_p, k))
-        D0 = None
-        if self.proposal == "ekf":                # eq. 30: one EKF update per particle
-            D0 = self.batch.deflection(M)
-            m = self.layout.m
-            # (N, m, k): one matrix product of all particles' rows (not N small ones)
-            He = (self.batch.jacobian(M, D0).reshape(n_p * m, -1) @ L).reshape(n_p, m, k)
-            HtRi = np.swapaxes(He, 1, 2) * self.r_inv               # H_e^T R^-1
-            A = HtRi @ He
-            A[:, range(k), range(k)] += 1.0
-            b = (HtRi @ (y - self.batch.h(M, D0))[:, :, None])[:, :, 0]
-            bad = ~(finite_rows(A.reshape(n_p, k * k)) & finite_rows(b))
-            if bad.any():         # overflowed particles: any proposal, their weight is 0 below
-                A[bad], b[bad] = np.eye(k), 0.0
-            mu, v, logdet_half = _chol_solve(A, b, Z)
-            E = mu + v
-            # log N(e; 0, I) - log N(e; mu, A^-1), (e - mu)^T A (e - mu) = Z^T Z
-            dlog = 0.5 * (np.einsum("ij,ij->i", Z, Z) - np.einsum("ij,ij->i", E, E)) - logdet_half
-        else:                                      # eq. 28: the prior
-            E, dlog = Z, 0.0
-        X = M + E @ L.T
-        nu = y - self.batch.h(X, self.batch.deflection(X, D0))
-        logw = logw_prev - 0.5 * (nu * nu) @ self.r_inv + dlog    # p(y | x) (Gaussian e_t)
-        ok = np.isfinite(logw) & finite_rows(X)
-        if not ok.any():
+        Z = rng.standard_normal((M.shape[0], L.shape[1]))
+        X, logw = np.empty(M.shape), np.empty(M.shape[0])
+        propose_and_weigh(np.ascontiguousarray(M), np.ascontiguousarray(L), logw_prev, y, self.r_inv, Z,
+                          self.proposal == "ekf", self.batch.constants, *self.batch.offsets, D, X, logw)
+        if not np.isfinite(logw).any():
             return None
-        logw = np.where(ok, logw, -np.inf)
         w, logw = normalise_log_weights(logw)
-        X = np.where(ok[:, None], X, 0.0)
         x, P = weighted_mean_cov(X, w)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
             return None
-        return X, w, logw, x, P
+        return X, D, w, logw, x, P
 
-    def _resample(self, X, w, logw, x, P, rng) -> tuple[np.ndarray, np.ndarray, bool]:
+    def _resample(self, X, D, w, logw, x, P, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
         ess = effective_sample_size(w)
         if self.resample_always or ess < self.ess_min:
             idx = systematic_resample(w, float(rng.random()))
-            X = X[idx]
             if self.bandwidth > 0.0:
                 h = self.bandwidth * optimal_bandwidth(ess, self.layout.n)
-                X = kernel_move(X, x, P, h, rng.standard_normal(X.shape), float(np.dot(w, w)))
-            return X, np.full(self.N, -math.log(self.N)), True
-        return X, logw, False
+                X = kernel_move(X, x, P, h, rng.standard_normal(X.shape), float(np.dot(w, w)), idx)
+            else:
+                X = X[idx]
+            return X, D[idx], np.full(self.N, -math.log(self.N)), True
+        return X, D, logw, False
 
     def filtered(self, y) -> FilterStep:
         """The update with the measurement ``y`` (Algorithm 1, steps 2-4, eq. 6), not committed.
@@ -566,11 +557,11 @@ class ParticleFilterModel:
         rng.bit_generator.state = self.rng_state
         reinit = ""
         with np.errstate(all="ignore"):           # non-finite weights and states are handled
-            r = self._sample_and_weight(self.M, self.L, self.logw, y, rng)
+            r = self._sample_and_weight(self.M, self.L, self.logw, self.D.copy(), y, rng)
             if r is None:
                 reinit = "all particle weights underflowed or were not finite"
                 M0 = np.broadcast_to(self.x_prior, (self.N, self.layout.n))
-                r = self._sample_and_weight(M0, self.L0, np.zeros(self.N), y, rng)
+                r = self._sample_and_weight(M0, self.L0, np.zeros(self.N), np.full((self.N, 2), np.nan), y, rng)
                 if r is None:                     # the measurement cannot be fused at all
                     reinit += "; the measurement was skipped"
                     X = M0 + rng.standard_normal((self.N, self.layout.n)) @ self.L0.T
@@ -579,15 +570,15 @@ class ParticleFilterModel:
                     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
                         raise FilterDivergence("particle filter diverged: the re-initialised "
                                                "particle cloud is not finite")
-                    r = X, w, np.log(w), x, P
-            X, w, logw, x, P = r
+                    r = X, np.full((self.N, 2), np.nan), w, np.log(w), x, P
+            X, D, w, logw, x, P = r
             ess = effective_sample_size(w)
-            X, logw, resampled = self._resample(X, w, logw, x, P, rng)
-        return FilterStep(X, logw, x, P, ess, resampled, reinit, rng.bit_generator.state)
+            X, D, logw, resampled = self._resample(X, D, w, logw, x, P, rng)
+        return FilterStep(X, logw, x, P, ess, D, resampled, reinit, rng.bit_generator.state)
 
     def commit(self, s: FilterStep) -> np.ndarray:
         """Store the update ``s`` (from :meth:`filtered` on the current state); returns ``x_hat``."""
-        self.X, self.logw, self.x, self.P, self.ess = s.X, s.logw, s.x, s.P, s.ess
+        self.X, self.logw, self.x, self.P, self.ess, self.D = s.X, s.logw, s.x, s.P, s.ess, s.D
         self.n_reinit += bool(s.reinit)
         self.rng_state = s.rng_state
         self._predicted = False
@@ -604,6 +595,6 @@ class ParticleFilterModel:
         return kinematics.tool_position((self.x if x is None else x)[Q_], self.meas.p)
 
 
-__all__ = ["ParticleFilterParameters", "ParticleFilterModel", "BatchMeasurementModel", "FilterStep",
+__all__ = ["ParticleFilterParameters", "ParticleFilterModel", "FilterStep", "propose_and_weigh",
            "systematic_resample", "kernel_move", "optimal_bandwidth", "effective_sample_size",
-           "normalise_log_weights", "weighted_mean_cov", "finite_rows", "PROPOSALS", "RESAMPLING", "DQ_", "DDQ_", "Q_"]
+           "normalise_log_weights", "weighted_mean_cov", "PROPOSALS", "RESAMPLING", "DQ_", "DDQ_", "Q_"]

@@ -32,8 +32,9 @@ BUNDLE_ID_FILE = "BUNDLE_ID"
 
 
 def package_sources(root: Path) -> list[Path]:
-    """The package's source files that its bundle id covers: every ``*.py`` but the FMU scripts
-    (each FMU carries its own script beside the shared package), sorted."""
+    """The source files below the package folder ``root`` that its bundle id covers: every
+    ``*.py`` but the FMU scripts (each FMU carries its own script beside the shared package),
+    sorted."""
     return sorted(p for p in root.rglob("*.py")
                   if not p.name.endswith("_fmu.py") and "__pycache__" not in p.parts)
 
@@ -124,7 +125,8 @@ def _register_locator() -> None:
 def kernel(function: Callable | None = None, **options: Any) -> Any:
     """``numba.njit`` with the on-disk cache of this module; ``@kernel`` or ``@kernel(...)``.
 
-    ``options`` go to ``numba.njit`` (``cache=True`` is implied; ``fastmath`` stays off).
+    ``function`` is the kernel (or None when options are given); ``options`` go to
+    ``numba.njit`` (``cache=True`` is implied; ``fastmath`` stays off).
     """
     import numba
     _register_locator()

@@ -67,7 +67,7 @@ def test_cache_hits_in_a_fresh_extraction_folder_and_process(tmp_path):
     assert first["misses"] == 1 and first["hits"] == 0
     assert second["hits"] == 1 and second["misses"] == 0
     assert second["value"] == first["value"]
-    assert list((cache / "numba").iterdir()) == [cache / "numba" / ("ab" * 8)]
+    assert list((cache / "numba").iterdir()) == [cache / "numba" / ("ab" * 8 + "-fmus_abc")]
 
 
 def test_changed_sources_never_load_a_stale_kernel(tmp_path):
@@ -77,7 +77,17 @@ def test_changed_sources_never_load_a_stale_kernel(tmp_path):
     changed = KERNEL.replace("0.5", "0.25")
     other = _probe(_bundle(tmp_path / "x2", "fmus_abc", "cd" * 32, changed), "fmus_abc", cache)
     assert other["misses"] == 1 and other["hits"] == 0
-    assert sorted(p.name for p in (cache / "numba").iterdir()) == ["ab" * 8, "cd" * 8]
+    assert sorted(p.name for p in (cache / "numba").iterdir()) == ["ab" * 8 + "-fmus_abc", "cd" * 8 + "-fmus_abc"]
+
+
+def test_the_working_tree_and_an_fmu_of_the_same_sources_keep_apart(tmp_path):
+    """One bundle id, two packages (``fmus`` and an FMU's ``fmus_<hash>`` with its imports
+    rewritten): each keeps its own compiled copy instead of overwriting the other's."""
+    cache = tmp_path / "cache"
+    for pkg in ("fmus_abc", "fmus_abd", "fmus_abc"):
+        _probe(_bundle(tmp_path / f"x-{pkg}-{len(list(tmp_path.iterdir()))}", pkg, "ab" * 32), pkg, cache)
+    again = _probe(_bundle(tmp_path / "last", "fmus_abd", "ab" * 32), "fmus_abd", cache)
+    assert again["hits"] == 1 and again["misses"] == 0
 
 
 def test_kernel_rounds_as_plain_python(tmp_path):

@@ -11,7 +11,7 @@ same sources share one compiled copy, and any change of any source (a kernel, or
 calls in another module) gives a new folder: nothing stale is ever loaded.
 
 Where the cache lives: ``$FLEXFUSION_CACHE_DIR``, else ``$XDG_CACHE_HOME/flexfusion``, else
-``~/.cache/flexfusion``, under ``numba/<16 hex of the bundle id>/``; if that cannot be written,
+``~/.cache/flexfusion``, under ``numba/<16 hex of the bundle id>-<package name>/``; if that cannot be written,
 a folder in the system's temporary directory. ``NUMBA_DISABLE_JIT=1`` runs the kernels as plain
 Python (numba's own switch), for debugging.
 
@@ -65,7 +65,9 @@ def cache_dir() -> Path:
     if not base:
         xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
         base = os.path.join(xdg, "flexfusion")
-    return Path(base) / "numba" / bundle_id()[:16]
+    # the package's name too: an FMU's copy (``fmus_<hash>``, imports rewritten) and the working
+    # tree (``fmus``) have one bundle id but different source files
+    return Path(base) / "numba" / f"{bundle_id()[:16]}-{PACKAGE.name}"
 
 
 def _writable(path: Path) -> bool:
@@ -82,7 +84,7 @@ def _kernel_cache_dir() -> Path:
     preferred = cache_dir()
     if _writable(preferred):
         return preferred
-    fallback = Path(tempfile.gettempdir()) / f"flexfusion-numba-{os.getuid()}" / bundle_id()[:16]
+    fallback = Path(tempfile.gettempdir()) / f"flexfusion-numba-{os.getuid()}" / preferred.name
     fallback.mkdir(parents=True, exist_ok=True)
     return fallback
 

@@ -4,7 +4,8 @@ states, outputs and applied torques of a run with varying torques and tool force
 numbers to 1e-12 (the same operations in the same order: expected bit for bit).
 
 ``tests/data/plant_kernel_reference.npz`` was recorded by :func:`record` with the code of commit
-f04d4a7 (``PYTHONPATH=<that tree> python -c "from tests.test_plant_kernel import save; save()"``).
+f04d4a7 (in that tree, with this file copied to its tests/: ``PYTHONPATH=. python -c
+"import sys; sys.path.insert(0, 'tests'); from test_plant_kernel import save; save()"``).
 """
 from __future__ import annotations
 

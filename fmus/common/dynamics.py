@@ -25,8 +25,35 @@ import math
 
 import numpy as np
 
+from fmus.common.jit import kernel
 from fmus.common.parameters import as_array
 from fmus.common.robot_params import RobotParameters
+
+
+@kernel
+def spring_inverse(k_hi: float, k_soft: float, delta: float, tau: float, D: float, guess: bool) -> float:
+    """The deflection ``D`` [rad] of one gearbox spring (``k_hi``, ``k_soft = k_hi - k_lo``
+    [N.m/rad], ``delta`` [rad]) carrying the torque ``tau`` [N.m]: Newton's method on
+    ``tau_s(D) = tau`` (:func:`spring_deflection` for one joint, each joint stopping on its own),
+    from ``D`` when ``guess``, else from the high-stiffness asymptote shifted by the soft zone."""
+    if not guess:
+        D = (tau + math.copysign(k_soft * delta * math.tanh(abs(tau) / (k_hi * delta)), tau)) / k_hi
+    tol = 1e-12 * max(1.0, abs(tau))
+    for _ in range(50):
+        th = math.tanh(D / delta)
+        f = k_hi * D - k_soft * delta * th - tau
+        D -= f / (k_hi - k_soft * (1.0 - th * th))    # sech^2, no overflow
+        if abs(f) <= tol:
+            break
+    return D
+
+
+@kernel
+def gravity_torques(g1: float, g2: float, q1: float, q2: float) -> tuple[float, float]:
+    """Gravity torques of eq. 11 [N.m] on floats (:func:`gravity_torque`): the constants ``g1``,
+    ``g2`` of :class:`ArmConstants` [N.m], the arm angles ``q1``, ``q2`` [rad]."""
+    cp = math.cos(q1 + q2)
+    return -g1 * math.sin(q1) - g2 * cp, -g2 * cp
 
 
 class ArmConstants:
@@ -58,6 +85,9 @@ class ArmConstants:
         self.f_v = tuple(map(float, p.f_v))
         self.f_c = tuple(map(float, p.f_c))
         self.w_c = tuple(map(float, p.w_c))
+        #: gravity and spring constants of the compiled static inversion (the rigid baseline):
+        #: g1, g2, k_hi (2), k_soft (2), delta (2)
+        self.static = np.array([self.g1, self.g2, *self.k_hi, *self.k_soft, *self.delta])
 
     def spring(self, i: int, D: float) -> float:
         """Gearbox spring torque ``tau_s(D)`` [N.m] of joint ``i`` at the deflection ``D`` [rad]
@@ -66,25 +96,14 @@ class ArmConstants:
 
     def deflection(self, i: int, tau: float, D0: float | None = None) -> float:
         """:func:`spring_deflection` of joint ``i`` on a float: the deflection [rad] carrying the
-        spring torque ``tau`` [N.m], from the guess ``D0`` [rad] if given (the same Newton steps,
-        each joint stopping on its own; on 2-vectors a scalar loop is about 14x faster than numpy)."""
-        k_hi, k_soft, delta = self.k_hi[i], self.k_soft[i], self.delta[i]
-        if D0 is None:
-            D = (tau + math.copysign(k_soft * delta * math.tanh(abs(tau) / (k_hi * delta)), tau)) / k_hi
-        else:
-            D = D0
-        tol = 1e-12 * max(1.0, abs(tau))
-        for _ in range(50):
-            f = k_hi * D - k_soft * delta * math.tanh(D / delta) - tau
-            D -= f / (k_hi - k_soft * (1.0 - math.tanh(D / delta) ** 2))    # sech^2, no overflow
-            if abs(f) <= tol:
-                break
-        return D
+        spring torque ``tau`` [N.m], from the guess ``D0`` [rad] if given (:func:`spring_inverse`)."""
+        return spring_inverse(self.k_hi[i], self.k_soft[i], self.delta[i], float(tau),
+                              0.0 if D0 is None else float(D0), D0 is not None)
 
     def gravity(self, q1: float, q2: float) -> tuple[float, float]:
-        """:func:`gravity_torque` [N.m] on floats: the arm angles ``q1``, ``q2`` [rad]."""
-        cp = math.cos(q1 + q2)
-        return -self.g1 * math.sin(q1) - self.g2 * cp, -self.g2 * cp
+        """:func:`gravity_torque` [N.m] on floats: the arm angles ``q1``, ``q2`` [rad]
+        (:func:`gravity_torques`)."""
+        return gravity_torques(self.g1, self.g2, float(q1), float(q2))
 
     def derivatives(self, s, tau1: float, tau2: float, fx: float, fz: float) -> tuple:
         """``x_dot`` as a tuple of 8 floats (eqs. 10-11) at the state ``s`` (8 floats, the

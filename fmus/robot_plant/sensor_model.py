@@ -20,7 +20,7 @@ import numpy as np
 
 from fmus.common.frames import G, rot_rpy, sensor_rotation
 from fmus.common.jit import kernel
-from fmus.common.noise import make_rng, reseed_param, reseeded_rng
+from fmus.common.noise import BlockNormals, make_rng, reseed_param, reseeded_rng
 from fmus.common.parameters import ParameterError, param
 from fmus.common.sample_time import UNSTAMPED, measurement_time
 
@@ -82,31 +82,6 @@ def butterworth_magnitude(f: np.ndarray | float, cutoff: float, dt: float, order
     cutoff prewarped)."""
     ratio = np.tan(np.pi * np.asarray(f, dtype=float) * dt) / math.tan(math.pi * cutoff * dt)
     return 1.0 / np.sqrt(1.0 + ratio ** (2 * order))
-
-
-class _Normals:
-    """A generator's standard normal numbers, ``n`` per call, drawn ahead in blocks.
-
-    numpy's Generator keeps no state between draws but the bit generator's, so the rows of one
-    ``standard_normal((k, n))`` are the numbers of ``k`` calls of ``standard_normal(n)``, in
-    order: a block saves the call's overhead (about 1.5 us) per sample.
-    """
-
-    BLOCK = 256       # calls per draw
-
-    def __init__(self, rng: np.random.Generator, n: int) -> None:
-        self.rng, self.n = rng, n
-        self._block = np.empty((0, n))
-        self._next = 0
-
-    def standard_normal(self, n: int) -> np.ndarray:
-        """The next ``n`` numbers (``n`` as given at construction)."""
-        if n != self.n:
-            raise ValueError(f"this stream serves {self.n} numbers per call, not {n}")
-        if self._next == len(self._block):
-            self._block, self._next = self.rng.standard_normal((self.BLOCK, n)), 0
-        self._next += 1
-        return self._block[self._next - 1]
 
 
 def quantise(x: np.ndarray, resolution: np.ndarray | float) -> np.ndarray:
@@ -222,8 +197,8 @@ class SensorChannels:
         if self.filter_order not in (1, 2):
             raise ValueError(f"filter order must be 1 or 2, got {filter_order}")
         self.stream = stream
-        self._rng_noise = _Normals(make_rng(seed, f"{stream}/noise"), n)
-        self._rng_rw = _Normals(make_rng(seed, f"{stream}/bias_rw"), n)
+        self._rng_noise = BlockNormals(make_rng(seed, f"{stream}/noise"), n)
+        self._rng_rw = BlockNormals(make_rng(seed, f"{stream}/bias_rw"), n)
         # the kernel's per-channel constants; the walk's row is set with the step (_check_period)
         self._table = np.array([1.0 + self.scale, self.bias, np.zeros(n), self.noise, self.resolution,
                                 self._limit()])
@@ -252,8 +227,8 @@ class SensorChannels:
     def reseed(self, seed: int) -> None:
         """Draw the noise and the bias walk from now on from ``seed``'s reseeded streams
         (:func:`fmus.common.noise.reseeded_rng`); every other state carries on."""
-        self._rng_noise = _Normals(reseeded_rng(seed, f"{self.stream}/noise"), self.n)
-        self._rng_rw = _Normals(reseeded_rng(seed, f"{self.stream}/bias_rw"), self.n)
+        self._rng_noise = BlockNormals(reseeded_rng(seed, f"{self.stream}/noise"), self.n)
+        self._rng_rw = BlockNormals(reseeded_rng(seed, f"{self.stream}/bias_rw"), self.n)
 
     def _limit(self) -> np.ndarray:
         """The largest representable magnitude (range rounded down to the resolution)."""

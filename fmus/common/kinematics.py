@@ -72,6 +72,15 @@ def tool_point(q1: float, q2: float, l1: float, l2: float) -> tuple[float, float
     return l1 * math.sin(q1) + l2 * math.cos(phi), l1 * math.cos(q1) - l2 * math.sin(phi)
 
 
+@kernel
+def tool_jacobian(q1: float, q2: float, l1: float, l2: float) -> tuple[float, float, float, float]:
+    """:func:`jacobian` of the tool on floats (compiled), row-major ``(J00, J01, J10, J11)``
+    [m/rad], at the arm angles ``q1``, ``q2`` [rad] of links ``l1``, ``l2`` [m]."""
+    s1, c1 = math.sin(q1), math.cos(q1)
+    s12, c12 = math.sin(q1 + q2), math.cos(q1 + q2)
+    return l1 * c1 - l2 * s12, -l2 * s12, -l1 * s1 - l2 * c12, -l2 * c12
+
+
 def sensor_position(q, p) -> np.ndarray:
     """Accelerometer mount position (world x, z) [m] at the arm angles ``q`` [rad] of the robot
     ``p`` (its ``sensor_offset``)."""

@@ -333,17 +333,15 @@ def _table_row(table, dt, t, row):
     """Row of the reference ``table`` (resolution ``dt``) at time ``t`` into ``row``: linear
     interpolation, held before 0 and after the end (:meth:`MotionControlModel.sample`)."""
     x = t / dt
-    n = table.shape[0]
-    if x <= 0.0:
-        row[:] = table[0]
-    elif int(x) >= n - 1:
-        row[:] = table[n - 1]
-    else:
-        i = int(x)
-        w = x - i
-        for c in range(table.shape[1]):
+    last = table.shape[0] - 1
+    held = 0 if x <= 0.0 else (last if int(x) >= last else -1)
+    for c in range(table.shape[1]):             # loops, not slices: faster to compile
+        if held >= 0:
+            row[c] = table[held, c]
+        else:
+            i = int(x)
             r0 = table[i, c]
-            row[c] = r0 + w * (table[i + 1, c] - r0)
+            row[c] = r0 + (x - i) * (table[i + 1, c] - r0)
 
 
 @kernel
@@ -355,12 +353,10 @@ def _offset_arm_angles(row, dp0, dp1, l1, l2):
     dq1 = row[24] * dp0 + row[25] * dp1
     if dp0 * dp0 + dp1 * dp1 > 1e-8:
         q0, q1 = row[6] + dq0, row[7] + dq1
-        s1, c1 = math.sin(q0), math.cos(q0)
-        s12, c12 = math.sin(q0 + q1), math.cos(q0 + q1)
-        res_x = row[0] + dp0 - (l1 * s1 + l2 * c12)
-        res_z = row[1] + dp1 - (l1 * c1 - l2 * s12)
-        j00, j01 = l1 * c1 - l2 * s12, -l2 * s12
-        j10, j11 = -l1 * s1 - l2 * c12, -l2 * c12
+        x, z = kinematics.tool_point(q0, q1, l1, l2)
+        res_x = row[0] + dp0 - x
+        res_z = row[1] + dp1 - z
+        j00, j01, j10, j11 = kinematics.tool_jacobian(q0, q1, l1, l2)
         det = j00 * j11 - j01 * j10
         dq0 += (j11 * res_x - j01 * res_z) / det
         dq1 += (-j10 * res_x + j00 * res_z) / det

@@ -427,14 +427,38 @@ class MotionController:
         self._saturated = False
         self.integral = np.zeros(2)
         # the law's outputs, updated in place: q_a_ref, q_m_ref, p_ref, error, tau, wind-up
+        # (read through properties: views kept as attributes would not survive a state's copy)
         self._out = np.zeros(12)
-        self.q_a_ref, self.q_m_ref, self.p_ref, self.error, self.tau, self._windup = (
-            self._out[i:i + 2] for i in range(0, 12, 2))
         self.row = model.sample(0.0)
         self._row_t = 0.0            # the time of row: an FMU evaluates each time twice (its
-        self.q_a_ref[:] = self.row[_Q]        # outputs at t + dt, then the new inputs at t)
-        self.q_m_ref[:] = self.row[_QM]
-        self.p_ref[:] = self.row[_P]
+        self._out[0:2] = self.row[_Q]         # outputs at t + dt, then the new inputs at t)
+        self._out[2:4] = self.row[_QM]
+        self._out[4:6] = self.row[_P]
+
+    @property
+    def q_a_ref(self) -> np.ndarray:
+        """Arm reference of the last :meth:`evaluate` (with the offset) [rad]."""
+        return self._out[0:2]
+
+    @property
+    def q_m_ref(self) -> np.ndarray:
+        """Motor reference of the last :meth:`evaluate` (with the offset) [rad, motor side]."""
+        return self._out[2:4]
+
+    @property
+    def p_ref(self) -> np.ndarray:
+        """Tool reference of the last :meth:`evaluate` (with the offset) [m, world x and z]."""
+        return self._out[4:6]
+
+    @property
+    def error(self) -> np.ndarray:
+        """Motor angle error ``q_m_ref - q_m`` of the last :meth:`evaluate` [rad]."""
+        return self._out[6:8]
+
+    @property
+    def tau(self) -> np.ndarray:
+        """Motor torque of the last :meth:`evaluate` [N m, motor side]."""
+        return self._out[8:10]
 
     @property
     def row_time(self) -> float:
@@ -450,7 +474,7 @@ class MotionController:
         reference moved by the Cartesian offset ``dp_ref`` (m, from the impedance controller).
 
         Updates :attr:`row`, :attr:`q_a_ref`, :attr:`q_m_ref`, :attr:`p_ref`, :attr:`error` and
-        returns :attr:`tau` [N m, motor side].
+        returns :attr:`tau` [N m, motor side] (in place: the next call overwrites them).
         """
         m = self.model
         resample = t != self._row_t
@@ -464,11 +488,12 @@ class MotionController:
 
     def advance(self, dt: float) -> None:
         """Integrate the error of the last :meth:`evaluate` over ``dt`` (not while it would wind up)."""
+        error = self.error
         if not self._saturated:
-            self.integral += self.error * dt
+            self.integral += error * dt
         else:
-            grow = self._windup * self.error > 0
-            self.integral += np.where(grow, 0.0, self.error * dt)
+            grow = self._out[10:12] * error > 0          # the wind-up direction of the last limit
+            self.integral += np.where(grow, 0.0, error * dt)
 
 
 class Multisine:

@@ -215,12 +215,10 @@ class SensorChannels:
 
     def _allocate(self, shape: tuple[int, ...]) -> None:
         """The state arrays for readings of ``shape``: :attr:`walk` (the bias random walk),
-        :attr:`output` (the held reading), :attr:`saturated` and the filter's, each with a flat
-        view for the kernel."""
+        :attr:`output` (the held reading), :attr:`saturated` and the filter's (flat)."""
         self.shape = shape
         self.walk, self.output = np.zeros(shape), np.zeros(shape)
         self.saturated = np.zeros(shape, dtype=bool)
-        self._flat = (self.walk.reshape(-1), self.saturated.reshape(-1))
         self._z = np.zeros((2, self.walk.size))  # filter state (direct form II transposed)
 
     # -- pieces ------------------------------------------------------------------------------
@@ -279,7 +277,9 @@ class SensorChannels:
                 self._design(dt)
             order, reset = self._order, not self._filter_ready
             self._filter_ready = True
-        walk, saturated = self._flat
+        walk, saturated = self.walk, self.saturated
+        if not flat:                             # views made per call: a copied state keeps no stale view
+            walk, saturated = walk.reshape(-1), saturated.reshape(-1)
         rw = noise = out = walk                  # placeholders where nothing is drawn or formed
         if sample:
             out = self.output = np.empty(self.shape)

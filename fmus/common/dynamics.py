@@ -31,6 +31,17 @@ from fmus.common.robot_params import RobotParameters
 
 
 @kernel
+def spring_scalar(k_hi: float, k_soft: float, delta: float, D: float) -> float:
+    """Gearbox spring torque ``tau_s(D) = k_hi D - (k_hi - k_lo) delta tanh(D / delta)`` [N.m] of
+    one joint on floats (``k_soft = k_hi - k_lo``), the deflection ``D`` [rad]: the one
+    definition of kernels (the plant's chain) and of :meth:`ArmConstants.spring`."""
+    return k_hi * D - k_soft * delta * math.tanh(D / delta)
+
+
+_spring_py = getattr(spring_scalar, "py_func", spring_scalar)    # plain Python: no dispatch cost
+
+
+@kernel
 def spring_inverse(k_hi: float, k_soft: float, delta: float, tau: float, D: float, guess: bool) -> float:
     """The deflection ``D`` [rad] of one gearbox spring (``k_hi``, ``k_soft = k_hi - k_lo``
     [N.m/rad], ``delta`` [rad]) carrying the torque ``tau`` [N.m]: Newton's method on
@@ -92,7 +103,7 @@ class ArmConstants:
     def spring(self, i: int, D: float) -> float:
         """Gearbox spring torque ``tau_s(D)`` [N.m] of joint ``i`` at the deflection ``D`` [rad]
         (:func:`spring_torque` on a float)."""
-        return self.k_hi[i] * D - self.k_soft[i] * self.delta[i] * math.tanh(D / self.delta[i])
+        return _spring_py(self.k_hi[i], self.k_soft[i], self.delta[i], D)
 
     def deflection(self, i: int, tau: float, D0: float | None = None) -> float:
         """:func:`spring_deflection` of joint ``i`` on a float: the deflection [rad] carrying the

@@ -108,8 +108,8 @@ def split_link(p, i: int) -> tuple[tuple, tuple]:
 
 @kernel
 def _spring4(P, i, D):
-    """The gearbox spring ``tau_s(D)`` of joint ``i`` (``ArmConstants.spring``, same operations)."""
-    return P[4 + i] * D - P[6 + i] * P[8 + i] * math.tanh(D / P[8 + i])
+    """The gearbox spring ``tau_s(D)`` of joint ``i`` (:func:`fmus.common.dynamics.spring_scalar`)."""
+    return dynamics.spring_scalar(P[4 + i], P[6 + i], P[8 + i], D)
 
 
 @kernel

@@ -95,7 +95,8 @@ class BlockNormals:
 
     numpy's Generator keeps no state between draws but the bit generator's, so the rows of one
     ``standard_normal((k, n))`` are the numbers of ``k`` calls of ``standard_normal(n)``, in
-    order: a block saves the call's overhead (about 1.5 us) per sample.
+    order: a block saves the call's overhead (about 1.5 us) per sample. ``rng`` is the stream's
+    generator (:func:`make_rng`), ``n`` the numbers per call.
     """
 
     BLOCK = 256       # calls per draw

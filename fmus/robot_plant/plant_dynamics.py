@@ -182,9 +182,11 @@ def _chain4_rates(s, tau1, tau2, fx, fz, P):
 
 @kernel
 def chain4_step(s, tau1, tau2, fx, fz, dt, substeps, P):
-    """``substeps`` RK4 steps over ``dt`` of the four-body chain from the state ``s`` (12-tuple),
-    inputs held: the new state (12-tuple). The operations of
-    :meth:`fmus.common.dynamics.FlexibleRobotModel.step`, in the same order."""
+    """``substeps`` RK4 steps over ``dt`` [s] of the four-body chain from the state ``s``
+    (12-tuple), the motor torques ``tau1``, ``tau2`` [N m] and the tool force ``fx``, ``fz`` [N]
+    held; ``P`` the chain's constants (:meth:`PlantChain._pack`). Returns the new state
+    (12-tuple): the operations of :meth:`fmus.common.dynamics.FlexibleRobotModel.step`, in the
+    same order."""
     h = dt / substeps
     hh, h6 = 0.5 * h, h / 6.0
     x, y = np.empty(12), np.empty(12)
@@ -208,7 +210,8 @@ def chain4_step(s, tau1, tau2, fx, fz, dt, substeps, P):
 
 @kernel
 def chain4_outputs(s, fx, fz, P):
-    """:meth:`PlantChain.outputs` of the four-body chain (24 floats, the same operations)."""
+    """:meth:`PlantChain.outputs` of the four-body chain (24 floats, the same operations) at the
+    state ``s`` with the tool force ``fx``, ``fz`` [N]; ``P`` the chain's constants."""
     S, C, W, A, _ = _chain4(s, fx, fz, P)
     px = pz = vx = vz = ax = az = 0.0
     for k in range(4):
@@ -631,8 +634,9 @@ class ExtendedRobotModel(dynamics.FlexibleRobotModel):
         self._checked_dt = None
 
     def step(self, tau_m, f_ext, dt: float) -> None:
-        """Advance by ``dt`` [s] with the inputs held (the inherited RK4; the four-body chain's
-        compiled, :func:`chain4_step`, the same operations)."""
+        """Advance by ``dt`` [s] with the motor torque ``tau_m`` [N m] and the tool force
+        ``f_ext`` [N] held (the inherited RK4; the four-body chain's compiled,
+        :func:`chain4_step`, the same operations)."""
         P = getattr(self._k, "P", None)          # a compliant tool's chain has its own state
         if P is None:
             return super().step(tau_m, f_ext, dt)

@@ -22,7 +22,7 @@ REFERENCE = Path(__file__).parent / "data" / "plant_kernel_reference.npz"
 
 # the default plant (compiled), more substeps from another pose, and the compliant tool (its
 # own Python RK4 over the compiled chain's outputs and rates)
-CASES = {"default": dict(), "substeps3": dict(substeps=3, p_tool0=(1.3, 0.2)),
+CASES = {"default": dict(), "substeps3": dict(substeps=3, p_tool0=(1.3, 0.2)), "ideal": dict(ideal=True, substeps=2),
          "compliant": dict(tool_compliance=1e-4, substeps=4)}
 
 
@@ -67,3 +67,13 @@ def test_rigid_links_stay_on_the_python_loops() -> None:
     assert m._k.P is None
     m.step((2.0, 1.0), (0.0, 0.0), 1e-3)
     assert len(m.outputs(0.0, 0.0)) == 24
+
+
+def test_the_8_state_rates_take_a_tuple_or_an_array_alike() -> None:
+    """ArmConstants.derivatives (compiled flex_rates) is called with tuples (the plant) and
+    arrays (the 2009 observers): the same numbers either way."""
+    from fmus.common.dynamics import ArmConstants
+    from fmus.common.robot_params import RobotParameters
+    k = ArmConstants(RobotParameters())
+    x = np.random.default_rng(1).normal(0.0, 0.5, 8) + np.array([0.3, -0.2, 36.0, -30.0, 0, 0, 0, 0])
+    assert k.derivatives(tuple(map(float, x)), 1.0, -2.0, 3.0, 4.0) == k.derivatives(x, 1.0, -2.0, 3.0, 4.0)

@@ -192,19 +192,15 @@ def chain4_step(s, tau1, tau2, fx, fz, dt, substeps, P):
     x, y = np.empty(12), np.empty(12)
     for i in range(12):
         x[i] = s[i]
-    for _ in range(substeps):
+    for _ in range(substeps):                   # dynamics.flex_step's RK4 on the chain's rates
         k1 = _chain4_rates(x, tau1, tau2, fx, fz, P)
-        for i in range(12):
-            y[i] = x[i] + hh * k1[i]
+        dynamics.rk4_stage(x, hh, k1, y)
         k2 = _chain4_rates(y, tau1, tau2, fx, fz, P)
-        for i in range(12):
-            y[i] = x[i] + hh * k2[i]
+        dynamics.rk4_stage(x, hh, k2, y)
         k3 = _chain4_rates(y, tau1, tau2, fx, fz, P)
-        for i in range(12):
-            y[i] = x[i] + h * k3[i]
+        dynamics.rk4_stage(x, h, k3, y)
         k4 = _chain4_rates(y, tau1, tau2, fx, fz, P)
-        for i in range(12):
-            x[i] = x[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        dynamics.rk4_update(x, h6, k1, k2, k3, k4)
     return (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
 
 

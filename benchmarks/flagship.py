@@ -13,8 +13,9 @@ is exported with ``git archive`` to a temporary folder and its FMUs built there)
   around it, the native bridge and ctypes) and the master's own loop (see :func:`_split`);
 * the **kernels**, old (the baseline's module, loaded from git) against new, in us per call:
   the rigid kinematics inversion with gravity compensation, an encoder's sensor channels and
-  an IMU's (bias walk, range and resolution on), the plant's RK4 step (realistic plant) and the
-  2012 EKF's update and prediction (its estimation model loaded from the baseline too).
+  an IMU's (bias walk, range and resolution on), the plant's RK4 step and outputs (realistic
+  plant), the motion controller's law, the tracker's update and the 2012 EKF's update and
+  prediction (its estimation model loaded from the baseline too).
 
 Every ratio is measured in this one run (the machine is shared: compare ratios, not runs).
 
@@ -213,15 +214,35 @@ def kernels(rev: str) -> list[tuple[str, float, float]]:
                                          resolution=1e-3, range=160.0), np.array([1.0, 0.5, 9.81]))):
         a, b = old.SensorChannels(n, **kw), sensor_model.SensorChannels(n, **kw)
         rows.append((label, _us(lambda: a.step(x, 1e-3, 0.0)), _us(lambda: b.step(x, 1e-3, 0.0))))
-    old = _old_module(rev, "fmus/common/dynamics.py")     # the RK4 step is the 8-state model's
-    plant = plant_dynamics.plant_model(PlantParameters())
-    s0 = plant.state
+    old = _old_module(rev, "fmus/robot_plant/plant_dynamics.py")
+    plants = [m.plant_model(PlantParameters()) for m in (old, plant_dynamics)]
+    s0 = plants[1].state
 
-    def step(f):
+    def step(plant):
         plant._s = s0
-        f(plant, (1.0, 2.0), (0.0, 0.0), 1e-3)
-    rows.append((f"plant RK4 step (realistic, {plant.substeps} substeps)",
-                 _us(lambda: step(old.FlexibleRobotModel.step)), _us(lambda: step(type(plant).step))))
+        plant.step((1.0, 2.0), (0.0, 0.0), 1e-3)
+    rows.append((f"plant RK4 step (realistic, {plants[1].substeps} substeps)",
+                 *(_us(lambda: step(plant)) for plant in plants)))
+    rows.append(("plant outputs", *(_us(lambda: plant.outputs(0.0, 0.0)) for plant in plants)))
+    old = _old_module(rev, "fmus/robot_plant/motion_control_model.py")
+    from fmus.robot_plant import motion_control_model as mc
+    controllers = [m.build_controller(m.MotionControllerParameters()) for m in (old, mc)]
+    zero, clock = np.zeros(2), [0.1]
+
+    def evaluate(c):                     # a new time per call, as in the FMU
+        clock[0] += 1e-4
+        c.evaluate(clock[0], zero, zero, zero)
+    rows.append(("controller evaluate", *(_us(lambda: evaluate(c)) for c in controllers)))
+    old = _old_module(rev, "fmus/robot_plant/tracker_model.py")
+    from fmus.robot_plant import tracker_model
+    trackers = [m.TrackerModel(2e-5, 1000.0, 1e-3, seed=4) for m in (old, tracker_model)]
+    p_tool = np.array([1.0, 0.6])
+    for tr in trackers:
+        tr.start(0.0, p_tool)
+
+    def update(tr):
+        tr.update(tr.t_meas + 1e-3, p_tool)
+    rows.append(("tracker update", *(_us(lambda: update(tr)) for tr in trackers)))
     paths = [f"fmus/estimators/{m}.py" for m in ("axelsson2012_model", "ekf_accelerometer_model")]
     old = old_modules(rev, [path for path in paths if _in_rev(rev, path)])[-1]   # one module before
     from fmus.estimators import ekf_accelerometer_model as em

@@ -145,3 +145,14 @@ def test_vectorised_kinematics_agree_with_the_scalar_functions() -> None:
     assert_allclose(q_back, [kinematics.inverse_kinematics(pk, p) for pk in P], rtol=0, atol=1e-12)
     assert_allclose(q_back, q, rtol=0, atol=1e-12)          # |q2| < pi/2: the home branch
     assert np.all(np.abs(s2) <= 1.0)
+
+
+def test_compiled_tool_point_and_jacobian_are_the_numpy_ones():
+    """kinematics.tool_point / tool_jacobian (floats, compiled; the rigid baseline and the
+    controller's Cartesian offset) against tool_position / jacobian, random poses, two robots."""
+    rng = np.random.default_rng(4)
+    for p in (RobotParameters(), RobotParameters(l1=1.1, l2=0.8)):
+        for q in rng.uniform(-2.0, 2.0, (200, 2)):
+            assert_allclose(kinematics.tool_point(q[0], q[1], p.l1, p.l2), kinematics.tool_position(q, p), rtol=1e-15, atol=0)
+            assert_allclose(np.reshape(kinematics.tool_jacobian(q[0], q[1], p.l1, p.l2), (2, 2)), kinematics.jacobian(q, p),
+                            rtol=1e-15, atol=1e-16)

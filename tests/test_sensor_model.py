@@ -108,7 +108,7 @@ def test_lowpass_magnitude_matches_analytic(order):
     t = np.arange(4000) * dt
     ch = sm.SensorChannels(len(freqs), cutoff=fc, filter_order=order)
     x = np.sin(2 * np.pi * np.outer(t, freqs))
-    y = np.array([ch.lowpass(xi, dt) for xi in x])
+    y = np.array([ch.step(xi, dt) for xi in x])                 # no other imperfection: the filter
     tail = slice(2000, None)                                    # after the transient
     gain = y[tail].std(axis=0) / x[tail].std(axis=0)            # amplitude ratio of the sines
     assert_allclose(gain, sm.butterworth_magnitude(freqs, fc, dt, order), rtol=2e-3)
@@ -152,6 +152,23 @@ def test_imu_rotated_mount_and_tool():
     expected = np.array([c * a[0] - s * (a[1] + G), 0.0, s * a[0] + c * (a[1] + G)])
     assert_allclose(acc, expected, rtol=1e-12)
     assert_allclose(gyro, [0.0, 0.7, 0.0], atol=1e-12)
+
+
+def test_imu_reading_is_the_matrix_products():
+    """The written-out reading against ``R_s^T (a - g_vec)``, ``R_s^T (0, omega, 0)`` with
+    ``R_s = sensor_rotation(phi, mount)`` (numpy's matrix products, the former code), random
+    poses and a general mount: equal to round-off of the vector's size."""
+    from fmus.common.frames import sensor_rotation
+    rng = np.random.default_rng(7)
+    mount = (0.004, 0.003, -0.003)
+    for _ in range(2000):
+        a, phi, omega = rng.normal(0.0, 5.0, 2), rng.uniform(-4.0, 4.0), rng.normal(0.0, 3.0)
+        acc, gyro = sm.imu_reading(a, phi, omega, mount, G)
+        rs = sensor_rotation(phi, mount)
+        want_acc = rs.T @ (np.array([a[0], 0.0, a[1]]) - np.array([0.0, 0.0, -G]))
+        want_gyro = rs.T @ np.array([0.0, omega, 0.0])
+        assert_allclose(acc, want_acc, rtol=0, atol=1e-15 * np.abs(want_acc).max())
+        assert_allclose(gyro, want_gyro, rtol=0, atol=1e-15 * np.abs(want_gyro).max())
 
 
 def test_force_sensor_at_rest_reads_tool_weight():

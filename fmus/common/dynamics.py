@@ -25,8 +25,115 @@ import math
 
 import numpy as np
 
+from fmus.common.jit import kernel
 from fmus.common.parameters import as_array
 from fmus.common.robot_params import RobotParameters
+
+
+@kernel
+def spring_scalar(k_hi: float, k_soft: float, delta: float, D: float) -> float:
+    """Gearbox spring torque ``tau_s(D) = k_hi D - (k_hi - k_lo) delta tanh(D / delta)`` [N.m] of
+    one joint on floats (``k_soft = k_hi - k_lo``), the deflection ``D`` [rad]: the one
+    definition of kernels (the plant's chain) and of :meth:`ArmConstants.spring`."""
+    return k_hi * D - k_soft * delta * math.tanh(D / delta)
+
+
+_spring_py = getattr(spring_scalar, "py_func", spring_scalar)    # plain Python: no dispatch cost
+
+
+@kernel
+def spring_inverse(k_hi: float, k_soft: float, delta: float, tau: float, D: float, guess: bool) -> float:
+    """The deflection ``D`` [rad] of one gearbox spring (``k_hi``, ``k_soft = k_hi - k_lo``
+    [N.m/rad], ``delta`` [rad]) carrying the torque ``tau`` [N.m]: Newton's method on
+    ``tau_s(D) = tau`` (:func:`spring_deflection` for one joint, each joint stopping on its own),
+    from ``D`` when ``guess``, else from the high-stiffness asymptote shifted by the soft zone."""
+    if not guess:
+        D = (tau + math.copysign(k_soft * delta * math.tanh(abs(tau) / (k_hi * delta)), tau)) / k_hi
+    tol = 1e-12 * max(1.0, abs(tau))
+    for _ in range(50):
+        th = math.tanh(D / delta)
+        f = k_hi * D - k_soft * delta * th - tau
+        D -= f / (k_hi - k_soft * (1.0 - th * th))    # sech^2, no overflow
+        if abs(f) <= tol:
+            break
+    return D
+
+
+@kernel
+def gravity_torques(g1: float, g2: float, q1: float, q2: float) -> tuple[float, float]:
+    """Gravity torques of eq. 11 [N.m] on floats (:func:`gravity_torque`): the constants ``g1``,
+    ``g2`` of :class:`ArmConstants` [N.m], the arm angles ``q1``, ``q2`` [rad]."""
+    cp = math.cos(q1 + q2)
+    return -g1 * math.sin(q1) - g2 * cp, -g2 * cp
+
+
+@kernel
+def flex_rates(s, tau1: float, tau2: float, fx: float, fz: float, K: np.ndarray) -> tuple:
+    """``x_dot`` of the flexible-joint model (eqs. 10-11) as a tuple of 8 floats at the state
+    ``s`` (8 floats: ``q_a``, ``q_m``, ``dq_a``, ``dq_m``), with the motor torques ``tau1``,
+    ``tau2`` [N.m, motor side], the external tool force ``fx``, ``fz`` [N, world x, z] and the
+    constants ``K`` (:attr:`ArmConstants.packed`)."""
+    q1, q2, qm1, qm2, dq1, dq2, dqm1, dqm2 = s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7]
+    s1, c1 = math.sin(q1), math.cos(q1)
+    phi = q1 + q2
+    sp, cp = math.sin(phi), math.cos(phi)
+    s2, c2 = math.sin(q2), math.cos(q2)
+    b = -K[2] * s2
+    bd = -K[2] * c2                           # db/dq2
+    m11, m12, m22 = K[0] + 2.0 * b, K[1] + b, K[1]
+    r1, r2 = K[7], K[8]
+    D1, D2 = qm1 / r1 - q1, qm2 / r2 - q2
+    t1 = spring_scalar(K[9], K[11], K[13], D1) + K[15] * (dqm1 / r1 - dq1)
+    t2 = spring_scalar(K[10], K[12], K[14], D2) + K[16] * (dqm2 / r2 - dq2)
+    l1, l2, g1, g2 = K[5], K[6], K[3], K[4]
+    # J_tool^T f_ext
+    e1 = fx * (l1 * c1 - l2 * sp) - fz * (l1 * s1 + l2 * cp)
+    e2 = -l2 * (fx * sp + fz * cp)
+    rhs1 = t1 + e1 - bd * (2.0 * dq1 * dq2 + dq2 * dq2) + g1 * s1 + g2 * cp
+    rhs2 = t2 + e2 + bd * dq1 * dq1 + g2 * cp
+    det = m11 * m22 - m12 * m12
+    ddq1 = (m22 * rhs1 - m12 * rhs2) / det
+    ddq2 = (m11 * rhs2 - m12 * rhs1) / det
+    ddqm1 = (tau1 - K[17] * dqm1 - K[19] * math.tanh(dqm1 / K[21]) - t1 / r1) / K[23]
+    ddqm2 = (tau2 - K[18] * dqm2 - K[20] * math.tanh(dqm2 / K[22]) - t2 / r2) / K[24]
+    return dq1, dq2, dqm1, dqm2, ddq1, ddq2, ddqm1, ddqm2
+
+
+@kernel
+def rk4_stage(x: np.ndarray, a: float, k: tuple, y: np.ndarray) -> None:
+    """``y = x + a k``: the state of an RK4 stage (``k`` the rates of the one before, a tuple)."""
+    for i in range(x.size):
+        y[i] = x[i] + a * k[i]
+
+
+@kernel
+def rk4_update(x: np.ndarray, h6: float, k1: tuple, k2: tuple, k3: tuple, k4: tuple) -> None:
+    """``x += h6 (k1 + 2 k2 + 2 k3 + k4)`` in place: the end of an RK4 step (``h6 = h / 6``)."""
+    for i in range(x.size):
+        x[i] = x[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+
+
+@kernel
+def flex_step(s: tuple, tau1: float, tau2: float, fx: float, fz: float, dt: float, substeps: int,
+              K: np.ndarray) -> tuple:
+    """``substeps`` RK4 steps over ``dt`` [s] of :func:`flex_rates` from the state ``s`` (8-tuple)
+    with the inputs ``tau1``, ``tau2`` [N.m], ``fx``, ``fz`` [N] held and the constants ``K``:
+    the new state (8-tuple), :meth:`FlexibleRobotModel.step`'s operations in the same order."""
+    h = dt / substeps
+    hh, h6 = 0.5 * h, h / 6.0
+    x, y = np.empty(8), np.empty(8)
+    for i in range(8):
+        x[i] = s[i]
+    for _ in range(substeps):
+        k1 = flex_rates(x, tau1, tau2, fx, fz, K)
+        rk4_stage(x, hh, k1, y)
+        k2 = flex_rates(y, tau1, tau2, fx, fz, K)
+        rk4_stage(x, hh, k2, y)
+        k3 = flex_rates(y, tau1, tau2, fx, fz, K)
+        rk4_stage(x, h, k3, y)
+        k4 = flex_rates(y, tau1, tau2, fx, fz, K)
+        rk4_update(x, h6, k1, k2, k3, k4)
+    return x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7]
 
 
 class ArmConstants:
@@ -58,62 +165,36 @@ class ArmConstants:
         self.f_v = tuple(map(float, p.f_v))
         self.f_c = tuple(map(float, p.f_c))
         self.w_c = tuple(map(float, p.w_c))
+        #: gravity and spring constants of the compiled static inversion (the rigid baseline):
+        #: g1, g2, k_hi (2), k_soft (2), delta (2)
+        self.static = np.array([self.g1, self.g2, *self.k_hi, *self.k_soft, *self.delta])
+        #: every constant of :func:`flex_rates`, in its order: a, c, e, g1, g2, l1, l2, gear ratios,
+        #: k_hi, k_soft, delta, d, f_v, f_c, w_c, J_m (2 each)
+        self.packed = np.array([self.a, self.c, self.e, self.g1, self.g2, self.l1, self.l2, *self.r, *self.k_hi,
+                                *self.k_soft, *self.delta, *self.d, *self.f_v, *self.f_c, *self.w_c, *self.jm],
+                               dtype=float)
 
     def spring(self, i: int, D: float) -> float:
         """Gearbox spring torque ``tau_s(D)`` [N.m] of joint ``i`` at the deflection ``D`` [rad]
         (:func:`spring_torque` on a float)."""
-        return self.k_hi[i] * D - self.k_soft[i] * self.delta[i] * math.tanh(D / self.delta[i])
+        return _spring_py(self.k_hi[i], self.k_soft[i], self.delta[i], D)
 
     def deflection(self, i: int, tau: float, D0: float | None = None) -> float:
         """:func:`spring_deflection` of joint ``i`` on a float: the deflection [rad] carrying the
-        spring torque ``tau`` [N.m], from the guess ``D0`` [rad] if given (the same Newton steps,
-        each joint stopping on its own; on 2-vectors a scalar loop is about 14x faster than numpy)."""
-        k_hi, k_soft, delta = self.k_hi[i], self.k_soft[i], self.delta[i]
-        if D0 is None:
-            D = (tau + math.copysign(k_soft * delta * math.tanh(abs(tau) / (k_hi * delta)), tau)) / k_hi
-        else:
-            D = D0
-        tol = 1e-12 * max(1.0, abs(tau))
-        for _ in range(50):
-            f = k_hi * D - k_soft * delta * math.tanh(D / delta) - tau
-            D -= f / (k_hi - k_soft * (1.0 - math.tanh(D / delta) ** 2))    # sech^2, no overflow
-            if abs(f) <= tol:
-                break
-        return D
+        spring torque ``tau`` [N.m], from the guess ``D0`` [rad] if given (:func:`spring_inverse`)."""
+        return spring_inverse(self.k_hi[i], self.k_soft[i], self.delta[i], float(tau),
+                              0.0 if D0 is None else float(D0), D0 is not None)
 
     def gravity(self, q1: float, q2: float) -> tuple[float, float]:
-        """:func:`gravity_torque` [N.m] on floats: the arm angles ``q1``, ``q2`` [rad]."""
-        cp = math.cos(q1 + q2)
-        return -self.g1 * math.sin(q1) - self.g2 * cp, -self.g2 * cp
+        """:func:`gravity_torque` [N.m] on floats: the arm angles ``q1``, ``q2`` [rad]
+        (:func:`gravity_torques`)."""
+        return gravity_torques(self.g1, self.g2, float(q1), float(q2))
 
     def derivatives(self, s, tau1: float, tau2: float, fx: float, fz: float) -> tuple:
         """``x_dot`` as a tuple of 8 floats (eqs. 10-11) at the state ``s`` (8 floats, the
         module's ``x``), with the motor torques ``tau1``, ``tau2`` [N.m, motor side] and the
-        external tool force ``fx``, ``fz`` [N, world x, z]."""
-        q1, q2, qm1, qm2, dq1, dq2, dqm1, dqm2 = s
-        s1, c1 = math.sin(q1), math.cos(q1)
-        phi = q1 + q2
-        sp, cp = math.sin(phi), math.cos(phi)
-        s2, c2 = math.sin(q2), math.cos(q2)
-        b = -self.e * s2
-        bd = -self.e * c2                         # db/dq2
-        m11, m12, m22 = self.a + 2 * b, self.c + b, self.c
-        r1, r2 = self.r
-        D1, D2 = qm1 / r1 - q1, qm2 / r2 - q2
-        t1 = self.spring(0, D1) + self.d[0] * (dqm1 / r1 - dq1)
-        t2 = self.spring(1, D2) + self.d[1] * (dqm2 / r2 - dq2)
-        l1, l2 = self.l1, self.l2
-        # J_tool^T f_ext
-        e1 = fx * (l1 * c1 - l2 * sp) - fz * (l1 * s1 + l2 * cp)
-        e2 = -l2 * (fx * sp + fz * cp)
-        rhs1 = t1 + e1 - bd * (2 * dq1 * dq2 + dq2 * dq2) + self.g1 * s1 + self.g2 * cp
-        rhs2 = t2 + e2 + bd * dq1 * dq1 + self.g2 * cp
-        det = m11 * m22 - m12 * m12
-        ddq1 = (m22 * rhs1 - m12 * rhs2) / det
-        ddq2 = (m11 * rhs2 - m12 * rhs1) / det
-        ddqm1 = (tau1 - self.f_v[0] * dqm1 - self.f_c[0] * math.tanh(dqm1 / self.w_c[0]) - t1 / r1) / self.jm[0]
-        ddqm2 = (tau2 - self.f_v[1] * dqm2 - self.f_c[1] * math.tanh(dqm2 / self.w_c[1]) - t2 / r2) / self.jm[1]
-        return dq1, dq2, dqm1, dqm2, ddq1, ddq2, ddqm1, ddqm2
+        external tool force ``fx``, ``fz`` [N, world x, z] (:func:`flex_rates`, compiled)."""
+        return flex_rates(s, tau1, tau2, fx, fz, self.packed)
 
 
 _CACHE: dict[int, ArmConstants] = {}
@@ -321,8 +402,12 @@ class FlexibleRobotModel:
     def step(self, tau_m, f_ext, dt: float) -> None:
         """Advance by ``dt`` [s] with the inputs held constant (zero-order hold): the motor
         torque ``tau_m`` [N.m, motor side] and the external tool force ``f_ext`` [N, world x, z]."""
-        f = self._k.derivatives
         t1, t2, fx, fz = float(tau_m[0]), float(tau_m[1]), float(f_ext[0]), float(f_ext[1])
+        if type(self._k) is ArmConstants:        # the 8-state model: compiled, the same operations
+            self._s = flex_step(self._s, t1, t2, fx, fz, float(dt), self.substeps, self._k.packed)
+            self.t += dt
+            return
+        f = self._k.derivatives                  # any other model's derivatives (a plant's chain)
         h = dt / self.substeps
         hh, h6 = 0.5 * h, h / 6.0       # the same products as 0.5 * h * b, h / 6.0 * (...)
         s = self._s

@@ -17,6 +17,8 @@ import math
 
 import numpy as np
 
+from fmus.common.jit import kernel
+
 POINTS = ("tool", "sensor", "elbow")
 
 
@@ -60,6 +62,23 @@ def tool_position(q, p) -> np.ndarray:
     """Tool point position (world x, z) [m] at the arm angles ``q`` [rad] of the robot ``p``:
     the rigid forward kinematics."""
     return position(q, p, "tool")
+
+
+@kernel
+def tool_point(q1: float, q2: float, l1: float, l2: float) -> tuple[float, float]:
+    """:func:`tool_position` on floats (compiled: the rigid baseline's every step): world x, z
+    [m] of the tool at the arm angles ``q1``, ``q2`` [rad] of links ``l1``, ``l2`` [m]."""
+    phi = q1 + q2
+    return l1 * math.sin(q1) + l2 * math.cos(phi), l1 * math.cos(q1) - l2 * math.sin(phi)
+
+
+@kernel
+def tool_jacobian(q1: float, q2: float, l1: float, l2: float) -> tuple[float, float, float, float]:
+    """:func:`jacobian` of the tool on floats (compiled), row-major ``(J00, J01, J10, J11)``
+    [m/rad], at the arm angles ``q1``, ``q2`` [rad] of links ``l1``, ``l2`` [m]."""
+    s1, c1 = math.sin(q1), math.cos(q1)
+    s12, c12 = math.sin(q1 + q2), math.cos(q1 + q2)
+    return l1 * c1 - l2 * s12, -l2 * s12, -l1 * s1 - l2 * c12, -l2 * c12
 
 
 def sensor_position(q, p) -> np.ndarray:

@@ -34,6 +34,7 @@ class RigidKinematics(FlexFusionSlave):
     def setup(self, params: RigidKinematicsParameters) -> None:
         self.robot = params.robot()
         self.compensate = bool(params.gravity_compensation)
+        self._links = float(self.robot.l1), float(self.robot.l2)
         self._samples: list[tuple] = []     # the last two distinct samples (t_meas, q_a)
         self._refresh(self._time)
 
@@ -55,5 +56,5 @@ class RigidKinematics(FlexFusionSlave):
             f = (now - t1) / (t1 - t0)
             q = (a1 + (a1 - a0) * f, b1 + (b1 - b0) * f)
         self.q_a_hat[:] = q
-        self.p_tool_hat[:] = kinematics.tool_position(q, self.robot)
+        self.p_tool_hat[:] = kinematics.tool_point(q[0], q[1], *self._links)
         self.phi_tool_hat = q[0] + q[1]

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fmus.common import dynamics, kinematics
+from fmus.common.jit import kernel
 from fmus.common.parameters import param
 from fmus.common.robot_params import RobotParameters
 
@@ -41,17 +42,25 @@ def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = False) 
     The fixed point ``q_a = q_m / r - D(G(q_a))`` contracts fast (``|dD/dq| ~ 1e-3``): each
     iteration gains three digits (so the error left after a change ``c`` is about ``1e-3 c``), and
     each spring inversion starts from the last one. Plain floats: this runs every step of the
-    baseline (8 us against 110 us for the same iteration on numpy 2-vectors,
-    benchmarks/flagship.py).
+    baseline, compiled (:func:`_compensated`; benchmarks/flagship.py).
     """
     k = dynamics.arm_constants(robot)
     m1, m2 = float(q_m[0]) / k.r[0], float(q_m[1]) / k.r[1]
     if not gravity_compensation:
         return m1, m2
-    q1, q2, D1, D2 = m1, m2, None, None
+    return _compensated(m1, m2, k.static)
+
+
+@kernel
+def _compensated(m1: float, m2: float, K: np.ndarray) -> tuple[float, float]:
+    """The fixed point of :func:`arm_angles` from ``q_m / r = (m1, m2)``, with the constants
+    ``K`` of :attr:`fmus.common.dynamics.ArmConstants.static`."""
+    q1, q2, D1, D2, guess = m1, m2, 0.0, 0.0, False
     for _ in range(8):
-        G1, G2 = k.gravity(q1, q2)
-        D1, D2 = k.deflection(0, G1, D1), k.deflection(1, G2, D2)
+        G1, G2 = dynamics.gravity_torques(K[0], K[1], q1, q2)
+        D1 = dynamics.spring_inverse(K[2], K[4], K[6], G1, D1, guess)
+        D2 = dynamics.spring_inverse(K[3], K[5], K[7], G2, D2, guess)
+        guess = True                             # each inversion starts from the last one
         n1, n2 = m1 - D1, m2 - D2
         if abs(n1 - q1) <= 1e-11 and abs(n2 - q2) <= 1e-11:      # error left: about 1e-14 rad
             return n1, n2

@@ -50,6 +50,7 @@ from typing import Sequence
 import numpy as np
 
 from fmus.common import dynamics, kinematics
+from fmus.common.jit import kernel
 from fmus.common.parameters import ParameterError, as_array, param
 from fmus.common.robot_params import RobotParameters
 from fmus.robot_plant.trajectory import PATHS, Trajectory, make_path
@@ -316,33 +317,87 @@ class MotionControlModel:
         Columns: p(2), v(2), a(2), q_a(2), dq_a(2), ddq_a(2), dddq_a(2), q_m(2), dq_m(2),
         tau_ff(2), tau_arm(2), J^-1 (4, row-major).
         """
-        x = t / self.dt
-        if x <= 0.0:
-            return self.table[0]
-        i = int(x)
-        if i >= self.table.shape[0] - 1:
-            return self.table[-1]
-        r0 = self.table[i]
-        return r0 + (x - i) * (self.table[i + 1] - r0)
+        row = np.empty(_NCOL)
+        _table_row(self.table, self.dt, t, row)
+        return row
 
     def offset_arm_angles(self, row: np.ndarray, dp: np.ndarray) -> np.ndarray:
         """Change of the arm reference of the table ``row`` (:meth:`sample`) that moves the tool
         by ``dp`` (m, world x and z; module docstring)."""
-        jinv = row[_JINV]
-        dq = np.array([jinv[0] * dp[0] + jinv[1] * dp[1], jinv[2] * dp[0] + jinv[3] * dp[1]])
-        if dp[0] * dp[0] + dp[1] * dp[1] > 1e-8:       # |dp| > 0.1 mm: one exact Newton step
-            q = row[_Q] + dq
-            l1, l2 = self.l1, self.l2
-            s1, c1 = math.sin(q[0]), math.cos(q[0])
-            s12, c12 = math.sin(q[0] + q[1]), math.cos(q[0] + q[1])
-            res_x = row[0] + dp[0] - (l1 * s1 + l2 * c12)
-            res_z = row[1] + dp[1] - (l1 * c1 - l2 * s12)
-            j00, j01 = l1 * c1 - l2 * s12, -l2 * s12
-            j10, j11 = -l1 * s1 - l2 * c12, -l2 * c12
-            det = j00 * j11 - j01 * j10
-            dq[0] += (j11 * res_x - j01 * res_z) / det
-            dq[1] += (-j10 * res_x + j00 * res_z) / det
-        return dq
+        return np.array(_offset_arm_angles(row, float(dp[0]), float(dp[1]), self.l1, self.l2))
+
+
+# ---- the run-time law, compiled ----------------------------------------------------------------
+@kernel
+def _table_row(table, dt, t, row):
+    """Row of the reference ``table`` (resolution ``dt``) at time ``t`` into ``row``: linear
+    interpolation, held before 0 and after the end (:meth:`MotionControlModel.sample`)."""
+    x = t / dt
+    last = table.shape[0] - 1
+    held = 0 if x <= 0.0 else (last if int(x) >= last else -1)
+    for c in range(table.shape[1]):             # loops, not slices: faster to compile
+        if held >= 0:
+            row[c] = table[held, c]
+        else:
+            i = int(x)
+            r0 = table[i, c]
+            row[c] = r0 + (x - i) * (table[i + 1, c] - r0)
+
+
+@kernel
+def _offset_arm_angles(row, dp0, dp1, l1, l2):
+    """Change of the arm reference of the table ``row`` that moves the tool by ``(dp0, dp1)``
+    (m): the tabulated inverse Jacobian, then one exact Newton step of the forward kinematics
+    when ``|dp| > 0.1 mm`` (module docstring)."""
+    dq0 = row[22] * dp0 + row[23] * dp1
+    dq1 = row[24] * dp0 + row[25] * dp1
+    if dp0 * dp0 + dp1 * dp1 > 1e-8:
+        q0, q1 = row[6] + dq0, row[7] + dq1
+        x, z = kinematics.tool_point(q0, q1, l1, l2)
+        res_x = row[0] + dp0 - x
+        res_z = row[1] + dp1 - z
+        j00, j01, j10, j11 = kinematics.tool_jacobian(q0, q1, l1, l2)
+        det = j00 * j11 - j01 * j10
+        dq0 += (j11 * res_x - j01 * res_z) / det
+        dq1 += (-j10 * res_x + j00 * res_z) / det
+    return dq0, dq1
+
+
+# constants of the law (MotionController._k): kp, kd, kp / ti, tau_max, gear ratios (2 each), l1, l2
+@kernel
+def _control_law(table, dt, t, resample, row, q_m, dq_m, dp, excitation, integral, k, out):
+    """:meth:`MotionController.evaluate` on floats: the ``row`` at ``t`` (when ``resample``),
+    the references moved by the offset ``dp``, the error and the limited PID torque, into
+    ``out`` = q_a_ref, q_m_ref, p_ref, error, tau, wind-up direction (2 each); ``excitation``:
+    an added torque or empty. Returns whether the limit acted."""
+    if resample:
+        _table_row(table, dt, t, row)
+    qa0, qa1, qr0, qr1 = row[6], row[7], row[14], row[15]
+    if dp[0] != 0.0 or dp[1] != 0.0:
+        dq0, dq1 = _offset_arm_angles(row, dp[0], dp[1], k[10], k[11])
+        qa0, qa1 = qa0 + dq0, qa1 + dq1
+        qr0, qr1 = qr0 + k[8] * dq0, qr1 + k[9] * dq1
+    out[0], out[1], out[2], out[3] = qa0, qa1, qr0, qr1
+    out[4], out[5] = row[0] + dp[0], row[1] + dp[1]
+    e0, e1 = qr0 - q_m[0], qr1 - q_m[1]
+    out[6], out[7] = e0, e1
+    u0 = row[18] + k[0] * e0 + k[2] * (row[16] - dq_m[0])
+    u1 = row[19] + k[1] * e1 + k[3] * (row[17] - dq_m[1])
+    if k[4] != 0.0 or k[5] != 0.0:
+        u0 += k[4] * integral[0]
+        u1 += k[5] * integral[1]
+    if excitation.size:
+        u0 += excitation[0]
+        u1 += excitation[1]
+    m0, m1 = k[6], k[7]
+    saturated = abs(u0) > m0 or abs(u1) > m1
+    out[10], out[11] = 0.0, 0.0
+    if saturated:
+        t0, t1 = min(max(u0, -m0), m0), min(max(u1, -m1), m1)
+        out[10], out[11] = np.sign(u0 - t0), np.sign(u1 - t1)
+        u0, u1 = t0, t1
+    out[8], out[9] = u0, u1
+    return saturated
 
 
 class MotionController:
@@ -367,17 +422,48 @@ class MotionController:
         g = model.gains
         self.kp, self.kd, self.tau_max = g.kp, g.kd, g.tau_max
         self.kpi = g.kp * np.where(g.ti > 0, 1.0 / np.where(g.ti > 0, g.ti, 1.0), 0.0)  # kp/ti or 0
-        self._has_integral = bool(np.any(self.kpi != 0.0))
+        self._k = np.concatenate([g.kp, g.kd, self.kpi, g.tau_max, model.r, [model.l1, model.l2]])
+        self._excitation = np.zeros(0)
         self._saturated = False
         self.integral = np.zeros(2)
-        self.error = np.zeros(2)
-        self.tau = np.zeros(2)
-        self._windup = np.zeros(2)   # +1 / -1: saturated in that direction, 0: not saturated
+        # the law's outputs, updated in place: q_a_ref, q_m_ref, p_ref, error, tau, wind-up
+        # (read through properties: views kept as attributes would not survive a state's copy)
+        self._out = np.zeros(12)
         self.row = model.sample(0.0)
         self._row_t = 0.0            # the time of row: an FMU evaluates each time twice (its
-        self.q_a_ref = self.row[_Q].copy()   # outputs at t + dt, then the new inputs at t)
-        self.q_m_ref = self.row[_QM].copy()
-        self.p_ref = self.row[_P].copy()
+        self._out[0:2] = self.row[_Q]         # outputs at t + dt, then the new inputs at t)
+        self._out[2:4] = self.row[_QM]
+        self._out[4:6] = self.row[_P]
+
+    @property
+    def q_a_ref(self) -> np.ndarray:
+        """Arm reference of the last :meth:`evaluate` (with the offset) [rad]."""
+        return self._out[0:2]
+
+    @property
+    def q_m_ref(self) -> np.ndarray:
+        """Motor reference of the last :meth:`evaluate` (with the offset) [rad, motor side]."""
+        return self._out[2:4]
+
+    @property
+    def p_ref(self) -> np.ndarray:
+        """Tool reference of the last :meth:`evaluate` (with the offset) [m, world x and z]."""
+        return self._out[4:6]
+
+    @property
+    def error(self) -> np.ndarray:
+        """Motor angle error ``q_m_ref - q_m`` of the last :meth:`evaluate` [rad]."""
+        return self._out[6:8]
+
+    @property
+    def tau(self) -> np.ndarray:
+        """Motor torque of the last :meth:`evaluate` [N m, motor side]."""
+        return self._out[8:10]
+
+    @property
+    def row_time(self) -> float:
+        """The time of :attr:`row` (updated in place when :meth:`evaluate` is given a new time)."""
+        return self._row_t
 
     def reset(self) -> None:
         """Zero the integral state."""
@@ -388,45 +474,26 @@ class MotionController:
         reference moved by the Cartesian offset ``dp_ref`` (m, from the impedance controller).
 
         Updates :attr:`row`, :attr:`q_a_ref`, :attr:`q_m_ref`, :attr:`p_ref`, :attr:`error` and
-        returns :attr:`tau` [N m, motor side].
+        returns :attr:`tau` [N m, motor side] (in place: the next call overwrites them).
         """
         m = self.model
-        if t != self._row_t:
-            self.row, self._row_t = m.sample(t), t
-        row = self.row
-        q_a = row[_Q]
-        q_m_ref = row[_QM]
-        if dp_ref[0] != 0.0 or dp_ref[1] != 0.0:
-            dq = m.offset_arm_angles(row, dp_ref)
-            q_a = q_a + dq
-            q_m_ref = q_m_ref + m.r * dq
-        self.q_a_ref = q_a
-        self.q_m_ref = q_m_ref
-        self.p_ref = row[_P] + dp_ref
-        e = q_m_ref - q_m
-        self.error = e
-        u = row[_TFF] + self.kp * e + self.kd * (row[_DQM] - dq_m)
-        if self._has_integral:
-            u += self.kpi * self.integral
+        resample = t != self._row_t
+        self._row_t = t
         if self.excitation is not None:
-            u += self.excitation(t)
-        if (np.abs(u) > self.tau_max).any():
-            tau = np.minimum(np.maximum(u, -self.tau_max), self.tau_max)
-            self._windup = np.sign(u - tau)
-            self._saturated = True
-        else:
-            tau = u
-            self._saturated = False
-        self.tau = tau
-        return tau
+            self._excitation = self.excitation(t)
+        self._saturated = _control_law(m.table, m.dt, t, resample, self.row, np.asarray(q_m, dtype=float),
+                                       np.asarray(dq_m, dtype=float), np.asarray(dp_ref, dtype=float),
+                                       self._excitation, self.integral, self._k, self._out)
+        return self.tau
 
     def advance(self, dt: float) -> None:
         """Integrate the error of the last :meth:`evaluate` over ``dt`` (not while it would wind up)."""
+        error = self.error
         if not self._saturated:
-            self.integral += self.error * dt
+            self.integral += error * dt
         else:
-            grow = self._windup * self.error > 0
-            self.integral += np.where(grow, 0.0, self.error * dt)
+            grow = self._out[10:12] * error > 0          # the wind-up direction of the last limit
+            self.integral += np.where(grow, 0.0, error * dt)
 
 
 class Multisine:

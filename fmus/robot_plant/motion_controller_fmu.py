@@ -56,7 +56,7 @@ class MotionController(FlexFusionSlave):
 
     def setup(self, params: MotionControllerParameters) -> None:
         self.ctrl = build_controller(params)
-        self._shown_row = None
+        self._shown_t = None
         self._evaluate(self._time)
 
     def _evaluate(self, t: float) -> None:
@@ -64,8 +64,8 @@ class MotionController(FlexFusionSlave):
         c.evaluate(t, self.q_m, self.dq_m, self.dp_ref)
         self._eval_t = t
         row = c.row
-        if row is not self._shown_row:       # the references of a new time (once per time)
-            self._shown_row = row
+        if c.row_time != self._shown_t:      # the references of a new time (once per time)
+            self._shown_t = c.row_time
             for name, cols in _ROW_OUTPUTS:
                 getattr(self, name)[:] = row[cols]
         self.tau_m[:] = c.tau

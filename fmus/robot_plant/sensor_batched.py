@@ -17,7 +17,7 @@ import numpy as np
 
 from fmus.common.noise import make_rng
 from fmus.common.sample_time import UNSTAMPED
-from fmus.robot_plant.sensor_model import SensorChannels, imu_reading, input_time, quantise
+from fmus.robot_plant.sensor_model import SensorChannels, imu_reading, input_time
 
 
 class RunStreams:
@@ -65,19 +65,7 @@ class RunSensorChannels(SensorChannels):
         # without a random walk its increments are zeros whatever is drawn: draw none
         self._rng_rw = (RunStreams(seeds, f"{stream}/bias_rw") if np.any(self.bias_rw)
                         else _Zeros(runs))
-        self.walk = np.zeros((runs, n))
-        self.output = np.zeros((runs, n))
-        self.saturated = np.zeros((runs, n), dtype=bool)
-        self._z = np.zeros((max(self.filter_order, 1), runs, n))
-        self._lim = self._limit()
-
-    def _finish(self, y: np.ndarray) -> np.ndarray:
-        """:meth:`SensorChannels._finish` (quantisation, saturation) with its limit computed
-        once and no quantisation pass at zero resolution (the same numbers, per step cheaper)."""
-        if np.any(self.resolution > 0.0):
-            y = quantise(y, self.resolution)
-        self.saturated = np.abs(y) >= self._lim
-        return np.clip(y, -self._lim, self._lim)
+        self._allocate((runs, n))
 
 
 class BatchedEncoder:

@@ -11,14 +11,16 @@ force-sensor relation, eq. 1) and the environment forces.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from fmus.common.frames import G, sensor_rotation
-from fmus.common.noise import make_rng, random_walk_increment, reseed_param, reseeded_rng, white_noise
+from fmus.common.frames import G, rot_rpy, sensor_rotation
+from fmus.common.jit import kernel
+from fmus.common.noise import BlockNormals, make_rng, reseed_param, reseeded_rng
 from fmus.common.parameters import ParameterError, param
 from fmus.common.sample_time import UNSTAMPED, measurement_time
 
@@ -82,31 +84,6 @@ def butterworth_magnitude(f: np.ndarray | float, cutoff: float, dt: float, order
     return 1.0 / np.sqrt(1.0 + ratio ** (2 * order))
 
 
-class _Normals:
-    """A generator's standard normal numbers, ``n`` per call, drawn ahead in blocks.
-
-    numpy's Generator keeps no state between draws but the bit generator's, so the rows of one
-    ``standard_normal((k, n))`` are the numbers of ``k`` calls of ``standard_normal(n)``, in
-    order: a block saves the call's overhead (about 1.5 us) per sample.
-    """
-
-    BLOCK = 256       # calls per draw
-
-    def __init__(self, rng: np.random.Generator, n: int) -> None:
-        self.rng, self.n = rng, n
-        self._block = np.empty((0, n))
-        self._next = 0
-
-    def standard_normal(self, n: int) -> np.ndarray:
-        """The next ``n`` numbers (``n`` as given at construction)."""
-        if n != self.n:
-            raise ValueError(f"this stream serves {self.n} numbers per call, not {n}")
-        if self._next == len(self._block):
-            self._block, self._next = self.rng.standard_normal((self.BLOCK, n)), 0
-        self._next += 1
-        return self._block[self._next - 1]
-
-
 def quantise(x: np.ndarray, resolution: np.ndarray | float) -> np.ndarray:
     """Round to the nearest multiple of ``resolution`` (a zero resolution leaves ``x`` alone)."""
     res = np.broadcast_to(np.asarray(resolution, dtype=float), np.shape(x))
@@ -116,12 +93,65 @@ def quantise(x: np.ndarray, resolution: np.ndarray | float) -> np.ndarray:
     return out
 
 
-class SensorChannels:
-    """``n`` sensor channels with the usual imperfections, vectorised.
+# rows of SensorChannels' parameter table, the kernel's per-channel constants
+_GAIN, _BIAS, _RW, _NOISE, _RES, _LIM = range(6)
 
-    Elementwise numpy on purpose: the batched study engine runs this same class on ``(runs, n)``
-    arrays (one definition for both paths), though plain floats were 2-3x faster still for the
-    2-3 channels of one sensor (issue 16, benchmarks/flagship.py).
+
+@kernel
+def _channels_kernel(x, z, coef, order, reset, sample, noisy, table, walk, rw_draw, noise_draw, out,
+                     saturated):
+    """One step of :class:`SensorChannels` (its steps 1 and 3-7) on flat arrays, the numbers of
+    the former elementwise numpy code operation by operation (no fastmath: same rounding).
+
+    ``walk``, ``z[0]``, ``z[1]``, ``out`` and ``saturated`` hold ``runs * n`` values (one sensor:
+    ``runs = 1``), element ``k`` of channel ``k % n``; the input ``x`` holds ``runs * n`` or
+    ``n`` values (one input for every run). ``order`` 0: no filter; ``reset``: start the filter
+    in steady state at ``x``; ``sample``: form the reading into ``out`` and ``saturated``;
+    ``noisy``: with the bias-walk step ``rw_draw`` and the white noise ``noise_draw``
+    (standard normal numbers) scaled by the ``table`` rows.
+    """
+    n = table.shape[1]
+    b0, b1, b2, a1, a2 = coef[0], coef[1], coef[2], coef[3], coef[4]
+    for k in range(walk.size):
+        j = k % n
+        y = x[k % x.size]
+        if order > 0:
+            u = y
+            if reset:                            # steady state for a constant input
+                if order == 2:
+                    z[1, k] = (b2 - a2) * u
+                z[0, k] = (1.0 - b0) * u
+            y = b0 * u + z[0, k]                 # direct form II transposed
+            if order == 1:
+                z[0, k] = b1 * u - a1 * y
+            else:
+                z[0, k] = b1 * u - a1 * y + z[1, k]
+                z[1, k] = b2 * u - a2 * y
+        if sample:
+            if noisy:
+                walk[k] = walk[k] + table[_RW, j] * rw_draw[k]
+                y = table[_GAIN, j] * y + table[_BIAS, j] + walk[k] + table[_NOISE, j] * noise_draw[k]
+            else:
+                y = table[_GAIN, j] * y + table[_BIAS, j] + walk[k]
+            res = table[_RES, j]
+            if res > 0.0:
+                y = np.rint(y / res) * res       # numpy's round half to even
+            lim = table[_LIM, j]
+            saturated[k] = abs(y) >= lim
+            if y > lim:
+                y = lim
+            elif y < -lim:
+                y = -lim
+            out[k] = y
+
+
+class SensorChannels:
+    """``n`` sensor channels with the usual imperfections.
+
+    One compiled kernel (:func:`_channels_kernel`) steps every channel; the state is held in
+    arrays of shape :attr:`shape` (``(n,)``; the batched study engine's subclass
+    :class:`~fmus.robot_plant.sensor_batched.RunSensorChannels`: ``(runs, n)``), so one
+    definition serves both paths.
 
     Per call of :meth:`step` (one communication step ``dt``, input ``x`` held over the step):
 
@@ -136,7 +166,8 @@ class SensorChannels:
     7. saturation at ``+-range`` (clipped; :attr:`saturated` flags the channels at or beyond it).
 
     :attr:`t_meas` is the time stamp of the held reading: the ``time`` given with the input
-    that was sampled (:func:`input_time` in the FMUs).
+    that was sampled (:func:`input_time` in the FMUs). Each sample is a new :attr:`output`
+    array (a caller may keep it).
 
     Every parameter is a scalar or a length-``n`` array. The white noise and the random walk use
     independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``;
@@ -166,30 +197,36 @@ class SensorChannels:
         if self.filter_order not in (1, 2):
             raise ValueError(f"filter order must be 1 or 2, got {filter_order}")
         self.stream = stream
-        self._rng_noise = _Normals(make_rng(seed, f"{stream}/noise"), n)
-        self._rng_rw = _Normals(make_rng(seed, f"{stream}/bias_rw"), n)
-        self._gain = 1.0 + self.scale
-        self._lim = self._limit()
-        self._quantised = bool(np.any(self.resolution > 0.0))
-        self._rounded = bool(np.all(self.resolution > 0.0))
-        self.walk = np.zeros(n)                 # bias random-walk state
-        self.output = np.zeros(n)               # held reading
-        self.t_meas = math.nan                   # its time stamp
-        self.saturated = np.zeros(n, dtype=bool)
-        self._z = np.zeros((max(self.filter_order, 1), n))   # filter state (direct form II transposed)
-        self._b = self._a = None
+        self._rng_noise = BlockNormals(make_rng(seed, f"{stream}/noise"), n)
+        self._rng_rw = BlockNormals(make_rng(seed, f"{stream}/bias_rw"), n)
+        # the kernel's per-channel constants; the walk's row is set with the step (_check_period)
+        self._table = np.array([1.0 + self.scale, self.bias, np.zeros(n), self.noise, self.resolution,
+                                self._limit()])
+        self._coef = np.zeros(5)                 # b0, b1, b2, a1, a2 of the low-pass
+        self._order = 0                          # of the designed low-pass; 0: none
         self._dt_filter = None
         self._filter_ready = False
         self._dt_sample = None
+        self._dt_walk = None
         self._period_steps = 1
         self._count = 0                          # steps since the last sample
+        self.t_meas = math.nan                   # the held reading's time stamp
+        self._allocate((n,))
+
+    def _allocate(self, shape: tuple[int, ...]) -> None:
+        """The state arrays for readings of ``shape``: :attr:`walk` (the bias random walk),
+        :attr:`output` (the held reading), :attr:`saturated` and the filter's (flat)."""
+        self.shape = shape
+        self.walk, self.output = np.zeros(shape), np.zeros(shape)
+        self.saturated = np.zeros(shape, dtype=bool)
+        self._z = np.zeros((2, self.walk.size))  # filter state (direct form II transposed)
 
     # -- pieces ------------------------------------------------------------------------------
     def reseed(self, seed: int) -> None:
         """Draw the noise and the bias walk from now on from ``seed``'s reseeded streams
         (:func:`fmus.common.noise.reseeded_rng`); every other state carries on."""
-        self._rng_noise = _Normals(reseeded_rng(seed, f"{self.stream}/noise"), self.n)
-        self._rng_rw = _Normals(reseeded_rng(seed, f"{self.stream}/bias_rw"), self.n)
+        self._rng_noise = BlockNormals(reseeded_rng(seed, f"{self.stream}/noise"), self.n)
+        self._rng_rw = BlockNormals(reseeded_rng(seed, f"{self.stream}/bias_rw"), self.n)
 
     def _limit(self) -> np.ndarray:
         """The largest representable magnitude (range rounded down to the resolution)."""
@@ -198,56 +235,15 @@ class SensorChannels:
         lim[q] = np.floor(lim[q] / self.resolution[q] * (1 + 1e-12)) * self.resolution[q]
         return lim
 
-    def _finish(self, y: np.ndarray) -> np.ndarray:
-        """Quantisation and saturation; sets :attr:`saturated` (:func:`quantise` without its
-        masks when every channel or none is quantised, and the limit computed once: the same
-        numbers, fewer numpy calls)."""
-        if self._rounded:
-            y = np.rint(y / self.resolution) * self.resolution     # np.round's half to even
-        elif self._quantised:
-            y = quantise(y, self.resolution)
-        lim = self._lim
-        self.saturated = np.abs(y) >= lim
-        return np.minimum(np.maximum(y, -lim), lim)
-
     def _design(self, dt: float) -> None:
         if self.cutoff >= 0.5 / dt:
             raise ValueError(f"parameter '{self.names['cutoff']}' = {self.cutoff:g} Hz must be below "
                              f"the Nyquist frequency {0.5 / dt:g} Hz of the communication step {dt:g} s")
-        self._b, self._a = butterworth_coefficients(self.cutoff, dt, self.filter_order)
+        b, a = butterworth_coefficients(self.cutoff, dt, self.filter_order)
+        self._coef[:] = 0.0
+        self._coef[:len(b)], self._coef[3:3 + len(a) - 1] = b, a[1:]
+        self._order = self.filter_order
         self._dt_filter = dt
-
-    def _reset_filter(self, x: np.ndarray) -> None:
-        """Steady state for a constant input ``x`` (no start-up transient)."""
-        if self._b is None:
-            self._z[:] = 0.0
-            self._filter_ready = True
-            return
-        b, a = self._b, self._a
-        if self.filter_order == 1:
-            self._z[0] = (1.0 - b[0]) * x
-        else:
-            self._z[1] = (b[2] - a[2]) * x
-            self._z[0] = (1.0 - b[0]) * x
-        self._filter_ready = True
-
-    def lowpass(self, x: np.ndarray, dt: float) -> np.ndarray:
-        """One step of the anti-aliasing filter (identity when ``cutoff`` is 0)."""
-        x = np.asarray(x, dtype=float)
-        if self.cutoff <= 0.0:
-            return x.copy()
-        if self._dt_filter is None or abs(dt - self._dt_filter) > 1e-12 * dt:
-            self._design(dt)
-        if not self._filter_ready:
-            self._reset_filter(x)
-        b, a, z = self._b, self._a, self._z
-        y = b[0] * x + z[0]
-        if self.filter_order == 1:
-            z[0] = b[1] * x - a[1] * y
-        else:
-            z[0] = b[1] * x - a[1] * y + z[1]
-            z[1] = b[2] * x - a[2] * y
-        return y
 
     def _check_period(self, dt: float) -> None:
         if not dt > 0.0:
@@ -268,13 +264,39 @@ class SensorChannels:
         self._period_steps = n_steps
         self._dt_sample = dt
 
+    def _run(self, x: np.ndarray, dt: float, sample: bool, noisy: bool) -> None:
+        """Call the kernel: the filter (when ``dt`` is given and a cut-off set) and, with
+        ``sample``, a new :attr:`output` (``noisy``: with a step of the walk and the noise)."""
+        x = np.asarray(x, dtype=float)
+        flat = len(self.shape) == 1                 # one sensor: no views to make
+        if x.ndim != 1:
+            x = np.ascontiguousarray(x).reshape(-1)
+        order, reset = 0, False
+        if dt and self.cutoff > 0.0:
+            if self._dt_filter is None or abs(dt - self._dt_filter) > 1e-12 * dt:
+                self._design(dt)
+            order, reset = self._order, not self._filter_ready
+            self._filter_ready = True
+        walk, saturated = self.walk, self.saturated
+        if not flat:                             # views made per call: a copied state keeps no stale view
+            walk, saturated = walk.reshape(-1), saturated.reshape(-1)
+        rw = noise = out = walk                  # placeholders where nothing is drawn or formed
+        if sample:
+            out = self.output = np.empty(self.shape)
+            if noisy:
+                rw, noise = self._rng_rw.standard_normal(self.n), self._rng_noise.standard_normal(self.n)
+            if not flat:
+                out, rw, noise = out.reshape(-1), rw.reshape(-1), noise.reshape(-1)
+        _channels_kernel(x, self._z, self._coef, order, reset, sample, noisy, self._table, walk, rw,
+                         noise, out, saturated)
+
     # -- use ---------------------------------------------------------------------------------
     def initial(self, x: np.ndarray, time: float = 0.0) -> np.ndarray:
         """The reading before the first step, stamped ``time``: bias, scale, quantisation and
         saturation of ``x`` (no noise); the filter will start in steady state at the first
         step's input."""
         self.t_meas = float(time)
-        self.output = self._finish(self._gain * np.asarray(x, dtype=float) + self.bias + self.walk)
+        self._run(x, 0.0, True, False)
         return self.output
 
     def step(self, x: np.ndarray, dt: float, time: float = math.nan) -> np.ndarray:
@@ -287,13 +309,14 @@ class SensorChannels:
             Naming ``sample_rate`` if the sample period is not an integer multiple of ``dt``, or
             ``cutoff`` if the cut-off is not below the Nyquist frequency of ``dt``.
         """
-        self._check_period(dt)
-        y = self.lowpass(x, dt)
-        if self._count == 0:
-            period = self._period_steps * dt
-            self.walk += random_walk_increment(self._rng_rw, self.bias_rw, period, self.n)
-            y = self._gain * y + self.bias + self.walk + white_noise(self._rng_noise, self.noise, self.n)
-            self.output = self._finish(y)
+        if dt != self._dt_sample:
+            self._check_period(dt)
+        sample = self._count == 0
+        if sample and dt != self._dt_walk:       # the walk's scale over one sample period
+            self._table[_RW] = self.bias_rw * np.sqrt(self._period_steps * dt)
+            self._dt_walk = dt
+        self._run(x, dt, sample, True)
+        if sample:
             self.t_meas = float(time)
         self._count = (self._count + 1) % self._period_steps
         return self.output
@@ -306,13 +329,21 @@ def _xz(v: Sequence[float]) -> np.ndarray:
     return np.array([float(v[0]), 0.0, float(v[1])])
 
 
+@functools.lru_cache(maxsize=64)
+def _mount_matrix(mount_rpy: tuple) -> tuple:
+    """:func:`~fmus.common.frames.rot_rpy` of ``mount_rpy`` as a row-major tuple of 9 floats."""
+    return tuple(float(v) for v in rot_rpy(mount_rpy).reshape(-1))
+
+
 def imu_reading(a_world_xz: Sequence[float], phi: float, omega: float, mount_rpy: Sequence[float],
                 g: float = G) -> tuple[np.ndarray, np.ndarray]:
     """Ideal 3-axis accelerometer and gyro readings in the sensor frame.
 
     Specific force ``acc_s = R_s^T (a - g_vec)`` (the 2012 paper's accelerometer model,
     eqs. 17-19, in 3-D; at rest +g on a vertical sensor z) and angular rate
-    ``gyro_s = R_s^T (0, omega, 0)``.
+    ``gyro_s = R_s^T (0, omega, 0)``, ``R_s = Ry(phi) R_mount``
+    (:func:`~fmus.common.frames.sensor_rotation`) written out on plain floats: this runs every
+    step of the Imu (the same numbers as the matrix products to a few units of the last place).
 
     Parameters
     ----------
@@ -323,10 +354,14 @@ def imu_reading(a_world_xz: Sequence[float], phi: float, omega: float, mount_rpy
     mount_rpy
         Mounting roll, pitch, yaw of the sensor on the tool (rad).
     """
-    rs = sensor_rotation(phi, mount_rpy)
-    acc = rs.T @ (_xz(a_world_xz) - np.array([0.0, 0.0, -g]))
-    gyro = rs.T @ np.array([0.0, float(omega), 0.0])
-    return acc, gyro
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = _mount_matrix(tuple(mount_rpy))
+    c, s = math.cos(phi), math.sin(phi)
+    ax, vz = float(a_world_xz[0]), float(a_world_xz[1]) + g          # a - g_vec, y = 0
+    # rows 0 and 2 of R_s (row 1 is R_mount's): acc = R_s^T (ax, 0, vz), gyro = R_s^T (0, omega, 0)
+    r00, r01, r02 = c * m00 + s * m20, c * m01 + s * m21, c * m02 + s * m22
+    r20, r21, r22 = c * m20 - s * m00, c * m21 - s * m01, c * m22 - s * m02
+    return (np.array([r00 * ax + r20 * vz, r01 * ax + r21 * vz, r02 * ax + r22 * vz]),
+            np.array([m10 * omega, m11 * omega, m12 * omega]))
 
 
 def force_sensor_reading(f_ext_xz: Sequence[float], a_tool_xz: Sequence[float], phi: float,

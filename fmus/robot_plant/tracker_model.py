@@ -18,12 +18,13 @@ the true position).
 from __future__ import annotations
 
 from collections import deque
+from itertools import islice
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from fmus.common.noise import make_rng, reseed_param, reseeded_rng, white_noise
+from fmus.common.noise import BlockNormals, make_rng, reseed_param, reseeded_rng
 from fmus.common.parameters import param
 
 
@@ -56,8 +57,8 @@ class TrackerModel:
             raise ValueError(f"skew must be >= 0, got {skew!r}")
         self.noise, self.period, self.skew = float(noise), 1.0 / float(sample_rate), float(skew)
         self.stream = stream
-        self._rng = make_rng(seed, stream)
-        self._history: deque[tuple[float, np.ndarray]] = deque()
+        self._rng = BlockNormals(make_rng(seed, stream), 2)
+        self._history: deque[tuple[float, float, float]] = deque()      # (t, x, z)
         self._t0 = 0.0
         self._k = 0                          # index of the next sample instant
         self.p_meas = np.zeros(2)
@@ -66,18 +67,18 @@ class TrackerModel:
     def reseed(self, seed: int) -> None:
         """Draw the noise from now on from ``seed``'s reseeded stream
         (:func:`fmus.common.noise.reseeded_rng`)."""
-        self._rng = reseeded_rng(seed, self.stream)
+        self._rng = BlockNormals(reseeded_rng(seed, self.stream), 2)
 
-    def _position(self, t: float) -> np.ndarray:
+    def _position(self, t: float) -> tuple[float, float]:
         """True position at ``t`` by linear interpolation in the history (held before it)."""
         h = self._history
         if t <= h[0][0]:
-            return h[0][1].copy()
-        for (ta, pa), (tb, pb) in zip(h, list(h)[1:]):
+            return h[0][1], h[0][2]
+        for (ta, xa, za), (tb, xb, zb) in zip(h, islice(h, 1, None)):
             if t <= tb:
                 w = (t - ta) / (tb - ta) if tb > ta else 1.0
-                return pa + w * (pb - pa)
-        return h[-1][1].copy()
+                return xa + w * (xb - xa), za + w * (zb - za)
+        return h[-1][1], h[-1][2]
 
     def start(self, t0: float, p: Sequence[float]) -> None:
         """Begin at ``t0`` with the true position ``p``: the first sample, stamped ``t0``."""
@@ -87,12 +88,14 @@ class TrackerModel:
 
     def update(self, t: float, p: Sequence[float]) -> None:
         """The true position is ``p`` at ``t`` (non-decreasing); take every sample due by ``t``."""
-        self._history.append((float(t), np.array(p, dtype=float)))
+        self._history.append((float(t), float(p[0]), float(p[1])))
         while True:
             t_k = self._t0 + self._k * self.period
             if t_k > t + 1e-9 * self.period:
                 break
-            self.p_meas = self._position(t_k - self.skew) + white_noise(self._rng, self.noise, 2)
+            x, z = self._position(t_k - self.skew)
+            e = self._rng.standard_normal(2)          # white noise: drawn even when noise = 0
+            self.p_meas = np.array([x + self.noise * e[0], z + self.noise * e[1]])
             self.t_meas = t_k
             self._k += 1
         # keep what the next sample can need: back to one entry at or before (next t_k - skew)

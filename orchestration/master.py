@@ -600,7 +600,8 @@ def _extracted(comp: Component) -> str:
     already loaded library by its path, even after the file was removed and extracted again).
 
     The folders are removed when the last run of the process ends (:func:`_remove_extracted`),
-    not at exit: study workers end without running Python's exit handlers.
+    not at exit: study workers end without running Python's exit handlers. A package this
+    process has imported already is not extracted (:func:`_still_read`).
     """
     from fmpy import extract
     path = comp.fmu.resolve()
@@ -611,8 +612,20 @@ def _extracted(comp: Component) -> str:
         _EXTRACTED[key] = str(Path(_EXTRACT_ROOT[0]) / str(len(_EXTRACTED)))
     folder = _EXTRACTED[key]
     if not Path(folder, "modelDescription.xml").is_file():
-        extract(str(path), unzipdir=folder)
+        extract(str(path), unzipdir=folder, include=_still_read)
     return folder
+
+
+def _still_read(member: str) -> bool:
+    """Whether this process may still read an FMU's file ``member``: not one of a package in
+    ``resources/`` that it has imported already. Python imports a package once per process,
+    from the first folder that provides it, and never reads another copy; our FMUs each bundle
+    the same ``fmus_<hash>`` package and ``pythonfmu``, which their script imports whole when
+    it loads, so only the first FMU of a process needs them (each other one saves about 45
+    files of extraction)."""
+    parts = member.split("/", 2)
+    return not (len(parts) == 3 and parts[0] == "resources"
+                and hasattr(sys.modules.get(parts[1]), "__path__"))
 
 
 def _remove_extracted() -> None:

@@ -276,6 +276,31 @@ def test_fmu_extraction_folders_are_removed_when_a_run_ends(tmp_path):
     assert not root.exists()
 
 
+def test_an_fmu_folder_holds_no_copy_of_a_package_the_process_has_imported(tmp_path, monkeypatch):
+    """Only the first FMU of a process needs the bundled ``fmus_<hash>`` and ``pythonfmu``
+    packages extracted: Python never reads a second copy. The run still works without them."""
+    from orchestration import master
+    run(write(tmp_path, NOISE), out_dir=tmp_path / "a")        # the packages are imported now
+    seen: dict[str, set[str]] = {}
+    close = master._Instance.close
+
+    def recording_close(self):
+        resources = Path(self.fmu.unzipDirectory) / "resources"
+        seen[self.name] = {p.name for p in resources.iterdir()}
+        close(self)
+
+    monkeypatch.setattr(master._Instance, "close", recording_close)
+    r = run(write(tmp_path, NOISE), out_dir=tmp_path / "b")
+    assert r.status == "ok" and set(seen) == {"src", "other"}
+    for names in seen.values():
+        assert "slavemodule.txt" in names and any(n.startswith("source_fmu_") for n in names)
+        assert "pythonfmu" not in names and not any(n.startswith("fmus_") for n in names)
+    assert master._still_read("resources/pythonfmu/fmi2slave.py") is False
+    assert master._still_read("resources/no_such_package_here/x.py") is True
+    assert master._still_read("resources/slavemodule.txt") is True
+    assert master._still_read("binaries/linux64/Gain.so") is True
+
+
 def test_results_csv_is_read_by_fmpy(tmp_path):
     path = write(tmp_path, CHAIN)
     r = run(path, out_dir=tmp_path / "o")

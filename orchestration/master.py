@@ -14,10 +14,11 @@
   outputs and leaves initialisation mode, and its outputs are read.
 * Per component and step: one batched ``fmi2SetReal`` of all connected inputs and one batched
   ``fmi2GetReal`` of all needed outputs, straight from/to one shared value buffer (ctypes arrays
-  and numpy views, value references precomputed).
+  and numpy views, value references precomputed), through the library's raw functions.
 * A NaN on a connection, or an FMU status error/discard/fatal, stops the run with a
   :class:`RunError` naming the component, the variable and the time (with the FMU's own log).
-  Instances are always terminated and freed.
+  The NaN check runs once per base step; a consumer that fails on a NaN input before it is
+  reported by the producer's NaN. Instances are always terminated and freed.
 * No step past the stop time: a component whose step does not divide the stop time takes its
   last step where the next one would pass it, and its outputs are held from then on (the
   multi-rate rule).
@@ -525,11 +526,11 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
 
         # ---- stepping --------------------------------------------------------------------
         # Per due component one fmi2SetReal, fmi2DoStep and fmi2GetReal through the raw
-        # function pointers, straight from/to ``values``; one NaN check per base step (a dot
-        # product: NaN if and only if a value is NaN), which names the producer only when it
-        # finds one. A consumer refusing a NaN input first is diagnosed the same way (stop).
+        # function pointers, straight from/to ``values``. One NaN check per base step: the dot
+        # product of ``values`` with itself is NaN if and only if a value is NaN; only then are
+        # the connected outputs searched for the producer to name.
         def stop(s: _Slot, function: str, status: int, k: int) -> None:
-            _check_nan(slots, values, (k + 1) * h)      # a NaN handed over is the cause
+            _check_nan(slots, values, (k + 1) * h)      # a NaN handed to it is the cause
             _fail(s.inst, function, status, k * h)
 
         n_steps = scenario.n_steps

@@ -346,6 +346,17 @@ def test_nan_on_a_connection_names_producer_variable_and_time(tmp_path):
     assert np.all(np.isfinite(r["bad.y"]))
 
 
+def test_nan_on_a_connection_is_caught_at_a_base_step_its_consumer_does_not_step(tmp_path):
+    """The consumer (every 2 ms) does not see the NaN of t = 0.052 s: the once-per-step check
+    still names the producer, at the time it produced it."""
+    text = FAILING.format(mode="nan").replace("fail_at = 0.05", "fail_at = 0.0515") \
+        .replace('fmu = "Gain"', 'fmu = "Gain"\nstep = 0.002')
+    with pytest.raises(RunError, match=r"NaN on a connection: component 'bad' output 'y' is NaN "
+                                       r"at t = 0\.052 s") as info:
+        run(write(tmp_path, text), out_dir=tmp_path / "o")
+    assert info.value.component == "bad" and info.value.time == pytest.approx(0.052)
+
+
 def test_bad_parameter_value_fails_at_initialisation_with_the_fmu_message(tmp_path):
     path = write(tmp_path, FAILING.format(mode="oops"))
     with pytest.raises(RunError, match=r"component 'bad'.*mode"):

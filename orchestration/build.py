@@ -142,31 +142,39 @@ def _installed_builder(package: str) -> Iterator[type]:
         sys.modules.update(saved)
 
 
+@contextmanager
+def rewritten(fmu: Path) -> Iterator[tuple[zipfile.ZipFile, zipfile.ZipFile]]:
+    """The FMU's archive to read and a new one to write, which replaces it (same permissions)
+    when the block ends; on an error the FMU is left as it was."""
+    fd, tmp = tempfile.mkstemp(prefix=".tmp", suffix=".fmu", dir=fmu.parent)
+    os.close(fd)
+    try:
+        with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as dst:
+            yield src, dst
+        shutil.copymode(fmu, tmp)
+        os.replace(tmp, fmu)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
 def add_bytecode(fmu: Path) -> None:
     """Add the hash-checked bytecode of every ``resources/**/*.py`` of ``fmu`` (in place), as
     the import system writes it: ``<folder>/__pycache__/<name>.<cache tag>.pyc``, PEP 552's
     header (magic number, flags 0b11 = checked hash, SipHash of the source) and the marshalled
     code. Python checks the hash at each import and compiles the source if it changed."""
     tag = sys.implementation.cache_tag
-    fd, tmp = tempfile.mkstemp(prefix=".tmp", suffix=".fmu", dir=fmu.parent)
-    os.close(fd)
-    try:
-        with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as dst:
-            for info in src.infolist():
-                data = src.read(info)
-                dst.writestr(info, data)
-                name = info.filename
-                if name.startswith("resources/") and name.endswith(".py") and "/__pycache__/" not in name:
-                    folder, _, module = name.rpartition("/")
-                    code = compile(data, name, "exec", dont_inherit=True)
-                    pyc = (importlib.util.MAGIC_NUMBER + (0b11).to_bytes(4, "little")
-                           + importlib.util.source_hash(data) + marshal.dumps(code))
-                    dst.writestr(f"{folder}/__pycache__/{module[:-3]}.{tag}.pyc", pyc)
-        shutil.copymode(fmu, tmp)
-        os.replace(tmp, fmu)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    with rewritten(fmu) as (src, dst):
+        for info in src.infolist():
+            data = src.read(info)
+            dst.writestr(info, data)
+            name = info.filename
+            if name.startswith("resources/") and name.endswith(".py") and "/__pycache__/" not in name:
+                folder, _, module = name.rpartition("/")
+                code = compile(data, name, "exec", dont_inherit=True)
+                pyc = (importlib.util.MAGIC_NUMBER + (0b11).to_bytes(4, "little")
+                       + importlib.util.source_hash(data) + marshal.dumps(code))
+                dst.writestr(f"{folder}/__pycache__/{module[:-3]}.{tag}.pyc", pyc)
 
 
 def validate_fmu(path: Path) -> list[str]:

@@ -31,6 +31,7 @@ from __future__ import annotations
 import ctypes
 import heapq
 import math
+import os
 import shutil
 import signal
 import sys
@@ -619,14 +620,19 @@ def _extracted(comp: Component) -> str:
 
 def _still_read(member: str) -> bool:
     """Whether this process may still read an FMU's file ``member``: not one of a package in
-    ``resources/`` that it has imported already. Python imports a package once per process,
-    from the first folder that provides it, and never reads another copy; our FMUs each bundle
-    the same ``fmus_<hash>`` package and ``pythonfmu``, which their script imports whole when
-    it loads, so only the first FMU of a process needs them (each other one saves about 45
-    files of extraction)."""
+    ``resources/`` that it has imported already from another FMU's folder. Python imports a
+    package once per process, from the first folder that provides it, and never reads another
+    copy; our FMUs each bundle the same ``fmus_<hash>`` package and ``pythonfmu``, which their
+    script imports whole when it loads, so only the first FMU of a process needs them (each
+    other one saves about 45 files of extraction). A folder that merely shares the name of a
+    package imported from elsewhere (``resources/xml/`` of a C FMU) is extracted."""
     parts = member.split("/", 2)
-    return not (len(parts) == 3 and parts[0] == "resources"
-                and hasattr(sys.modules.get(parts[1]), "__path__"))
+    if len(parts) < 3 or parts[0] != "resources":
+        return True
+    module = sys.modules.get(parts[1])
+    origin = getattr(module, "__file__", None) or ""
+    return not (hasattr(module, "__path__") and _EXTRACT_ROOT
+                and origin.startswith(os.path.join(_EXTRACT_ROOT[0], "")))
 
 
 def _remove_extracted() -> None:

@@ -3,6 +3,8 @@ Gauss–Seidel order, multi-rate, cycles, reproducibility, failures."""
 from __future__ import annotations
 
 import json
+import re
+import sys
 import warnings
 from pathlib import Path
 
@@ -276,26 +278,39 @@ def test_fmu_extraction_folders_are_removed_when_a_run_ends(tmp_path):
     assert not root.exists()
 
 
-def test_an_fmu_folder_holds_no_copy_of_a_package_the_process_has_imported(tmp_path, monkeypatch):
-    """Only the first FMU of a process needs the bundled ``fmus_<hash>`` and ``pythonfmu``
-    packages extracted: Python never reads a second copy. The run still works without them."""
+FOLDERS_OF_A_RUN = """
+import json, sys
+from pathlib import Path
+from orchestration import master, run
+seen = {}
+close = master._Instance.close
+def recording_close(self):
+    seen[self.name] = sorted(p.name for p in (Path(self.fmu.unzipDirectory) / "resources").iterdir())
+    close(self)
+master._Instance.close = recording_close
+run(sys.argv[1], out_dir=sys.argv[2])
+print(json.dumps(seen))
+"""
+
+
+def test_only_the_first_fmu_of_a_process_gets_the_bundled_packages_extracted(tmp_path):
+    """In a fresh process (a run's) the first FMU loads the bundled ``fmus_<hash>`` and
+    ``pythonfmu`` packages from its folder; the other FMUs' folders need no copy (Python never
+    reads one) and get none, and the run works."""
+    import subprocess
+    out = subprocess.run([sys.executable, "-c", FOLDERS_OF_A_RUN, str(write(tmp_path, CHAIN)),
+                          str(tmp_path / "o")], capture_output=True, text=True, check=True)
+    seen = json.loads(out.stdout.splitlines()[-1])
+    assert list(seen) == ["g2", "g1", "src"]        # closed in reverse order: src loaded first
+    first, gain = seen["src"], seen["g1"]           # Source.fmu, Gain.fmu (g1 and g2 share it)
+    assert "pythonfmu" in first and any(re.fullmatch(r"fmus_[0-9a-f]{12}", n) for n in first)
+    assert "pythonfmu" not in gain and not any(n.startswith("fmus_") for n in gain)
+    assert "slavemodule.txt" in gain and any(n.startswith("gain_fmu_") for n in gain)
+
+
+def test_a_resources_folder_is_extracted_unless_an_fmu_provided_that_package():
     from orchestration import master
-    run(write(tmp_path, NOISE), out_dir=tmp_path / "a")        # the packages are imported now
-    seen: dict[str, set[str]] = {}
-    close = master._Instance.close
-
-    def recording_close(self):
-        resources = Path(self.fmu.unzipDirectory) / "resources"
-        seen[self.name] = {p.name for p in resources.iterdir()}
-        close(self)
-
-    monkeypatch.setattr(master._Instance, "close", recording_close)
-    r = run(write(tmp_path, NOISE), out_dir=tmp_path / "b")
-    assert r.status == "ok" and set(seen) == {"src", "other"}
-    for names in seen.values():
-        assert "slavemodule.txt" in names and any(n.startswith("source_fmu_") for n in names)
-        assert "pythonfmu" not in names and not any(n.startswith("fmus_") for n in names)
-    assert master._still_read("resources/pythonfmu/fmi2slave.py") is False
+    assert master._still_read("resources/xml/config.xml") is True       # xml: the stdlib's
     assert master._still_read("resources/no_such_package_here/x.py") is True
     assert master._still_read("resources/slavemodule.txt") is True
     assert master._still_read("binaries/linux64/Gain.so") is True

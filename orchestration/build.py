@@ -14,16 +14,26 @@ bundles the ``fmus`` package vendored under a per-build name, ``fmus_<hash of it
 identical copy, different builds never mix, and the host's own ``fmus`` is never used. The
 script imports every module of its package when it loads, so nothing is imported later from a
 folder that may be gone.
+
+Start-up: every FMU carries its Python modules' bytecode for the building interpreter
+(``__pycache__/<module>.<cache tag>.pyc``), hash-checked (PEP 552) so that it stays valid
+whatever time the host's extraction gives the files: a fresh extraction folder needs no
+compilation (about 0.1 s for the flagship's seven FMUs). Another Python version ignores it.
 """
 from __future__ import annotations
 
 import argparse
 import hashlib
 import importlib.metadata
+import importlib.util
+import marshal
+import os
 import re
+import shutil
 import sys
 import tempfile
 import time
+import zipfile
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
@@ -127,6 +137,41 @@ def _installed_builder(package: str) -> Iterator[type]:
         sys.modules.update(saved)
 
 
+@contextmanager
+def rewritten(fmu: Path) -> Iterator[tuple[zipfile.ZipFile, zipfile.ZipFile]]:
+    """The FMU's archive to read and a new one to write, which replaces it (same permissions)
+    when the block ends; on an error the FMU is left as it was."""
+    fd, tmp = tempfile.mkstemp(prefix=".tmp", suffix=".fmu", dir=fmu.parent)
+    os.close(fd)
+    try:
+        with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as dst:
+            yield src, dst
+        shutil.copymode(fmu, tmp)
+        os.replace(tmp, fmu)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def add_bytecode(fmu: Path) -> None:
+    """Add the hash-checked bytecode of every ``resources/**/*.py`` of ``fmu`` (in place), as
+    the import system writes it: ``<folder>/__pycache__/<name>.<cache tag>.pyc``, PEP 552's
+    header (magic number, flags 0b11 = checked hash, SipHash of the source) and the marshalled
+    code. Python checks the hash at each import and compiles the source if it changed."""
+    tag = sys.implementation.cache_tag
+    with rewritten(fmu) as (src, dst):
+        for info in src.infolist():
+            data = src.read(info)
+            dst.writestr(info, data)
+            name = info.filename
+            if name.startswith("resources/") and name.endswith(".py") and "/__pycache__/" not in name:
+                folder, _, module = name.rpartition("/")
+                code = compile(data, name, "exec", dont_inherit=True)
+                pyc = (importlib.util.MAGIC_NUMBER + (0b11).to_bytes(4, "little")
+                       + importlib.util.source_hash(data) + marshal.dumps(code))
+                dst.writestr(f"{folder}/__pycache__/{module[:-3]}.{tag}.pyc", pyc)
+
+
 def validate_fmu(path: Path) -> list[str]:
     """Problems fmpy finds in an FMU (empty when valid)."""
     from fmpy.validation import validate_fmu as fmpy_validate
@@ -174,6 +219,7 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
                 failures.append(f"{_shown(script)}: build failed: {type(exc).__name__}: {exc}")
                 continue
             native.install_into(Path(fmu), library)
+            add_bytecode(Path(fmu))
             problems = validate_fmu(Path(fmu))
             if problems:
                 failures.append(f"{Path(fmu).name}: fmpy validate: " + "; ".join(problems))

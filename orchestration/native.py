@@ -23,7 +23,7 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree
 
-from orchestration.build import REPO, BuildError
+from orchestration.build import REPO, BuildError, rewritten
 
 NATIVE = REPO / "native"
 SOURCES = ("fmi2_python.c", "fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
@@ -137,19 +137,11 @@ def install_into(fmu: Path, library: Path) -> None:
     Other platforms' binaries are left as they are.
     """
     member = f"binaries/{PLATFORM}/{model_identifier(fmu)}.so"
-    fd, tmp = tempfile.mkstemp(prefix=".tmp", suffix=".fmu", dir=fmu.parent)
-    os.close(fd)
-    try:
-        with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as dst:
-            for info in src.infolist():
-                if info.filename != member:
-                    dst.writestr(info, src.read(info))
-            dst.write(library, member)
-        shutil.copymode(fmu, tmp)
-        os.replace(tmp, fmu)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    with rewritten(fmu) as (src, dst):
+        for info in src.infolist():
+            if info.filename != member:
+                dst.writestr(info, src.read(info))
+        dst.write(library, member)
 
 
 def compile_c_host(exe: Path) -> Path:

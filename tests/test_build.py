@@ -1,6 +1,8 @@
 """The FMU build (orchestration/build.py)."""
 from __future__ import annotations
 
+import importlib.machinery
+import importlib.util
 import os
 import re
 import subprocess
@@ -92,3 +94,34 @@ def test_cli_build_reports_a_failure_in_one_line_with_exit_2(tmp_path, monkeypat
     monkeypatch.setattr(build, "build_all", failing)
     assert build.main(["--dest", str(tmp_path)]) == 2
     assert capsys.readouterr().err.startswith("error: FMU build failed:")
+
+
+def test_every_python_file_of_an_fmu_comes_with_valid_hash_checked_bytecode(every_fmu, tmp_path) -> None:
+    """A fresh extraction folder imports without compiling: each ``resources/**.py`` has its
+    ``__pycache__`` file for this interpreter, which the import system loads as it is (its
+    hash matches the source) and which holds the source's code."""
+    fmu = every_fmu["Encoder"]
+    with zipfile.ZipFile(fmu) as z:
+        sources = [f for f in z.namelist() if f.startswith("resources/") and f.endswith(".py")]
+        z.extractall(tmp_path)
+    assert len(sources) > 40
+    for name in sources:
+        path = tmp_path / name
+        cached = Path(importlib.util.cache_from_source(str(path)))
+        data = cached.read_bytes()
+        assert data[:4] == importlib.util.MAGIC_NUMBER and int.from_bytes(data[4:8], "little") == 0b11, name
+        assert data[8:16] == importlib.util.source_hash(path.read_bytes()), name
+        code = NotCompiling(path.stem, str(path)).get_code(path.stem)       # the bytecode's
+        assert code == compile(path.read_bytes(), str(path), "exec", dont_inherit=True), name
+    # a changed source is compiled again, not served from the stale bytecode
+    script = next(tmp_path.glob("resources/encoder_fmu_*.py"))
+    script.write_text(script.read_text() + "\nCHANGED = 1\n")
+    with pytest.raises(AssertionError, match="compiles"):
+        NotCompiling(script.stem, str(script)).get_code(script.stem)
+
+
+class NotCompiling(importlib.machinery.SourceFileLoader):
+    """The import system's loader of a source file, failing where it would compile it."""
+
+    def source_to_code(self, data, path, *, _optimize=-1):
+        raise AssertionError(f"{path}: the import compiles the source")

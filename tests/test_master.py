@@ -3,6 +3,8 @@ Gauss–Seidel order, multi-rate, cycles, reproducibility, failures."""
 from __future__ import annotations
 
 import json
+import re
+import sys
 import warnings
 from pathlib import Path
 
@@ -276,6 +278,44 @@ def test_fmu_extraction_folders_are_removed_when_a_run_ends(tmp_path):
     assert not root.exists()
 
 
+FOLDERS_OF_A_RUN = """
+import json, sys
+from pathlib import Path
+from orchestration import master, run
+seen = {}
+close = master._Instance.close
+def recording_close(self):
+    seen[self.name] = sorted(p.name for p in (Path(self.fmu.unzipDirectory) / "resources").iterdir())
+    close(self)
+master._Instance.close = recording_close
+run(sys.argv[1], out_dir=sys.argv[2])
+print(json.dumps(seen))
+"""
+
+
+def test_only_the_first_fmu_of_a_process_gets_the_bundled_packages_extracted(tmp_path):
+    """In a fresh process (a run's) the first FMU loads the bundled ``fmus_<hash>`` and
+    ``pythonfmu`` packages from its folder; the other FMUs' folders need no copy (Python never
+    reads one) and get none, and the run works."""
+    import subprocess
+    out = subprocess.run([sys.executable, "-c", FOLDERS_OF_A_RUN, str(write(tmp_path, CHAIN)),
+                          str(tmp_path / "o")], capture_output=True, text=True, check=True)
+    seen = json.loads(out.stdout.splitlines()[-1])
+    assert list(seen) == ["g2", "g1", "src"]        # closed in reverse order: src loaded first
+    first, gain = seen["src"], seen["g1"]           # Source.fmu, Gain.fmu (g1 and g2 share it)
+    assert "pythonfmu" in first and any(re.fullmatch(r"fmus_[0-9a-f]{12}", n) for n in first)
+    assert "pythonfmu" not in gain and not any(n.startswith("fmus_") for n in gain)
+    assert "slavemodule.txt" in gain and any(n.startswith("gain_fmu_") for n in gain)
+
+
+def test_a_resources_folder_is_extracted_unless_an_fmu_provided_that_package():
+    from orchestration import master
+    assert master._still_read("resources/xml/config.xml") is True       # xml: the stdlib's
+    assert master._still_read("resources/no_such_package_here/x.py") is True
+    assert master._still_read("resources/slavemodule.txt") is True
+    assert master._still_read("binaries/linux64/Gain.so") is True
+
+
 def test_results_csv_is_read_by_fmpy(tmp_path):
     path = write(tmp_path, CHAIN)
     r = run(path, out_dir=tmp_path / "o")
@@ -319,6 +359,17 @@ def test_nan_on_a_connection_names_producer_variable_and_time(tmp_path):
         r = Result.load(tmp_path / "o")
     assert r.time[-1] == pytest.approx(0.05)
     assert np.all(np.isfinite(r["bad.y"]))
+
+
+def test_nan_on_a_connection_is_caught_at_a_base_step_its_consumer_does_not_step(tmp_path):
+    """The consumer (every 2 ms) does not see the NaN of t = 0.052 s: the once-per-step check
+    still names the producer, at the time it produced it."""
+    text = FAILING.format(mode="nan").replace("fail_at = 0.05", "fail_at = 0.0515") \
+        .replace('fmu = "Gain"', 'fmu = "Gain"\nstep = 0.002')
+    with pytest.raises(RunError, match=r"NaN on a connection: component 'bad' output 'y' is NaN "
+                                       r"at t = 0\.052 s") as info:
+        run(write(tmp_path, text), out_dir=tmp_path / "o")
+    assert info.value.component == "bad" and info.value.time == pytest.approx(0.052)
 
 
 def test_bad_parameter_value_fails_at_initialisation_with_the_fmu_message(tmp_path):

@@ -77,7 +77,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg.lapack import dpotrf, dpotrs
 
 from fmus.common import dynamics, kinematics
 from fmus.common.frames import rot_rpy
@@ -540,6 +539,7 @@ class EkfFlexibleModel:
         return x, P
 
     def _filtered(self, q_m, acc_s, u: tuple) -> Filtered:
+        from scipy.linalg.lapack import dpotrf, dpotrs   # here: scipy.linalg takes 0.15 s to import
         x0, P = self.x, self.P
         if not self._started and self.p.init_from_motors:
             if self._stiff:

@@ -77,7 +77,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from fmus.common.frames import G
 from fmus.common.parameters import ParameterError, param
@@ -172,6 +171,7 @@ def kalman_gain(m: float, h: float, sigma_f: float, sigma_x: float, sigma_a: flo
     C = model_matrices(m)["C"]
     Q = Gam @ Gam.T * sigma_f ** 2 + 1e-18 * np.eye(2)
     R = np.diag([sigma_x ** 2, sigma_a ** 2])
+    import scipy.linalg          # here: it takes 0.15 s to import, and only a design needs it
     P = scipy.linalg.solve_discrete_are(Phi.T, C.T, Q, R)
     return Phi @ P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
 
@@ -195,6 +195,7 @@ def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]
     M = np.zeros((n + k, n + k))
     M[:n, :n] = A
     M[:n, n:] = B
+    import scipy.linalg
     E = scipy.linalg.expm(M * h)
     return E[:n, :n], E[:n, n:]
 

@@ -57,7 +57,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_continuous_are
 
 from fmus.common.parameters import ParameterError, param
 from fmus.force_observer import force_observer_math as fom
@@ -73,6 +72,7 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     (what python-control's ``control.lqr`` computes, without that dependency in the FMU)."""
     A, B, Q = (np.atleast_2d(np.asarray(M, float)) for M in (A, B, Q))
     R = np.atleast_2d(np.asarray(R, float))
+    from scipy.linalg import solve_continuous_are   # here: scipy.linalg takes 0.15 s to import
     P = solve_continuous_are(A, B, Q, R)
     return np.linalg.solve(R, B.T @ P)
 

@@ -79,6 +79,8 @@ class MotionController(FlexFusionSlave):
 
     def step(self, t: float, dt: float) -> None:
         if self._inputs_dirty or self._eval_t != t:
-            self._evaluate(t)
+            # the torque for the measurement just set, whose error the integrator takes; the
+            # outputs come from the evaluation at t + dt below (not copied twice)
+            self.ctrl.evaluate(t, self.q_m, self.dq_m, self.dp_ref)
         self.ctrl.advance(dt)
         self._evaluate(t + dt)

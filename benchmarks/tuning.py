@@ -15,7 +15,9 @@ Prints, on ``--workers`` workers:
   and on the batched engine the truth's tape (once per seed) and one candidate replayed on it;
 * the whole tuning run (:func:`orchestration.study_tune.tune`, with its FMU checks and the
   scenario's own values) on each engine, its wall time against the goal (under 20 s), and the
-  ratio. The machine is shared: the load average is printed beside the figures.
+  ratio. The machine is shared: the load average is printed beside the figures, and the CPU
+  time of the whole run (this process and the pool's workers, read from /proc before the pool
+  closes), which the load does not stretch: on idle cores the wall time is at least CPU / workers.
 
 Run: ``.venv/bin/python benchmarks/tuning.py [--workers 2] [--seeds 1,2 --holdout-seeds 3,4]
 [--no-fmu]``.
@@ -60,6 +62,18 @@ def one_evaluation() -> tuple[float, float, float]:
     return t_fmu, t_tape, t_replay
 
 
+def _cpu_seconds(pids: list[int]) -> float:
+    """User + system CPU seconds of the processes ``pids`` so far (Linux /proc)."""
+    total = 0
+    for pid in pids:
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += int(fields[11]) + int(fields[12])          # utime, stime (fields 14, 15)
+    return total / os.sysconf("SC_CLK_TCK")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--workers", type=int, default=2)
@@ -72,14 +86,16 @@ def main() -> None:
     seeds, holdout = st.parse_seeds(a.seeds), st.parse_seeds(a.holdout_seeds)
     load0 = os.getloadavg()[0]
     t_fmu, t_tape, t_replay = one_evaluation()
-    walls, results = {}, {}
+    walls, cpus, results = {}, {}, {}
     for engine in ("batched",) + (() if a.no_fmu else ("fmu",)):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         with open_executor(workers=a.workers) as ex:
             results[engine] = st.tune(SCENARIO, COMPONENT, overrides=OVERRIDES, metric=METRIC, maxiter=a.maxiter,
                                       popsize=a.popsize, executor=ex, progress=False, seeds=seeds,
                                       holdout_seeds=holdout, engine=engine)
+            workers = _cpu_seconds(list(ex._pool._processes or {}))    # no public API for the pids
         walls[engine] = time.perf_counter() - t
+        cpus[engine] = time.process_time() - c + workers
     load1 = os.getloadavg()[0]
     res = results["batched"]
     n_seeds = max(1, len(seeds))
@@ -90,13 +106,14 @@ def main() -> None:
     print(f"  one evaluation (one seed, in one process): FMUs {t_fmu:.2f} s; batched: the seed's truth "
           f"taped once {t_tape:.2f} s, then a candidate replayed {t_replay:.2f} s ({t_fmu / t_replay:.1f}x)")
     worst = max(c["max_relative_difference"] for c in res.engine["checked"])
-    print(f"  batched engine: {walls['batched']:.1f} s wall for the tuning run (pool start-up included); "
+    print(f"  batched engine: {walls['batched']:.1f} s wall for the tuning run (pool start-up included), "
+          f"{cpus['batched']:.1f} s CPU (>= {cpus['batched'] / a.workers:.1f} s wall on {a.workers} idle cores); "
           f"cost {res.cost * 1e3:.5g} mm (scenario's values {res.initial_cost * 1e3:.5g} mm); "
           f"{len(res.engine['checked'])} candidates through the FMUs agree to {worst:.2g} relative")
     if "fmu" in results:
         ref = results["fmu"]
         same = ref.params == res.params and ref.cost == res.cost
-        print(f"  FMU engine: {walls['fmu']:.1f} s wall; the same tuned values and cost: {same}; "
+        print(f"  FMU engine: {walls['fmu']:.1f} s wall, {cpus['fmu']:.1f} s CPU; the same tuned values and cost: {same}; "
               f"ratio FMU / batched {walls['fmu'] / walls['batched']:.1f}x")
     print(f"  goal: a 30-evaluation tuning run under 20 s ({'met' if walls['batched'] < 20 else 'NOT met'}: "
           f"{walls['batched']:.1f} s)")

@@ -20,7 +20,7 @@ Prints, on ``--workers`` workers:
   closes), which the load does not stretch: on idle cores the wall time is at least CPU / workers.
 
 Run: ``.venv/bin/python benchmarks/tuning.py [--workers 2] [--seeds 1,2 --holdout-seeds 3,4]
-[--no-fmu]``.
+[--no-fmu] [--estimator ekf_motor --popsize 3]``.
 """
 from __future__ import annotations
 
@@ -37,17 +37,19 @@ from orchestration import study_tune as st  # noqa: E402
 from orchestration.study import open_executor  # noqa: E402
 
 SCENARIO = REPO / "orchestration" / "scenarios" / "henriksson2009_p1.toml"
-COMPONENT = "observer"
+#: a candidate other than the scenario's values, per estimator FMU type (for one evaluation)
+CANDIDATE = {"AccelerationObserver": "pole_freq[1]=15.0", "EkfComplete": "lambda1=2.0", "EkfMotor": "lambda1=2.0",
+             "EkfIntegrated": "lambda1=2.0"}
 OVERRIDES = ["scenario.stop_time=2.5"]
 METRIC = "bandpass_mean"
 
 
-def one_evaluation() -> tuple[float, float, float]:
+def one_evaluation(component: str) -> tuple[float, float, float]:
     """Seconds of one candidate on the FMUs, of one seed's tape (the scenario's own values),
     and of the candidate replayed on it (in this process; the same cost both ways)."""
-    doc = st.prune(st.load_document(SCENARIO), [f"{COMPONENT}.p_tool_hat", "plant.p_tool"])
-    est, truth = f"{COMPONENT}.p_tool_hat", "plant.p_tool"
-    candidate = OVERRIDES + [f"{COMPONENT}.pole_freq[1]=15.0"]
+    doc = st.prune(st.load_document(SCENARIO), [f"{component}.p_tool_hat", "plant.p_tool"])
+    est, truth = f"{component}.p_tool_hat", "plant.p_tool"
+    candidate = OVERRIDES + [f"{component}.{CANDIDATE[st.fmu_type(doc, component)]}"]
     st.evaluate(doc, OVERRIDES, est, truth, 0.5, METRIC)          # imports, extraction: not timed
     t = time.perf_counter()
     fmu_cost = st.evaluate(doc, candidate, est, truth, 0.5, METRIC)
@@ -77,6 +79,8 @@ def _cpu_seconds(pids: list[int]) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--estimator", default="observer", help="component tuned (default observer; e.g. "
+                    "ekf_motor, with --popsize 3 for 30 evaluations of its 5 parameters)")
     ap.add_argument("--maxiter", type=int, default=1)
     ap.add_argument("--popsize", type=int, default=2)
     ap.add_argument("--seeds", default=None, help="training seeds, e.g. 1,2 (default: the scenario's)")
@@ -85,12 +89,12 @@ def main() -> None:
     a = ap.parse_args()
     seeds, holdout = st.parse_seeds(a.seeds), st.parse_seeds(a.holdout_seeds)
     load0 = os.getloadavg()[0]
-    t_fmu, t_tape, t_replay = one_evaluation()
+    t_fmu, t_tape, t_replay = one_evaluation(a.estimator)
     walls, cpus, results = {}, {}, {}
     for engine in ("batched",) + (() if a.no_fmu else ("fmu",)):
         t, c = time.perf_counter(), time.process_time()
         with open_executor(workers=a.workers) as ex:
-            results[engine] = st.tune(SCENARIO, COMPONENT, overrides=OVERRIDES, metric=METRIC, maxiter=a.maxiter,
+            results[engine] = st.tune(SCENARIO, a.estimator, overrides=OVERRIDES, metric=METRIC, maxiter=a.maxiter,
                                       popsize=a.popsize, executor=ex, progress=False, seeds=seeds,
                                       holdout_seeds=holdout, engine=engine)
             workers = _cpu_seconds(list(ex._pool._processes or {}))    # no public API for the pids
@@ -99,7 +103,7 @@ def main() -> None:
     load1 = os.getloadavg()[0]
     res = results["batched"]
     n_seeds = max(1, len(seeds))
-    print(f"tuning '{COMPONENT}' of henriksson2009_p1 ({len(res.bounds)} parameters, {METRIC}, 2.5 s of P1, "
+    print(f"tuning '{a.estimator}' of henriksson2009_p1 ({len(res.bounds)} parameters, {METRIC}, 2.5 s of P1, "
           f"--maxiter {a.maxiter} --popsize {a.popsize}: {res.n_evals} evaluations on {n_seeds} seed(s)"
           + (f", held out {holdout}" if holdout else "") + f"), {a.workers} workers; load average "
           f"{load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores")

@@ -34,18 +34,19 @@ def _objective(seeds=(2,)) -> st._Objective:
 
 def test_batched_candidates_equal_the_fmus():
     """Two candidates replayed on a seed's taped truth cost what their co-simulations of the
-    FMUs cost (checked, and evaluated here independently); the tape's own cost is the
-    scenario's values through the FMUs."""
+    FMUs cost (checked, and evaluated here independently); one the FMU refuses (a negative
+    pole frequency) costs the penalty on both, without spoiling its group; the tape's own cost is
+    the scenario's values through the FMUs."""
     objective = _objective()
     engine = st._BatchedEngine(objective, None, [2], check=2)
-    candidates = [objective.overrides(x) for x in ([10.0, 0.5], [30.0, 1.5])]
+    candidates = [objective.overrides(x) for x in ([10.0, 0.5], [30.0, 1.5], [-5.0, 0.5])]
     costs = engine.costs(candidates, [2])
     assert [c["candidate"] for c in engine.checked] == [1, 2]
     assert all(c["max_relative_difference"] <= st.CHECK_RTOL for c in engine.checked)
     for cost, overrides in zip(costs, candidates):
         assert_allclose(cost, st.evaluate(objective.doc, overrides + ["scenario.seed=2"], EST, TRUTH, AFTER, METRIC),
                         rtol=1e-12)
-    assert costs[0] != costs[1] and max(costs) < st.PENALTY
+    assert costs[0] != costs[1] and max(costs[:2]) < st.PENALTY == costs[2]
     assert_allclose(engine.own_cost([2]), st.evaluate(objective.doc, SHORT + ["scenario.seed=2"], EST, TRUTH,
                                                       AFTER, METRIC), rtol=1e-12)
     assert engine.costs(candidates[:1], [2])[0] == costs[0] and len(engine.checked) == 2   # checked once

@@ -382,11 +382,13 @@ def _tape_job(doc: dict[str, Any], overrides: Sequence[str], estimate: str, trut
 def _replayed(doc: dict[str, Any], tape: Any, runs: Sequence[Sequence[str]], estimate: str, truth: str
               ) -> list[tuple[np.ndarray, ...] | None]:
     """Each run's ``(time, estimate, truth)`` with the shared part played from ``tape``, the runs
-    together; None for a run that fails (a failure in a group is found by running each alone)."""
+    together; None for a run that fails (a failure in a group is found by running each alone)
+    or whose estimate is not finite (the master stops such a run: a non-finite output)."""
     from .batched import BatchedRuns, BatchError
     try:
         prepared = BatchedRuns(doc, runs, {estimate: None, truth: None}, replay=tape)
-        return _trajectories(prepared, prepared.run(), estimate, truth)
+        return [tr if np.all(np.isfinite(tr[1])) else None
+                for tr in _trajectories(prepared, prepared.run(), estimate, truth)]
     except BatchError:
         raise
     except Exception:  # noqa: BLE001 - a diverging or refused candidate is a bad candidate
@@ -492,7 +494,14 @@ class _BatchedEngine:
 
     def costs(self, candidates: Sequence[Sequence[str]], seeds: Sequence[int | None]) -> list[float]:
         """Each candidate's (its overrides) mean cost over ``seeds``, in seed order as the FMU
-        path's :meth:`_Objective.cost`; the first call checks its first candidates."""
+        path's :meth:`_Objective.cost`; the first call checks its first candidates.
+
+        Raises
+        ------
+        StudyError
+            A checked candidate differs from the FMUs, or the engine fails.
+        """
+        from .batched import BatchError
         o, n = self.objective, len(candidates)
         n_check = 0 if self.checked else min(self.check, n)
         checks = [self._submit(_fmu_trajectory, o.doc, _seeded(candidates[i], seeds[0]), o.estimate, o.truth)
@@ -507,7 +516,10 @@ class _BatchedEngine:
         per_seed = {s: [PENALTY] * n for s in seeds}
         kept: dict[int, Any] = {}
         for s, chunk, f in jobs:
-            costs, trajectories = f.result()
+            try:
+                costs, trajectories = f.result()
+            except BatchError as exc:
+                raise StudyError(f"batched engine: {exc}; rerun with --engine fmu") from None
             for j, i in enumerate(chunk):
                 per_seed[s][int(i)] = costs[j]
             kept.update({int(chunk[j]): tr for j, tr in trajectories.items()})

@@ -655,12 +655,12 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
     from .scenario import load_scenario
     load_scenario(small, objective.overrides([0.5 * (lo + hi) for lo, hi in de_bounds]))
     t0 = time.perf_counter()
+    training = list(seeds) or [None]                # None: the scenario's own seed
     batched, engine_info = None, {"used": "fmu"}
     if engine == "batched":
         from .batched import BatchError
         try:
-            batched = _BatchedEngine(objective, executor, list(seeds or [None]) + list(holdout_seeds),
-                                     check_candidates)
+            batched = _BatchedEngine(objective, executor, training + list(holdout_seeds), check_candidates)
             engine_info = {"used": "batched", "check_rtol": CHECK_RTOL}
         except BatchError as exc:
             reason = f"the batched engine cannot run this tuning ({exc}): every candidate runs through the FMUs"
@@ -670,7 +670,6 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
 
     bar = None
     if progress:
-
         from tqdm import tqdm
         bar = tqdm(total=maxiter, desc=f"tune {component}", unit="gen", file=sys.stderr, leave=False)
 
@@ -691,7 +690,7 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
     best = objective.values(res.x)
     # the scenario's own values on the training seeds; both on the held-out seeds
     if batched is not None:
-        costs = [batched.own_cost(list(seeds or [None]))]
+        costs = [batched.own_cost(training)]
         if holdout_seeds:
             costs += [batched.costs([objective.overrides(res.x)], list(holdout_seeds))[0],
                       batched.own_cost(holdout_seeds)]

@@ -21,6 +21,13 @@ initialisation in the same order, with the extra pass when an edge is broken. Sa
 
 :func:`simulate_runs` raises :class:`BatchError` when the runs differ in structure (another
 component list, connection or step), so the caller falls back to the FMUs.
+
+**Replay**: the shared part of a run can be kept as a :class:`Tape` (``BatchedRuns(...,
+tape=True)``: every output its components handed on, in the order the schedule read them)
+and replayed into later runs of the same scenario (``replay=tape``): a component whose
+parameters and producers are those of the taped run then costs an array read per step. A
+tuning study simulates the truth (plant, controller, sensors) of a seed once, and each
+candidate estimator on its tape, in the same schedule.
 """
 from __future__ import annotations
 
@@ -327,6 +334,86 @@ class _Groups(_Kernel):
         return out
 
 
+class _Taping(_Kernel):
+    """A shared component's kernel that keeps every output it hands on (for a :class:`Tape`)."""
+
+    def __init__(self, inner: _Kernel) -> None:
+        self.inner, self.runs = inner, inner.runs
+        self.reads: list[np.ndarray] = []
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        self.inner.set_inputs(values)
+
+    def exit_init(self, t0: float) -> None:
+        self.inner.exit_init(t0)
+
+    def refresh(self, now: float) -> None:
+        self.inner.refresh(now)
+
+    def do_step(self, t: float, dt: float) -> None:
+        self.inner.do_step(t, dt)
+
+    def outputs(self) -> np.ndarray:
+        out = self.inner.outputs()
+        self.reads.append(np.array(out, dtype=float))
+        return out
+
+
+class _Replay(_Kernel):
+    """A shared component played back from a :class:`Tape`: its outputs in the order they were
+    read (the schedule is the same, so the reads come in the same order); no inputs."""
+
+    def __init__(self, name: str, reads: np.ndarray) -> None:
+        self.name, self.reads, self.runs, self.k = name, reads, 1, 0
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        pass
+
+    def exit_init(self, t0: float) -> None:
+        pass
+
+    def do_step(self, t: float, dt: float) -> None:
+        pass
+
+    def outputs(self) -> np.ndarray:
+        if self.k >= len(self.reads):
+            raise BatchError(f"the tape of '{self.name}' ends after {len(self.reads)} reads: it was "
+                             "recorded from a shorter run")
+        self.k += 1
+        return self.reads[self.k - 1]
+
+
+@dataclass
+class Tape:
+    """The shared components of one simulated run, to be replayed (:class:`BatchedRuns`).
+
+    ``reads[n]`` every output vector component ``n`` handed on, ``(reads, outputs, 1)`` in
+    schedule order; ``parameters[n]`` and ``outputs[n]`` its parameters and the outputs read
+    (a replay must have the same); ``shape`` the scenario's structure (steps, components,
+    connections)."""
+
+    reads: dict[str, np.ndarray]
+    parameters: dict[str, dict[str, Any]]
+    outputs: dict[str, list[str]]
+    shape: tuple
+
+    def replayable(self, sc: Scenario, shared: Sequence[str], needed: dict[str, list[str]],
+                   inputs: dict[str, list[tuple[str, str, str]]]) -> list[str]:
+        """The shared components of ``sc`` that can be played back: taped with the same
+        parameters and outputs, and every producer (transitively) played back too."""
+        if _shape(sc) != self.shape:
+            raise BatchError("the tape was recorded from a scenario of another structure (components, "
+                             "FMUs, steps or connections)")
+        ok = {n for n in shared if n in self.reads and self.parameters[n] == sc.components[n].parameters
+              and self.outputs[n] == needed[n]}
+        changed = True
+        while changed:
+            before = len(ok)
+            ok = {n for n in ok if all(src in ok for _, src, _ in inputs[n])}
+            changed = len(ok) != before
+        return [n for n in shared if n in ok]
+
+
 # ---------------------------------------------------------------------------------------------
 # the engine
 # ---------------------------------------------------------------------------------------------
@@ -346,6 +433,8 @@ class BatchResult:
     runs: int
     wall_time: float
     groups: dict[str, int] = field(default_factory=dict)   # kernel groups per batched component
+    tape: Tape | None = None        # the shared components' outputs (BatchedRuns(tape=True))
+    replayed: list[str] = field(default_factory=list)      # shared components played from a tape
 
     def __getitem__(self, var: str) -> np.ndarray:
         return self.values[var]
@@ -382,14 +471,17 @@ def _per_run(scenarios: Sequence[Scenario], inputs: dict[str, list[tuple[str, st
     return varying
 
 
+def _shape(s: Scenario) -> tuple:
+    """What runs simulated together (or a tape and its replay) must share."""
+    return (s.base_step, s.stop_time, tuple((n, c.model_identifier, c.ratio, str(c.fmu))
+                                            for n, c in s.components.items()),
+            tuple(c.text for c in s.connections))
+
+
 def _check_structure(scenarios: Sequence[Scenario]) -> None:
-    sc0 = scenarios[0]
-    shape = lambda s: (s.base_step, s.stop_time, [(n, c.model_identifier, c.ratio, str(c.fmu))  # noqa: E731
-                                                  for n, c in s.components.items()],
-                       [c.text for c in s.connections])
-    ref = shape(sc0)
+    ref = _shape(scenarios[0])
     for r, s in enumerate(scenarios[1:], 1):
-        if shape(s) != ref:
+        if _shape(s) != ref:
             raise BatchError(f"run {r} has another structure (components, FMUs, steps or connections) "
                              "than run 0: its runs cannot be batched")
 
@@ -412,6 +504,11 @@ class BatchedRuns:
     no_loop
         Model identifiers that must not run instance by instance (a per-run component of one
         of them without a kernel is a :class:`BatchError`).
+    tape
+        Keep the shared components' outputs (:attr:`BatchResult.tape`, to replay them).
+    replay
+        A :class:`Tape` of a run of the same scenario: the shared components it can stand for
+        (:meth:`Tape.replayable`) are played back instead of simulated.
 
     Raises
     ------
@@ -422,7 +519,8 @@ class BatchedRuns:
     """
 
     def __init__(self, scenario: str | Path | dict | Scenario, runs: Sequence[Sequence[str]],
-                 record: dict[str, Any], no_loop: Sequence[str] = ()) -> None:
+                 record: dict[str, Any], no_loop: Sequence[str] = (), *, tape: bool = False,
+                 replay: Tape | None = None) -> None:
         t_wall = _time.perf_counter()
         if isinstance(scenario, Scenario):
             scenarios = [scenario]
@@ -455,10 +553,14 @@ class BatchedRuns:
 
         kernels: dict[str, _Kernel] = {}
         shared, batched, looped = [], [], []
+        replayed = replay.replayable(sc, [n for n in p.order if n not in varying], needed, ins) if replay else []
         for n in p.order:
             in_names = [d for d, _, _ in ins[n]]
             comp = sc.components[n]
-            if n not in varying:
+            if n in replayed:
+                kernels[n] = _Replay(n, replay.reads[n])
+                shared.append(n)
+            elif n not in varying:
                 kernels[n] = _Slaves([comp], in_names, needed[n], sc.stop_time)
                 shared.append(n)
             elif comp.model_identifier in KERNELS:
@@ -474,6 +576,11 @@ class BatchedRuns:
         self.scenario, self.runs, self.plan, self.inputs, self.varying = sc, R, p, ins, varying
         self.needed, self.wanted, self.kernels, self.record = needed, wanted, kernels, dict(record)
         self.shared, self.batched, self.looped = shared, batched, looped
+        self.replayed = replayed
+        if tape:
+            for n in shared:
+                if n not in replayed:
+                    kernels[n] = _Taping(kernels[n])
         self._t0 = t_wall
 
     def run(self) -> BatchResult:
@@ -483,7 +590,8 @@ class BatchedRuns:
         shared, batched, looped = self.shared, self.batched, self.looped
         out: dict[str, np.ndarray] = {n: np.zeros((len(needed[n]), 1)) for n in sc.components}
         index = {n: {s: i for i, s in enumerate(needed[n])} for n in sc.components}
-        sources = {n: [(src, index[src][s]) for _, src, s in ins[n]] for n in sc.components}
+        sources = {n: [] if n in self.replayed else [(src, index[src][s]) for _, src, s in ins[n]]
+                   for n in sc.components}
         width = {n: (R if n in varying else 1) for n in sc.components}
 
         # each component's inputs: (inputs, 1) when all producers are shared, else (inputs, runs)
@@ -521,7 +629,7 @@ class BatchedRuns:
         if p.broken:
             for n in p.order:
                 k = kernels[n]
-                if ins[n]:
+                if sources[n]:
                     k.set_inputs(gather(n))
                     k.refresh(0.0)
                 if needed[n]:
@@ -548,13 +656,24 @@ class BatchedRuns:
                            rows={var: np.flatnonzero(m) for var, m in masks.items()},
                            shared=shared, batched=batched, looped=looped, runs=R,
                            wall_time=_time.perf_counter() - t_wall,
-                           groups={n: len(kernels[n].groups) for n in batched})
+                           groups={n: len(kernels[n].groups) for n in batched},
+                           tape=self._tape(), replayed=list(self.replayed))
+
+    def _tape(self) -> Tape | None:
+        taped = {n: k for n, k in self.kernels.items() if isinstance(k, _Taping)}
+        if not taped:
+            return None
+        sc = self.scenario
+        return Tape(reads={n: np.array(k.reads).reshape(len(k.reads), len(self.needed[n]), 1)
+                           for n, k in taped.items()},
+                    parameters={n: dict(sc.components[n].parameters) for n in taped},
+                    outputs={n: list(self.needed[n]) for n in taped}, shape=_shape(sc))
 
 
 def simulate_runs(scenario: str | Path | dict | Scenario, runs: Sequence[Sequence[str]], record: dict[str, Any],
-                  no_loop: Sequence[str] = ()) -> BatchResult:
+                  no_loop: Sequence[str] = (), *, tape: bool = False, replay: Tape | None = None) -> BatchResult:
     """Simulate the runs of a scenario together: ``BatchedRuns(...).run()``."""
-    return BatchedRuns(scenario, runs, record, no_loop).run()
+    return BatchedRuns(scenario, runs, record, no_loop, tape=tape, replay=replay).run()
 
 
-__all__ = ["BatchError", "BatchResult", "BatchedRuns", "KERNELS", "simulate_runs", "fmu_class"]
+__all__ = ["BatchError", "BatchResult", "BatchedRuns", "KERNELS", "Tape", "simulate_runs", "fmu_class"]

@@ -20,7 +20,19 @@ Guards against over-fitting (the tuner sees the truth, so it can fit the noise r
 Speed: before tuning, the scenario is *pruned* to what the estimate and the truth depend on
 (the components upstream of them through the connections); other estimators, their metrics and
 recordings are dropped. The noise streams do not change (each component's seed depends on the
-scenario seed and its own name only).
+scenario seed and its own name only). Engines (``--engine``): ``batched`` (default) simulates
+the truth of each seed once (the plant, controller and sensors do not depend on the
+estimator's parameters: :mod:`orchestration.batched` keeps them as a tape) and replays every
+candidate estimator on it in the co-simulation's schedule, a population at once, split over
+the executor's workers; two candidates of the first population also run through the FMUs and
+must agree to 1e-12 relative, or the tuning stops naming the difference. A scenario the engine
+cannot run (e.g. a user's own estimator FMU) runs on the FMUs, with a line saying why;
+``fmu``: one co-simulation per candidate and seed.
+
+``--estimator`` is any component of the scenario: with the default estimate
+(``COMPONENT.p_tool_hat``) it must meet the estimator contract (docs/estimator_contract.md),
+checked as ``flexfusion study sweep`` does; an FMU type without default bounds (a user's
+estimator) needs ``--param``.
 
 :func:`write_include` writes the result as a TOML file a scenario can ``include``.
 
@@ -29,7 +41,8 @@ CLI::
     flexfusion study tune SCENARIO --estimator COMPONENT [--estimator ...] --out DIR
         [--param NAME=LOW:HIGH ...] [--maxiter N] [--popsize N] [--stop-time S]
         [--metric rmse|bandpass_mean|bandpass_max] [--seeds 1,2 --holdout-seeds 3,4]
-        [--apply-to OTHER_COMPONENT ...] [--workers K | --scheduler ADDR]
+        [--apply-to OTHER_COMPONENT ...] [--engine batched|fmu] [--check-candidates N]
+        [--workers K | --scheduler ADDR]
 
 tunes each estimator in turn and writes ``DIR/tuned_COMPONENT.toml`` (the include file;
 ``--apply-to`` repeats the values for variants of a single estimator) and
@@ -41,7 +54,9 @@ import argparse
 import json
 import math
 import time
-from concurrent.futures import Executor
+import os
+import sys
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -72,6 +87,13 @@ DEFAULT_BOUNDS: dict[str, dict[str, tuple[float, float]]] = {
 
 METRICS = ("rmse", "bandpass_mean", "bandpass_max")
 PENALTY = 1.0e3          # cost of a failed run (metres): far worse than any estimate
+#: Engines of the evaluations: the truth of each seed simulated once and every candidate
+#: replayed on it (orchestration.batched), or one co-simulation of the FMUs per candidate and seed.
+ENGINES = ("batched", "fmu")
+#: Candidates of the first population also run through the FMUs on the batched engine, and the
+#: relative difference allowed (as for the Monte Carlo study's checked seeds).
+CHECK_CANDIDATES = 2
+CHECK_RTOL = 1e-12
 
 
 @dataclass
@@ -84,7 +106,9 @@ class TuneResult:
     ``failed`` the number of evaluations whose run failed (cost :data:`PENALTY`);
     ``cost`` and ``initial_cost`` are means over the training ``seeds``, ``holdout_cost`` and
     ``initial_holdout_cost`` over ``holdout_seeds`` (NaN without them); ``bounds`` the search
-    ranges used, ``floors`` :func:`sensor_floors` of the scenario.
+    ranges used, ``floors`` :func:`sensor_floors` of the scenario; ``engine`` how the candidates
+    were evaluated (``used``: ``batched`` or ``fmu``; ``fallback`` why not batched; ``checked``
+    the candidates also run through the FMUs and their largest relative difference).
     """
 
     component: str
@@ -103,6 +127,7 @@ class TuneResult:
     initial_holdout_cost: float = float("nan")
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     floors: dict[str, float] = field(default_factory=dict)
+    engine: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return {"component": self.component, "params": self.params, "cost": self.cost,
@@ -111,7 +136,7 @@ class TuneResult:
                 "initial_holdout_cost": self.initial_holdout_cost, "metric": self.metric,
                 "bounds": self.bounds, "floors": self.floors, "n_evals": self.n_evals,
                 "failed": self.failed, "wall_time": self.wall_time, "message": self.message,
-                "history": self.history}
+                "engine": self.engine, "history": self.history}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -251,14 +276,26 @@ def evaluate(doc: dict[str, Any], overrides: Sequence[str], estimate: str, truth
              after: float, metric: str) -> float:
     """Cost of one run: the error of ``estimate`` against ``truth`` after ``after`` seconds
     (metres); :data:`PENALTY` if the run fails or the error is not finite."""
-    from . import metrics as _metrics
+    run = _fmu_trajectory(doc, overrides, estimate, truth)
+    return PENALTY if run is None else cost_of(*run, after, metric)
+
+
+def _fmu_trajectory(doc: dict[str, Any], overrides: Sequence[str], estimate: str, truth: str
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """One co-simulation of the FMUs: the recorded ``(time, estimate, truth)``; None if the run
+    fails."""
     try:
         run = simulate(doc, overrides, variables=[estimate, truth])
     except Exception:  # noqa: BLE001 - a diverging candidate is a bad candidate, not an error
-        return PENALTY
-    t = run.time
+        return None
+    return run.time, run[estimate], run[truth]
+
+
+def cost_of(t: np.ndarray, est: np.ndarray, tru: np.ndarray, after: float, metric: str) -> float:
+    """The error of ``est`` against ``tru`` (rows at the times ``t``) after ``after`` seconds, by
+    ``metric`` (:data:`METRICS`); :data:`PENALTY` if it cannot be computed or is not finite."""
+    from . import metrics as _metrics
     keep = t >= after - 1e-12
-    est, tru = run[estimate], run[truth]
     try:
         if metric == "rmse":
             cost = _metrics.rmse(est[keep], tru[keep])
@@ -304,17 +341,215 @@ def _cost_job(objective: _Objective, overrides: Sequence[str], seeds: Sequence[i
     return objective.cost(overrides, seeds)
 
 
-class _RecordingMap:
-    """``workers`` for differential evolution: the executor's map, recording every evaluation."""
+# ---------------------------------------------------------------------------------------------
+# the batched engine: the truth of each seed simulated once, every candidate replayed on it
+# ---------------------------------------------------------------------------------------------
+def _seeded(overrides: Sequence[str], seed: int | None) -> list[str]:
+    """``overrides`` with the scenario seed (None: the scenario's own)."""
+    return list(overrides) + ([] if seed is None else [f"scenario.seed={int(seed)}"])
 
-    def __init__(self, executor: Executor | None, objective: _Objective) -> None:
+
+def _trajectories(prepared: Any, res: Any, estimate: str, truth: str) -> list[tuple[np.ndarray, ...]]:
+    """Each run's ``(time, estimate, truth)`` on the batched engine, at the rows the FMU path
+    records (every ``record_every`` base steps from t = 0, :func:`orchestration.master.simulate`)."""
+    every = prepared.scenario.record_every
+    t = res.time[::every]
+    est, tru = res[estimate], res[truth]
+    return [(t, est[r if est.shape[0] > 1 else 0, ::every], tru[r if tru.shape[0] > 1 else 0, ::every])
+            for r in range(res.runs)]
+
+
+def _tape_job(doc: dict[str, Any], overrides: Sequence[str], estimate: str, truth: str, after: float,
+              metric: str) -> tuple[Any, float]:
+    """One run of the scenario's own values on the batched engine, kept as a tape (one run
+    shares every component): the :class:`~orchestration.batched.Tape` and the run's cost.
+
+    Raises
+    ------
+    BatchError
+        The engine cannot run the scenario, or the scenario's own values fail (no tape).
+    """
+    from .batched import BatchedRuns, BatchError
+    from .master import RunError
+    prepared = BatchedRuns(doc, [list(overrides)], {estimate: None, truth: None}, tape=True)
+    try:
+        res = prepared.run()
+    except RunError as exc:
+        raise BatchError(f"the scenario's own values fail ({exc}): there is no run to replay") from None
+    return res.tape, cost_of(*_trajectories(prepared, res, estimate, truth)[0], after, metric)
+
+
+def _replayed(doc: dict[str, Any], tape: Any, runs: Sequence[Sequence[str]], estimate: str, truth: str
+              ) -> list[tuple[np.ndarray, ...] | None]:
+    """Each run's ``(time, estimate, truth)`` with the shared part played from ``tape``, the runs
+    together; None for a run that fails (a failure in a group is found by running each alone)
+    or whose estimate is not finite (the master stops such a run: a non-finite output)."""
+    from .batched import BatchedRuns, BatchError
+    try:
+        prepared = BatchedRuns(doc, runs, {estimate: None, truth: None}, replay=tape)
+        return [tr if np.all(np.isfinite(tr[1])) else None
+                for tr in _trajectories(prepared, prepared.run(), estimate, truth)]
+    except BatchError:
+        raise
+    except Exception:  # noqa: BLE001 - a diverging or refused candidate is a bad candidate
+        if len(runs) == 1:
+            return [None]
+        return [tr for run in runs for tr in _replayed(doc, tape, [run], estimate, truth)]
+
+
+def _candidates_job(doc: dict[str, Any], tape: Any, runs: Sequence[Sequence[str]], estimate: str, truth: str,
+                    after: float, metric: str, keep: Sequence[int] = ()) -> tuple[list[float], dict[int, Any]]:
+    """The cost of each run on one seed's tape (:data:`PENALTY` if it fails), and the
+    trajectories of the runs ``keep`` (to be checked against the FMUs)."""
+    trajectories = _replayed(doc, tape, runs, estimate, truth)
+    costs = [PENALTY if tr is None else cost_of(*tr, after, metric) for tr in trajectories]
+    return costs, {i: trajectories[i] for i in keep}
+
+
+def _done(fn: Any, *args: Any) -> Future:
+    """``fn(*args)`` run here, as a finished Future (the engine without an executor)."""
+    f: Future = Future()
+    try:
+        f.set_result(fn(*args))
+    except Exception as exc:  # noqa: BLE001 - raised again by result(), as from a worker
+        f.set_exception(exc)
+    return f
+
+
+def _relative(a: Any, b: Any) -> float:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return float(np.max(np.abs(a - b), initial=0.0) / max(float(np.max(np.abs(b), initial=0.0)), 1e-300))
+
+
+def check_against_fmus(batched: tuple | None, fmu: tuple | None, what: str, after: float, metric: str,
+                       rtol: float = CHECK_RTOL) -> float:
+    """The largest relative difference between a candidate's ``(time, estimate, truth)`` on the
+    batched engine and through the FMUs (None: the run failed), and between its costs.
+
+    Raises
+    ------
+    StudyError
+        Naming ``what`` (the candidate and seed), the quantity and the difference, if one
+        exceeds ``rtol`` or the run fails on one path only.
+    """
+    if batched is None or fmu is None:
+        if (batched is None) != (fmu is None):
+            raise StudyError(f"batched engine against the FMUs, {what}: the run fails on the "
+                             f"{'batched engine' if batched is None else 'FMUs'} only; rerun with --engine fmu")
+        return 0.0
+    quantities = {"time": (batched[0], fmu[0]), "estimate": (batched[1], fmu[1]), "truth": (batched[2], fmu[2]),
+                  "cost": (cost_of(*batched, after, metric), cost_of(*fmu, after, metric))}
+    worst = 0.0
+    for name, (a, b) in quantities.items():
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        if a.shape != b.shape:
+            raise StudyError(f"batched engine against the FMUs, {what}: the {name} has shape {a.shape}, "
+                             f"not {b.shape}; rerun with --engine fmu")
+        d = _relative(a, b)
+        if not d <= rtol:
+            i = np.unravel_index(int(np.nanargmax(np.abs(a - b))) if a.size else 0, a.shape)
+            raise StudyError(f"batched engine against the FMUs, {what}: the {name} differs by {d:.3g} "
+                             f"relative (batched {a[i]:.17g}, FMUs {b[i]:.17g}; allowed {rtol:g}); "
+                             "rerun with --engine fmu")
+        worst = max(worst, d)
+    return worst
+
+
+class _BatchedEngine:
+    """Costs of candidates on the batched engine (:mod:`orchestration.batched`).
+
+    The truth (everything but the estimator) does not depend on the estimator's parameters: each
+    seed's run of the scenario's own values is simulated once and kept as a tape
+    (:func:`_tape_job`; its cost is the scenario's own cost on that seed), and every candidate
+    runs on the tape in the co-simulation's schedule (:func:`_candidates_job`), a population
+    split into one job per worker and seed. In the first population, ``check`` candidates also
+    run through the FMUs on the first seed, at the same time on the executor
+    (:func:`check_against_fmus`: the study stops if they differ).
+
+    Raises
+    ------
+    BatchError
+        (on construction) The engine cannot run the scenario: use the FMUs.
+    """
+
+    def __init__(self, objective: _Objective, executor: Executor | None, seeds: Sequence[int | None],
+                 check: int) -> None:
+        self.objective, self.executor, self.check = objective, executor, check
+        workers = getattr(executor, "max_workers", None) or (1 if executor is None else os.cpu_count() or 1)
+        self.chunks = max(1, int(workers))
+        o = objective
+        futures = {s: self._submit(_tape_job, o.doc, _seeded(o.base_overrides, s), o.estimate, o.truth,
+                                   o.after, o.metric) for s in seeds}
+        done = {s: f.result() for s, f in futures.items()}        # a BatchError here: use the FMUs
+        self.tapes = {s: d[0] for s, d in done.items()}
+        self.own_costs = {s: d[1] for s, d in done.items()}
+        self.checked: list[dict[str, Any]] = []
+
+    def _submit(self, fn: Any, *args: Any) -> Future:
+        return _done(fn, *args) if self.executor is None else self.executor.submit(fn, *args)
+
+    def own_cost(self, seeds: Sequence[int | None]) -> float:
+        """The scenario's own values: mean cost over ``seeds`` (taped ones)."""
+        return float(np.mean([self.own_costs[s] for s in seeds]))
+
+    def costs(self, candidates: Sequence[Sequence[str]], seeds: Sequence[int | None]) -> list[float]:
+        """Each candidate's (its overrides) mean cost over ``seeds``, in seed order as the FMU
+        path's :meth:`_Objective.cost`; the first call checks its first candidates.
+
+        Raises
+        ------
+        StudyError
+            A checked candidate differs from the FMUs, or the engine fails.
+        """
+        from .batched import BatchError
+        o, n = self.objective, len(candidates)
+        n_check = 0 if self.checked else min(self.check, n)
+        checks = [self._submit(_fmu_trajectory, o.doc, _seeded(candidates[i], seeds[0]), o.estimate, o.truth)
+                  for i in range(n_check)]
+        jobs = []
+        for s in seeds:
+            runs = [_seeded(c, s) for c in candidates]
+            for chunk in np.array_split(np.arange(n), min(self.chunks, n)):
+                keep = [j for j, i in enumerate(chunk) if i < n_check and s == seeds[0]]
+                jobs.append((s, chunk, self._submit(_candidates_job, o.doc, self.tapes[s], [runs[i] for i in chunk],
+                                                    o.estimate, o.truth, o.after, o.metric, keep)))
+        per_seed = {s: [PENALTY] * n for s in seeds}
+        kept: dict[int, Any] = {}
+        for s, chunk, f in jobs:
+            try:
+                costs, trajectories = f.result()
+            except BatchError as exc:
+                raise StudyError(f"batched engine: {exc}; rerun with --engine fmu") from None
+            for j, i in enumerate(chunk):
+                per_seed[s][int(i)] = costs[j]
+            kept.update({int(chunk[j]): tr for j, tr in trajectories.items()})
+        for i, f in enumerate(checks):
+            own = list(candidates[i][len(o.base_overrides):])
+            seed = "the scenario's seed" if seeds[0] is None else f"seed {seeds[0]}"
+            what = f"candidate {i + 1} ({', '.join(c.split('.', 1)[1] for c in own)}) on {seed}"
+            d = check_against_fmus(kept[i], f.result(), what, o.after, o.metric)
+            self.checked.append({"candidate": i + 1, "overrides": own, "seed": seeds[0],
+                                 "max_relative_difference": d})
+        return [float(np.mean([per_seed[s][i] for s in seeds])) for i in range(n)]
+
+
+class _RecordingMap:
+    """``workers`` for differential evolution: the executor's map (or the batched engine, a
+    population at once), recording every evaluation."""
+
+    def __init__(self, executor: Executor | None, objective: _Objective,
+                 engine: _BatchedEngine | None = None) -> None:
         self.executor = executor
         self.objective = objective
+        self.engine = engine
         self.history: list[dict[str, Any]] = []
 
     def __call__(self, fn: Any, xs: Any) -> list[float]:
         xs = [np.asarray(x, float) for x in xs]
-        if self.executor is None:
+        if self.engine is not None:
+            costs = self.engine.costs([self.objective.overrides(x) for x in xs],
+                                      list(self.objective.seeds) or [None])
+        elif self.executor is None:
             costs = [fn(x) for x in xs]
         else:
             costs = map_jobs(fn, xs, self.executor, progress=False)   # kept in a study folder
@@ -328,7 +563,8 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
          estimate: str | None = None, after: float = 0.5, log_scale: bool = True,
          maxiter: int = 10, popsize: int = 4, seed: int = 0, executor: Executor | None = None,
          progress: bool = True, overrides: Sequence[str] = (), metric: str = "rmse",
-         tol: float = 0.01, seeds: Sequence[int] = (), holdout_seeds: Sequence[int] = ()) -> TuneResult:
+         tol: float = 0.01, seeds: Sequence[int] = (), holdout_seeds: Sequence[int] = (),
+         engine: str = "batched", check_candidates: int = CHECK_CANDIDATES) -> TuneResult:
     """Minimise the estimation error of ``component`` over ``bounds`` (section III-C).
 
     Parameters
@@ -336,7 +572,8 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
     scenario
         Scenario file (or parsed document) with the estimator and the truth.
     component
-        The estimator's component name.
+        The estimator's component name. With the default ``estimate`` it must meet the estimator
+        contract (docs/estimator_contract.md; checked as ``flexfusion study sweep`` does).
     bounds
         ``{parameter: (low, high)}``; a vector element as ``name[i]``. Default: the FMU type's
         :data:`DEFAULT_BOUNDS`.
@@ -362,11 +599,21 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
         seeds on which the best candidate and the scenario's own values are evaluated
         afterwards (never seen by the optimiser; ``()``: no held-out evaluation). They must not
         overlap.
+    engine
+        ``"batched"`` (default): per seed, the scenario's own values run once on the batched
+        engine and every candidate is replayed on that run's truth (:class:`_BatchedEngine`),
+        ``check_candidates`` of the first population also through the FMUs (identical to
+        :data:`CHECK_RTOL` relative, or :class:`StudyError`); a scenario the engine cannot run
+        (an estimator FMU not built from this project's sources) goes through the FMUs, and
+        ``TuneResult.engine["fallback"]`` says why. ``"fmu"``: one co-simulation of the FMUs per
+        candidate and seed.
 
     Raises
     ------
     StudyError
-        For bounds that are empty or inverted, an unknown component or metric.
+        For bounds that are empty or inverted, an unknown component, metric or engine, an
+        estimator that does not meet the contract; a batched evaluation that differs from the
+        FMUs.
     ScenarioError
         For a parameter the component does not have (checked before the first run).
     """
@@ -374,11 +621,16 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
 
     if metric not in METRICS:
         raise StudyError(f"unknown tuning metric {metric!r} (one of {', '.join(METRICS)})")
+    if engine not in ENGINES:
+        raise StudyError(f"--engine must be one of {', '.join(ENGINES)}, not {engine!r}")
     if set(seeds) & set(holdout_seeds):
         raise StudyError(f"held-out seeds {sorted(set(seeds) & set(holdout_seeds))} are also "
                          "training seeds: a held-out cost must come from noise the tuner never saw")
     doc = load_document(scenario)
     fmu_type(doc, component)
+    if estimate is None:        # any estimator meeting the contract, as in every generic study
+        from .study_sweep import prepare
+        prepare(doc, [component], truth, overrides)
     if bounds is None:
         bounds = default_bounds(doc, component)
     if not bounds:
@@ -402,12 +654,22 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
     # (in the workers it would only make every candidate cost the penalty)
     from .scenario import load_scenario
     load_scenario(small, objective.overrides([0.5 * (lo + hi) for lo, hi in de_bounds]))
-    recorder = _RecordingMap(executor, objective)
+    t0 = time.perf_counter()
+    training = list(seeds) or [None]                # None: the scenario's own seed
+    batched, engine_info = None, {"used": "fmu"}
+    if engine == "batched":
+        from .batched import BatchError
+        try:
+            batched = _BatchedEngine(objective, executor, training + list(holdout_seeds), check_candidates)
+            engine_info = {"used": "batched", "check_rtol": CHECK_RTOL}
+        except BatchError as exc:
+            reason = f"the batched engine cannot run this tuning ({exc}): every candidate runs through the FMUs"
+            print(f"tune {component}: {reason}", file=sys.stderr)
+            engine_info = {"used": "fmu", "fallback": reason}
+    recorder = _RecordingMap(executor, objective, batched)
 
     bar = None
     if progress:
-        import sys
-
         from tqdm import tqdm
         bar = tqdm(total=maxiter, desc=f"tune {component}", unit="gen", file=sys.stderr, leave=False)
 
@@ -418,7 +680,6 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
             bar.update(1)
         return False
 
-    t0 = time.perf_counter()
     try:
         res = differential_evolution(objective, de_bounds, maxiter=maxiter, popsize=popsize, seed=seed,
                                      tol=tol, polish=False, updating="deferred", workers=recorder,
@@ -428,14 +689,21 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
             bar.close()
     best = objective.values(res.x)
     # the scenario's own values on the training seeds; both on the held-out seeds
-    checks = [(objective, list(overrides), seeds)]
-    if holdout_seeds:
-        checks += [(objective, objective.overrides(res.x), holdout_seeds),
-                   (objective, list(overrides), holdout_seeds)]
-    if executor is None:
-        costs = [_cost_job(*c) for c in checks]
+    if batched is not None:
+        costs = [batched.own_cost(training)]
+        if holdout_seeds:
+            costs += [batched.costs([objective.overrides(res.x)], list(holdout_seeds))[0],
+                      batched.own_cost(holdout_seeds)]
+        engine_info["checked"] = batched.checked
     else:
-        costs = map_jobs(_cost_job, checks, executor, progress=False, star=True)
+        checks = [(objective, list(overrides), seeds)]
+        if holdout_seeds:
+            checks += [(objective, objective.overrides(res.x), holdout_seeds),
+                       (objective, list(overrides), holdout_seeds)]
+        if executor is None:
+            costs = [_cost_job(*c) for c in checks]
+        else:
+            costs = map_jobs(_cost_job, checks, executor, progress=False, star=True)
     costs += [float("nan")] * (3 - len(costs))
     wall = time.perf_counter() - t0
     return TuneResult(component=component, params=best, cost=float(res.fun), n_evals=len(recorder.history),
@@ -444,7 +712,7 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
                       message=str(res.message), initial_cost=costs[0], seeds=[int(s) for s in seeds],
                       holdout_seeds=[int(s) for s in holdout_seeds], holdout_cost=costs[1],
                       initial_holdout_cost=costs[2], bounds={n: tuple(bounds[n]) for n in names},
-                      floors=sensor_floors(doc))
+                      floors=sensor_floors(doc), engine=engine_info)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -530,7 +798,8 @@ def main(args: argparse.Namespace) -> int:
             res = tune(args.scenario, component, bounds, truth=args.truth, estimate=args.estimate,
                        after=args.after, log_scale=not args.linear, maxiter=args.maxiter,
                        popsize=args.popsize, seed=args.seed, executor=ex, progress=not args.no_progress,
-                       overrides=overrides, metric=args.metric, seeds=seeds, holdout_seeds=holdout)
+                       overrides=overrides, metric=args.metric, seeds=seeds, holdout_seeds=holdout,
+                       engine=args.engine, check_candidates=args.check_candidates)
             comment = (f"tuned by: flexfusion study tune {args.scenario} --estimator {component} "
                        f"--metric {res.metric} --maxiter {args.maxiter} --popsize {args.popsize}"
                        + (f" --seed {args.seed}" if args.seed else "")
@@ -548,6 +817,10 @@ def main(args: argparse.Namespace) -> int:
             print(f"{component}: cost {_mm(res.cost)} ({res.metric}; scenario's values {_mm(res.initial_cost)}), "
                   f"held out {_mm(res.holdout_cost)} (scenario's values {_mm(res.initial_holdout_cost)}) "
                   f"after {res.n_evals} candidates in {res.wall_time:.1f} s; {res.failed} failed")
+            if res.engine.get("checked"):
+                worst = max(c["max_relative_difference"] for c in res.engine["checked"])
+                print(f"  batched engine; {len(res.engine['checked'])} candidates checked through the FMUs: "
+                      f"largest relative difference {worst:.3g} (allowed {CHECK_RTOL:g})")
             for k, v in res.params.items():
                 lo, hi = res.bounds[k]
                 print(f"  {k:<20} {v:.6g}   in [{lo:.4g}, {hi:.4g}]")
@@ -583,9 +856,15 @@ def register(subparsers: Any) -> None:
     p.add_argument("--apply-to", action="append", metavar="COMPONENT",
                    help="also write the tuned values for this component (repeatable; e.g. a variant "
                         "of the estimator)")
+    p.add_argument("--engine", choices=ENGINES, default="batched",
+                   help="batched: each seed's truth simulated once, every candidate replayed on it, a few "
+                        "candidates checked through the FMUs (default); fmu: one co-simulation per candidate")
+    p.add_argument("--check-candidates", type=int, default=CHECK_CANDIDATES, metavar="N",
+                   help=f"candidates checked through the FMUs with the batched engine (default {CHECK_CANDIDATES})")
     add_executor_arguments(p)
     p.set_defaults(func=main)
 
 
-__all__ = ["tune", "TuneResult", "write_include", "evaluate", "prune", "load_document",
+__all__ = ["tune", "TuneResult", "write_include", "evaluate", "cost_of", "check_against_fmus", "ENGINES",
+           "CHECK_CANDIDATES", "CHECK_RTOL", "prune", "load_document",
            "default_bounds", "sensor_floors", "parameter_value", "parse_seeds", "DEFAULT_BOUNDS", "register", "PENALTY"]

@@ -145,3 +145,30 @@ def test_particle_filter_stays_on_the_fmus():
     with pytest.raises(batched.BatchError, match="'pf_alg1' .ParticleFilter. differs between runs and has no"):
         study_montecarlo._batched_runs(str(pf), [SHORT + [f"scenario.seed={s}"] for s in (1, 2)], filters,
                                        plant, filters[0].ratio)
+
+
+def test_a_taped_run_replays_what_it_shared():
+    """A tape of one run's shared components, replayed into runs that differ in an estimator's
+    parameter, gives bit for bit the runs simulated in full; a component whose parameters differ
+    from the tape's is simulated, and so is every consumer of it; a tape of another structure is
+    refused."""
+    rec = {"plant.q_a": None, "ekf_acc.q_a_hat": None, "ekf_motor.q_a_hat": None}
+    own = SHORT + ["scenario.seed=3"]
+    taped = batched.simulate_runs(str(SCENARIO), [own], rec, tape=True)
+    assert set(taped.tape.reads) == {"plant", "controller", "encoder", "imu", "ekf_acc", "ekf_motor"}
+    runs = [own + [f"ekf_acc.q_jerk={q}"] for q in (0.5, 2.0)]
+    full = batched.simulate_runs(str(SCENARIO), runs, rec)
+    replayed = batched.simulate_runs(str(SCENARIO), runs, rec, replay=taped.tape)
+    assert replayed.replayed == ["plant", "controller", "encoder", "imu", "ekf_motor"]
+    for var in rec:
+        assert_array_equal(replayed[var], full[var], err_msg=var)
+    assert_array_equal(replayed["ekf_motor.q_a_hat"], taped["ekf_motor.q_a_hat"])
+    # the encoder differs from the tape: it and the filters it feeds run, the plant is replayed
+    noisier = [r + ["encoder.noise=1e-4"] for r in runs]
+    partly = batched.simulate_runs(str(SCENARIO), noisier, rec, replay=taped.tape)
+    assert partly.replayed == ["plant", "controller", "imu"]
+    full = batched.simulate_runs(str(SCENARIO), noisier, rec)
+    for var in rec:
+        assert_array_equal(partly[var], full[var], err_msg=var)
+    with pytest.raises(batched.BatchError, match="another structure"):
+        batched.simulate_runs(str(SCENARIO), [["scenario.stop_time=0.2"]], rec, replay=taped.tape)

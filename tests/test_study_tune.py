@@ -161,3 +161,25 @@ def test_held_out_seeds(tmp_path) -> None:
     assert st.parse_seeds("1, 2") == [1, 2] and st.parse_seeds(None) == []
     with pytest.raises(StudyError, match="integers"):
         st.parse_seeds("a,b")
+
+
+def test_the_cli_forms(tmp_path, capsys) -> None:
+    """``flexfusion study tune`` as before (explicit estimate and truth, --param, the study
+    executor) and with ``--engine fmu``: the toys are not this project's FMUs, so the default
+    batched engine says in one line that it runs them through the FMUs; an unknown engine is
+    refused."""
+    import json
+
+    from orchestration.cli import main
+    args = ["study", "tune", str(_toy(tmp_path)), "--estimator", "g", "--truth", "src.ys", "--estimate", "g.yv",
+            "--param", "gain=0.1:10", "--after", "0", "--maxiter", "1", "--popsize", "3", "--workers", "1",
+            "--no-progress"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 0
+    assert "tune g: the batched engine cannot run this tuning" in capsys.readouterr().err
+    assert main(args + ["--out", str(tmp_path / "b"), "--engine", "fmu"]) == 0
+    assert "batched engine" not in capsys.readouterr().err
+    a, b = (json.loads((tmp_path / d / "tune_g.json").read_text()) for d in ("a", "b"))
+    assert a["engine"]["used"] == b["engine"]["used"] == "fmu" and "fallback" not in b["engine"]
+    assert a["params"] == b["params"] and (tmp_path / "a" / "tuned_g.toml").exists()
+    with pytest.raises(SystemExit):
+        main(args + ["--out", str(tmp_path / "c"), "--engine", "gpu"])

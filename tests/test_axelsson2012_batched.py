@@ -12,7 +12,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 from fmus.estimators import axelsson2012_batched as ab
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import particle_filter_model as pm
-from tests.pf_numpy_reference import NumpyMeasurement
+from pf_numpy_reference import NumpyMeasurement
 
 LAYOUTS = [(True, False), (True, True), (False, False), (False, True)]
 

@@ -14,7 +14,7 @@ from fmus.common.parameters import ParameterError, validate
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators import particle_filter_model as pm
-from tests import pf_numpy_reference as numpy_reference
+import pf_numpy_reference as numpy_reference
 from pf_numpy_reference import NumpyMeasurement
 from pf_numpy_reference import propose_and_weigh as propose_and_weigh_numpy
 

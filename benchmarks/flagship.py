@@ -222,7 +222,8 @@ def kernels(rev: str) -> list[tuple[str, float, float]]:
         f(plant, (1.0, 2.0), (0.0, 0.0), 1e-3)
     rows.append((f"plant RK4 step (realistic, {plant.substeps} substeps)",
                  _us(lambda: step(old.FlexibleRobotModel.step)), _us(lambda: step(type(plant).step))))
-    paths = [f"fmus/estimators/{m}.py" for m in ("axelsson2012_model", "ekf_accelerometer_model")]
+    paths = ["fmus/common/kalman.py"] + [f"fmus/estimators/{m}.py" for m in ("axelsson2012_model",
+                                                                             "ekf_accelerometer_model")]
     old = old_modules(rev, [path for path in paths if _in_rev(rev, path)])[-1]   # one module before
     from fmus.estimators import ekf_accelerometer_model as em
     filters = [m.EkfAccelerometerModel(m.EkfAccelerometerParameters()) for m in (old, em)]

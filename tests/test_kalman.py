@@ -16,7 +16,8 @@ from scipy.linalg.lapack import dpotrf, dpotrs
 from fmus.common import kalman
 from fmus.common.kalman import FilterDivergence, check_estimate, is_positive_definite, measurement_update
 
-CASES = ((6, 4), (6, 2), (8, 4), (10, 4), (21, 12), (3, 1))     # (states, measurements) of the filters
+#: (states, measurements) of the filters: the 2012 EKF's layouts, the 2009 trio's, the IMU EKF's
+CASES = ((6, 4), (6, 2), (10, 4), (8, 2), (8, 4), (9, 4), (11, 4), (21, 12), (3, 1))
 
 
 def _problem(n: int, m: int, seed: int):

@@ -316,8 +316,8 @@ def spring_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
         t = tau0 if i == 0 else tau1
         d = (t + math.copysign(k_soft * delta * math.tanh(abs(t) / (k_hi * delta)), t)) / k_hi
         for _ in range(50):
-            f = k_hi * d - k_soft * delta * math.tanh(d / delta) - t
             th = math.tanh(d / delta)
+            f = k_hi * d - k_soft * delta * th - t
             d -= f / (k_hi - k_soft * (1.0 - th * th))      # sech^2, no overflow
             if abs(f) <= 1e-12 * max(1.0, abs(t)):
                 break
@@ -330,9 +330,10 @@ def spring_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
 @kernel
 def measurement_kernel(x: np.ndarray, k: np.ndarray, use_accelerometer: bool, use_bias: bool) -> tuple:
     """``h(x)`` of eq. 15 and its Jacobian ``H`` (eq. 4c) for the layout of the two switches
-    ``use_accelerometer`` and ``use_bias`` (:class:`Layout`), ``k`` the constants (:attr:`MeasurementModel.constants`): motor angles
-    ``r (q_a + D)`` with ``H = r (I + K(D)^-1 d tau_a / dx)`` (``K(D)`` the spring stiffness),
-    accelerometer (:func:`specific_force_kernel`), identities for the biases."""
+    ``use_accelerometer`` and ``use_bias`` (:class:`Layout`), ``k`` the constants
+    (:attr:`MeasurementModel.constants`): motor angles ``r (q_a + D)`` with
+    ``H = r (I + K(D)^-1 d tau_a / dx)`` (``K(D)`` the spring stiffness), accelerometer
+    (:func:`specific_force_kernel`), identities for the biases."""
     m = 4 if use_accelerometer else 2
     n = 6 + (2 if use_bias else 0) + (2 if use_bias and use_accelerometer else 0)
     D, stiffness = spring_kernel(x, k)
@@ -393,7 +394,8 @@ class MeasurementModel:
         #: The kernels' constants, in the order of the ``K_*`` indices.
         self.constants = np.array([self.a, self.c, self.e, self.g1, self.g2, self.g, self.l1, *self.v,
                                    *self._k_hi, *self._k_soft, *self._delta, *self.r], float)
-        self._switches = (bool(layout.use_accelerometer), bool(layout.use_bias))
+        #: The kernels' layout switches ``(use_accelerometer, use_bias)``.
+        self.switches = (bool(layout.use_accelerometer), bool(layout.use_bias))
 
     # -- eq. 11: rigid arm torque and its derivatives
     def arm_torque(self, q, dq, ddq) -> np.ndarray:
@@ -443,7 +445,7 @@ class MeasurementModel:
         """:meth:`h` and :meth:`jacobian` at ``x`` in one compiled pass
         (:func:`measurement_kernel`: one torque and one spring inversion instead of two; the
         same numbers as :meth:`h` and :meth:`jacobian` to round-off)."""
-        return measurement_kernel(np.asarray(x, float), self.constants, *self._switches)
+        return measurement_kernel(np.asarray(x, float), self.constants, *self.switches)
 
     # -- eq. 15
     def h(self, x) -> np.ndarray:

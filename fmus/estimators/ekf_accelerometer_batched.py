@@ -202,7 +202,7 @@ class BatchedEkfModel:
         s = self.single
         xf, Pf, nis, status = _filtered_runs(np.ascontiguousarray(x, float), np.ascontiguousarray(P, float),
                                              np.ascontiguousarray(y, float), s.R, s.meas.constants,
-                                             *s.meas._switches)
+                                             *s.meas.switches)
         _raise_for_runs(status, "EKF diverged in the measurement update", Pf)
         return xf, Pf, np.sqrt(nis)
 

@@ -82,7 +82,7 @@ class EkfAccelerometerModel:
         x = self.x if x is None else x
         P = self.P if P is None else P
         xf, Pf, nis, status = filtered_kernel(np.asarray(x, float), np.asarray(P, float), np.asarray(y, float),
-                                              self.R, self.meas.constants, *self.meas._switches)
+                                              self.R, self.meas.constants, *self.meas.switches)
         raise_for(status, "EKF diverged in the measurement update", Pf)
         return xf, Pf, math.sqrt(nis)
 

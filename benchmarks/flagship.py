@@ -243,7 +243,8 @@ def kernels(rev: str) -> list[tuple[str, float, float]]:
     def update(tr):
         tr.update(tr.t_meas + 1e-3, p_tool)
     rows.append(("tracker update", *(_us(lambda: update(tr)) for tr in trackers)))
-    paths = [f"fmus/estimators/{m}.py" for m in ("axelsson2012_model", "ekf_accelerometer_model")]
+    paths = ["fmus/common/kalman.py"] + [f"fmus/estimators/{m}.py" for m in ("axelsson2012_model",
+                                                                             "ekf_accelerometer_model")]
     old = old_modules(rev, [path for path in paths if _in_rev(rev, path)])[-1]   # one module before
     from fmus.estimators import ekf_accelerometer_model as em
     filters = [m.EkfAccelerometerModel(m.EkfAccelerometerParameters()) for m in (old, em)]

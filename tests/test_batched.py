@@ -31,8 +31,7 @@ def test_run_streams_are_each_seeds_own_generator():
 
 def test_batched_ekf_equals_the_single_filter():
     """BatchedEkfModel: each run's update and prediction are the single filter's, bit for bit
-    (the normalised innovation to round-off: one solve for it and the gain), also for runs
-    that differ in q_jerk."""
+    (the same compiled kernels), also for runs that differ in q_jerk."""
     from fmus.estimators import ekf_accelerometer_model as em
     from fmus.estimators.ekf_accelerometer_batched import BatchedEkfModel
     base = em.EkfAccelerometerParameters(p_tool0=(1.2, 0.9))
@@ -50,12 +49,31 @@ def test_batched_ekf_equals_the_single_filter():
         xs, Ps, ns = s.filtered(y[r], x[r], P[r])
         assert_array_equal(xf[r], xs)
         assert_array_equal(Pf[r], Ps)
-        assert_allclose(nu[r], ns, rtol=1e-13)
+        assert nu[r] == ns
         xq, Pq = s.predicted(u[r], 0.01, xs, Ps)
         assert_array_equal(xp[r], xq)
         assert_array_equal(Pp[r], Pq)
     with pytest.raises(ValueError, match="q_jerk only"):
         BatchedEkfModel([base, em.EkfAccelerometerParameters(r_acc=1.0)])
+
+
+def test_batched_ekf_names_the_diverged_runs():
+    """A run whose estimate is not finite stops the batch with the single filter's message,
+    naming the run (0-based)."""
+    from fmus.common.kalman import FilterDivergence
+    from fmus.estimators import ekf_accelerometer_model as em
+    from fmus.estimators.ekf_accelerometer_batched import BatchedEkfModel
+    single = em.EkfAccelerometerModel(em.EkfAccelerometerParameters())
+    model = BatchedEkfModel(single.p)
+    x, P = np.stack([single.x] * 3), np.stack([single.P] * 3)
+    x[1, 0] = np.nan
+    y = np.stack([single.meas.h(single.x)] * 3)
+    with pytest.raises(FilterDivergence, match=r"^EKF diverged in the measurement update: non-finite .*"
+                                                r"\(runs \[1\]\)$"):
+        model.filtered(y, x, P)
+    P[2] = -P[2]
+    with pytest.raises(FilterDivergence, match=r"^EKF diverged in the time update: .*\(runs \[1, 2\]\)$"):
+        model.predicted(np.zeros((3, 2)), 0.01, x, P)
 
 
 def test_batched_runs_equal_the_fmus():

@@ -186,6 +186,9 @@ def test_fused_scalar_linearisation_equals_h_and_jacobian(layout: am.Layout) -> 
         y, H = mm.h_and_jacobian(x)
         assert_allclose(y, mm.h(x), rtol=1e-14, atol=1e-12)
         assert_allclose(H, mm.jacobian(x), rtol=1e-12, atol=1e-9)
+    for x in states[:-1]:       # the compiled Jacobian against differences of the compiled h
+        num = _fd(lambda z: mm.h_and_jacobian(z)[0], x)
+        assert_allclose(mm.h_and_jacobian(x)[1], num, rtol=1e-6, atol=1e-6 * np.abs(num).max())
 
 
 def test_measurement_jacobian_of_the_soft_spring_zone() -> None:
@@ -328,6 +331,46 @@ def _rmse(traj: dict, p: am.EkfAccelerometerParameters) -> tuple[np.ndarray, flo
     m = np.mean(sq, axis=0)
     rmse = np.array([np.sqrt(np.mean(m[:, i:i + 2].sum(axis=1))) for i in (0, 2, 4)])
     return rmse, float(np.sqrt(np.mean(trs)))
+
+
+def _former_filtered(f: em.EkfAccelerometerModel, y, x, P):
+    """Eq. 3b as the filter had it in numpy before the compiled kernels (the reference):
+    the vectorised h and H, Cholesky-factored S, Joseph form."""
+    H = f.meas.jacobian(x)
+    nu = y - f.meas.h(x)
+    Sc = np.linalg.cholesky(H @ P @ H.T + f.R)
+    K = np.linalg.solve(Sc.T, np.linalg.solve(Sc, (P @ H.T).T)).T
+    IKH = np.eye(x.size) - K @ H
+    Pf = IKH @ P @ IKH.T + K @ f.R @ K.T
+    z = np.linalg.solve(Sc, nu)
+    return x + K @ nu, 0.5 * (Pf + Pf.T), np.sqrt(z @ z)
+
+
+@pytest.mark.parametrize("use_accelerometer", [True, False])
+def test_compiled_filter_is_the_former_numpy_filter(trajectory, use_accelerometer: bool) -> None:
+    """Along the simulated trajectory with noise, each update and prediction (from the same
+    prior) equals the former numpy formulas to 1e-12 relative (round-off)."""
+    p = am.EkfAccelerometerParameters(use_accelerometer=use_accelerometer, q_a0=tuple(trajectory["q_a0"]))
+    f = em.EkfAccelerometerModel(p)
+    rng = np.random.default_rng(11)
+    N = trajectory["x"].shape[0]
+    ym = trajectory["qm"] + rng.normal(0.0, SIGMA_M, (N, 2))
+    ya = trajectory["f"] + rng.normal(0.0, SIGMA_A, (N, 2))
+    F, Gu, Gw = am.transition_matrices(T_S, f.layout)
+    for k in range(N):
+        y = f.measurement_vector(ym[k], ya[k])
+        xf, Pf, nn = f.filtered(y)
+        rx, rP, rn = _former_filtered(f, y, f.x, f.P)
+        assert_allclose(xf, rx, rtol=1e-12, atol=1e-12 * np.abs(rx).max())
+        assert_allclose(Pf, rP, rtol=1e-12, atol=1e-12 * np.abs(rP).max())
+        assert_allclose(nn, rn, rtol=1e-12)
+        f.update(y)
+        u = trajectory["u"][k]
+        xp, Pp = f.predicted(u, T_S)
+        ref = F @ f.P @ F.T + Gw @ f.Q @ Gw.T
+        assert_allclose(xp, F @ f.x + Gu @ u, rtol=1e-12, atol=1e-12 * np.abs(xp).max())
+        assert_allclose(Pp, 0.5 * (ref + ref.T), rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+        f.predict(u, T_S)
 
 
 def test_accelerometer_improves_the_estimates(trajectory) -> None:

@@ -78,8 +78,12 @@ def test_divergence_is_reported():
     m = iem.ImuEkfModel(iem.ImuEkfParameters())
     m.reset(np.zeros(3), qt.IDENTITY)
     m.P[0, 0] = np.nan
-    with pytest.raises(FilterDivergence, match="not finite|singular|positive"):
+    with pytest.raises(FilterDivergence, match="^EKF diverged in the time update: non-finite"):
         m.step(np.zeros(3), qt.IDENTITY, -G_VEC, np.zeros(3), 1e-3)
+    m.reset(np.zeros(3), qt.IDENTITY)
+    with pytest.raises(FilterDivergence, match="^EKF diverged in the measurement update: non-finite innovation"):
+        m.step(np.zeros(3), qt.IDENTITY, np.array([0.0, np.inf, 0.0]), np.zeros(3), 1e-3)
+    assert np.isfinite(m.P).all()             # the estimate before the failed update is kept
 
 
 def test_bad_parameters_are_named():

@@ -49,8 +49,8 @@ def model_constants(meas: MeasurementModel) -> np.ndarray:
     ``S v`` (eqs. 17-19), the gear ratios (eq. 16) and the spring's ``k_hi``, ``k_hi - k_lo``
     and ``delta`` per joint (the very floats the scalar model computes with); then
     :data:`POW_EXPONENT`."""
-    return np.array([meas.a, meas.c, meas.e, meas.g1, meas.g2, meas.g, meas.l1, *meas._v, *meas._Sv,
-                     *meas._r, *meas._k_hi, *meas._k_soft, *meas._delta, POW_EXPONENT], float)
+    return np.array([meas.a, meas.c, meas.e, meas.g1, meas.g2, meas.g, meas.l1, *meas.v, *meas.Sv,
+                     *meas.r, *meas._k_hi, *meas._k_soft, *meas._delta, POW_EXPONENT], float)
 
 
 def layout_offsets(layout: Layout) -> tuple[int, int, int]:

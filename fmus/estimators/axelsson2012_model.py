@@ -63,6 +63,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fmus.common import dynamics
+from fmus.common.jit import kernel
 from fmus.common.parameters import ParameterError, param
 from fmus.common.robot_params import RobotAtInitialPose, RobotParameters
 
@@ -227,6 +228,140 @@ def initial_covariance(p: EkfAccelerometerParameters, layout: Layout) -> np.ndar
     return np.diag(np.square(s))
 
 
+# ---- eqs. 11 and 15-19 on scalars: compiled kernels (the filter's hot path) -------------------
+#: Order of the constants array of the kernels (:attr:`MeasurementModel.constants`).
+K_A, K_C, K_E, K_G1, K_G2, K_G, K_L1, K_V0, K_V1, K_KHI, K_KSOFT, K_DELTA, K_R = (
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 13, 15)
+
+
+@kernel
+def arm_torque_jacobian_kernel(x: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """``d tau_a / d(q, dq, ddq)`` (2, 6) of eq. 11 at the state ``x``, analytic; ``k`` the
+    model's constants (:attr:`MeasurementModel.constants`)."""
+    q1, q2, dq1, dq2, a1, a2 = x[0], x[1], x[2], x[3], x[4], x[5]
+    e, g2 = k[K_E], k[K_G2]
+    s2, c2 = math.sin(q2), math.cos(q2)
+    sp = math.sin(q1 + q2)
+    b = -e * s2
+    bd = -e * c2
+    bdd = e * s2
+    gsp = g2 * sp
+    # d/dq1: gravity only (G1 = -g1 sin q1 - g2 cos phi, G2 = -g2 cos phi); d/dq2: M'(q2) ddq
+    # + C' + G'; d/d dq: Coriolis; d/d ddq: M
+    J = np.empty((2, 6))
+    J[0, 0] = -k[K_G1] * math.cos(q1) + gsp
+    J[0, 1] = 2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + gsp
+    J[0, 2] = 2 * bd * dq2
+    J[0, 3] = 2 * bd * (dq1 + dq2)
+    J[0, 4] = k[K_A] + 2 * b
+    J[0, 5] = k[K_C] + b
+    J[1, 0] = gsp
+    J[1, 1] = bd * a1 - bdd * dq1 * dq1 + gsp
+    J[1, 2] = -2 * bd * dq1
+    J[1, 3] = 0.0
+    J[1, 4] = k[K_C] + b
+    J[1, 5] = k[K_C]
+    return J
+
+
+@kernel
+def specific_force_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
+    """The accelerometer reading (sensor x, z) of eqs. 17-19 in closed form (module docstring)
+    and its Jacobian ``d f / d(q, dq, ddq)`` (2, 6), at the state ``x``; ``k`` the model's
+    constants."""
+    q1, q2, dq1, dq2, a1 = x[0], x[1], x[2], x[3], x[4]
+    dphi, aphi = dq1 + dq2, a1 + x[5]
+    l1, v0, v1, g = k[K_L1], k[K_V0], k[K_V1], k[K_G]
+    Sv0, Sv1 = v1, -v0                              # S v, S = [[0, 1], [-1, 0]]
+    c2, s2 = math.cos(q2), math.sin(q2)
+    phi = q1 + q2
+    cp, sp = math.cos(phi), math.sin(phi)
+    u1, u2 = a1, -dq1 * dq1                         # (ddq1, -dq1^2), rotated by R(-q2)
+    f = np.empty(2)
+    f[0] = l1 * (c2 * u1 - s2 * u2) + Sv0 * aphi - v0 * dphi * dphi - g * sp
+    f[1] = l1 * (s2 * u1 + c2 * u2) + Sv1 * aphi - v1 * dphi * dphi + g * cp
+    dg0, dg1 = -g * cp, -g * sp                     # d/dphi of g (-sin phi, cos phi)
+    J = np.empty((2, 6))
+    J[0, 0], J[1, 0] = dg0, dg1
+    J[0, 1] = dg0 + l1 * (-s2 * u1 - c2 * u2)
+    J[1, 1] = dg1 + l1 * (c2 * u1 - s2 * u2)
+    J[0, 2] = l1 * (s2 * 2 * dq1) - 2 * v0 * dphi
+    J[1, 2] = l1 * (-c2 * 2 * dq1) - 2 * v1 * dphi
+    J[0, 3] = -2 * v0 * dphi
+    J[1, 3] = -2 * v1 * dphi
+    J[0, 4] = l1 * c2 + Sv0
+    J[1, 4] = l1 * s2 + Sv1
+    J[0, 5], J[1, 5] = Sv0, Sv1
+    return f, J
+
+
+@kernel
+def spring_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
+    """The gearbox deflection ``D = tau_s^-1(tau_a)`` (2,) carrying the arm torque ``tau_a`` of
+    eq. 11 at the state ``x``, and the spring stiffness ``d tau_s / dD`` there (2,): the
+    nonlinear spring of :mod:`fmus.common.dynamics` (``tau_s = k_hi D - (k_hi - k_lo) delta
+    tanh(D / delta)``) inverted by Newton's method, as ``dynamics.spring_deflection``; ``k`` the
+    model's constants."""
+    q1, q2, dq1, dq2, a1, a2 = x[0], x[1], x[2], x[3], x[4], x[5]
+    a, c, e, g1, g2 = k[K_A], k[K_C], k[K_E], k[K_G1], k[K_G2]
+    s2, c2 = math.sin(q2), math.cos(q2)
+    b, bd = -e * s2, -e * c2
+    cp = math.cos(q1 + q2)
+    tau0 = (a + 2 * b) * a1 + (c + b) * a2 + bd * (2 * dq1 * dq2 + dq2 * dq2) - g1 * math.sin(q1) - g2 * cp
+    tau1 = (c + b) * a1 + c * a2 - bd * dq1 * dq1 - g2 * cp
+    D = np.empty(2)
+    stiffness = np.empty(2)
+    for i in range(2):
+        k_hi, k_soft, delta = k[K_KHI + i], k[K_KSOFT + i], k[K_DELTA + i]
+        t = tau0 if i == 0 else tau1
+        d = (t + math.copysign(k_soft * delta * math.tanh(abs(t) / (k_hi * delta)), t)) / k_hi
+        for _ in range(50):
+            th = math.tanh(d / delta)
+            f = k_hi * d - k_soft * delta * th - t
+            d -= f / (k_hi - k_soft * (1.0 - th * th))      # sech^2, no overflow
+            if abs(f) <= 1e-12 * max(1.0, abs(t)):
+                break
+        th = math.tanh(d / delta)
+        D[i] = d
+        stiffness[i] = k_hi - k_soft * (1.0 - th * th)
+    return D, stiffness
+
+
+@kernel
+def measurement_kernel(x: np.ndarray, k: np.ndarray, use_accelerometer: bool, use_bias: bool) -> tuple:
+    """``h(x)`` of eq. 15 and its Jacobian ``H`` (eq. 4c) for the layout of the two switches
+    ``use_accelerometer`` and ``use_bias`` (:class:`Layout`), ``k`` the constants
+    (:attr:`MeasurementModel.constants`): motor angles ``r (q_a + D)`` with
+    ``H = r (I + K(D)^-1 d tau_a / dx)`` (``K(D)`` the spring stiffness), accelerometer
+    (:func:`specific_force_kernel`), identities for the biases."""
+    m = 4 if use_accelerometer else 2
+    n = 6 + (2 if use_bias else 0) + (2 if use_bias and use_accelerometer else 0)
+    D, stiffness = spring_kernel(x, k)
+    Jt = arm_torque_jacobian_kernel(x, k)
+    y = np.empty(m)
+    H = np.zeros((m, n))
+    for i in range(2):
+        r = k[K_R + i]
+        rk = r / stiffness[i]
+        y[i] = r * (x[i] + D[i])
+        for j in range(6):
+            H[i, j] = rk * Jt[i, j]
+        H[i, i] += r
+        if use_bias:
+            y[i] += x[6 + i]
+            H[i, 6 + i] = 1.0
+    if use_accelerometer:
+        f, Jf = specific_force_kernel(x, k)
+        for i in range(2):
+            y[2 + i] = f[i]
+            for j in range(6):
+                H[2 + i, j] = Jf[i, j]
+            if use_bias:
+                y[2 + i] += x[8 + i]
+                H[2 + i, 8 + i] = 1.0
+    return y, H
+
+
 # ---- eqs. 15-19: the measurement model ---------------------------------------------------------
 class MeasurementModel:
     """``h(x)`` of eq. 15 and its analytic Jacobian, for the robot model ``p`` and the states and
@@ -234,7 +369,9 @@ class MeasurementModel:
 
     The inertia, Coriolis and gravity constants are the arm's
     (:class:`fmus.common.dynamics.ArmConstants`), so the filter's model is the plant's model with
-    the filter's parameters.
+    the filter's parameters. :meth:`h_and_jacobian` (the filters' hot path) and the scalar
+    Jacobians are compiled kernels; :meth:`h` and :meth:`jacobian` compute the same through
+    :mod:`fmus.common.dynamics` (a check of the kernels, and the readable form).
     """
 
     def __init__(self, p: RobotParameters, layout: Layout) -> None:
@@ -251,10 +388,14 @@ class MeasurementModel:
         self.v = np.array([p.l2 + p.sensor_offset[0], p.sensor_offset[1]], float)   # mount, tool frame
         self.Sv = np.array([self.v[1], -self.v[0]])
         self.r = np.asarray(p.gear_ratio, float)
-        self._v, self._Sv, self._r = (tuple(map(float, a)) for a in (self.v, self.Sv, self.r))
         self._k_hi = tuple(map(float, p.k_hi))
         self._k_soft = tuple(float(h - lo) for h, lo in zip(p.k_hi, p.k_lo))
         self._delta = tuple(map(float, p.delta))
+        #: The kernels' constants, in the order of the ``K_*`` indices.
+        self.constants = np.array([self.a, self.c, self.e, self.g1, self.g2, self.g, self.l1, *self.v,
+                                   *self._k_hi, *self._k_soft, *self._delta, *self.r], float)
+        #: The kernels' layout switches ``(use_accelerometer, use_bias)``.
+        self.switches = (bool(layout.use_accelerometer), bool(layout.use_bias))
 
     # -- eq. 11: rigid arm torque and its derivatives
     def arm_torque(self, q, dq, ddq) -> np.ndarray:
@@ -262,24 +403,8 @@ class MeasurementModel:
         return dynamics.inverse_dynamics_rigid(q, dq, ddq, self.p)
 
     def arm_torque_jacobian(self, q, dq, ddq) -> np.ndarray:
-        """``d tau_a / d(q, dq, ddq)``, (2, 6), analytic."""
-        return np.array(self._arm_torque_jacobian(float(q[0]), float(q[1]), float(dq[0]), float(dq[1]),
-                                                  float(ddq[0]), float(ddq[1])))
-
-    def _arm_torque_jacobian(self, q1, q2, dq1, dq2, a1, a2) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """:meth:`arm_torque_jacobian` on scalars, as two rows (the filter's hot path)."""
-        s2, c2 = math.sin(q2), math.cos(q2)
-        sp = math.sin(q1 + q2)
-        b = -self.e * s2
-        bd = -self.e * c2
-        bdd = self.e * s2
-        gsp = self.g2 * sp
-        # d/dq1: gravity only (G1 = -g1 sin q1 - g2 cos phi, G2 = -g2 cos phi); d/dq2: M'(q2) ddq
-        # + C' + G'; d/d dq: Coriolis; d/d ddq: M
-        return ((-self.g1 * math.cos(q1) + gsp,
-                 2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + gsp,
-                 2 * bd * dq2, 2 * bd * (dq1 + dq2), self.a + 2 * b, self.c + b),
-                (gsp, bd * a1 - bdd * dq1 * dq1 + gsp, -2 * bd * dq1, 0.0, self.c + b, self.c))
+        """``d tau_a / d(q, dq, ddq)``, (2, 6), analytic (:func:`arm_torque_jacobian_kernel`)."""
+        return arm_torque_jacobian_kernel(np.concatenate([q, dq, ddq]).astype(float), self.constants)
 
     # -- eq. 16: motor angles
     def motor_angles(self, x) -> np.ndarray:
@@ -290,85 +415,17 @@ class MeasurementModel:
     # -- eqs. 17-19: accelerometer
     def specific_force(self, x) -> np.ndarray:
         """Accelerometer reading (sensor x, z) of eqs. 17-19 in closed form (module docstring)."""
-        q1, q2 = float(x[0]), float(x[1])
-        dq1, dphi = float(x[2]), float(x[2]) + float(x[3])
-        a1, aphi = float(x[4]), float(x[4]) + float(x[5])
-        c2, s2 = math.cos(q2), math.sin(q2)
-        phi = q1 + q2
-        u1, u2 = a1, -dq1 * dq1                       # (ddq1, -dq1^2), rotated by R(-q2)
-        fx = self.l1 * (c2 * u1 - s2 * u2) + self.Sv[0] * aphi - self.v[0] * dphi * dphi - self.g * math.sin(phi)
-        fz = self.l1 * (s2 * u1 + c2 * u2) + self.Sv[1] * aphi - self.v[1] * dphi * dphi + self.g * math.cos(phi)
-        return np.array([fx, fz])
+        return specific_force_kernel(np.asarray(x, float)[0:6], self.constants)[0]
 
     def specific_force_jacobian(self, x) -> np.ndarray:
         """``d f / d(q, dq, ddq)``, (2, 6), analytic."""
-        return np.array(self._specific_force_jacobian(float(x[0]), float(x[1]), float(x[2]), float(x[3]),
-                                                      float(x[4])))
-
-    def _specific_force_jacobian(self, q1, q2, dq1, dq2, a1) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """:meth:`specific_force_jacobian` on scalars, as two rows (the filter's hot path)."""
-        dphi = dq1 + dq2
-        c2, s2 = math.cos(q2), math.sin(q2)
-        phi = q1 + q2
-        cp, sp = math.cos(phi), math.sin(phi)
-        u1, u2 = a1, -dq1 * dq1
-        l1, (v0, v1), (Sv0, Sv1), g = self.l1, self._v, self._Sv, self.g
-        dg0, dg1 = -g * cp, -g * sp                     # d/dphi of g (-sin phi, cos phi)
-        return ((dg0, dg0 + l1 * (-s2 * u1 - c2 * u2), l1 * (s2 * 2 * dq1) - 2 * v0 * dphi,
-                 -2 * v0 * dphi, l1 * c2 + Sv0, Sv0),
-                (dg1, dg1 + l1 * (c2 * u1 - s2 * u2), l1 * (-c2 * 2 * dq1) - 2 * v1 * dphi,
-                 -2 * v1 * dphi, l1 * s2 + Sv1, Sv1))
-
-    # -- eqs. 11 and 16 on scalars: the filter's hot path
-    def _torque_deflection(self, x) -> tuple[tuple[float, float], tuple[float, float]]:
-        """Arm torque ``tau_a`` (eq. 11) and the spring deflection ``D(tau_a)`` per joint, in
-        scalar arithmetic (the same numbers as :meth:`arm_torque` and
-        ``dynamics.spring_deflection``, without numpy's per-call overhead)."""
-        q1, q2, dq1, dq2, a1, a2 = (float(v) for v in x[0:6])
-        s2, c2 = math.sin(q2), math.cos(q2)
-        b, bd = -self.e * s2, -self.e * c2
-        cp = math.cos(q1 + q2)
-        tau = ((self.a + 2 * b) * a1 + (self.c + b) * a2 + bd * (2 * dq1 * dq2 + dq2 * dq2)
-               - self.g1 * math.sin(q1) - self.g2 * cp,
-               (self.c + b) * a1 + self.c * a2 - bd * dq1 * dq1 - self.g2 * cp)
-        D = []
-        for i in range(2):
-            k_hi, k_soft, delta, t = self._k_hi[i], self._k_soft[i], self._delta[i], tau[i]
-            d = (t + math.copysign(k_soft * delta * math.tanh(abs(t) / (k_hi * delta)), t)) / k_hi
-            for _ in range(50):
-                f = k_hi * d - k_soft * delta * math.tanh(d / delta) - t
-                d -= f / (k_hi - k_soft * (1.0 - math.tanh(d / delta) ** 2))   # sech^2, no overflow
-                if abs(f) <= 1e-12 * max(1.0, abs(t)):
-                    break
-            D.append(d)
-        return tau, (D[0], D[1])
+        return specific_force_kernel(np.asarray(x, float)[0:6], self.constants)[1]
 
     def h_and_jacobian(self, x) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`h` and :meth:`jacobian` at ``x`` in one pass and in scalar arithmetic (one
-        torque and one spring inversion instead of two, no numpy call per entry: the filter
-        calls this once per update; the same numbers as :meth:`h` and :meth:`jacobian`)."""
-        L = self.layout
-        q1, q2, dq1, dq2, a1, a2 = (float(v) for v in x[0:6])
-        _, D = self._torque_deflection(x)
-        Jt = self._arm_torque_jacobian(q1, q2, dq1, dq2, a1, a2)
-        H = np.zeros((L.m, L.n))
-        y = np.empty(L.m)
-        for i in range(2):
-            k = self._k_hi[i] - self._k_soft[i] * (1.0 - math.tanh(D[i] / self._delta[i]) ** 2)
-            r, rk = self._r[i], self._r[i] / k
-            y[i] = r * ((q1, q2)[i] + D[i])
-            H[i, 0:6] = [rk * j for j in Jt[i]]
-            H[i, i] += r
-        if L.bias_m is not None:
-            y[0:2] += x[L.bias_m]
-            H[0:2, L.bias_m] = np.eye(2)
-        if L.use_accelerometer:
-            y[2:4] = self.specific_force(x)
-            H[2:4, 0:6] = self._specific_force_jacobian(q1, q2, dq1, dq2, a1)
-            if L.bias_acc is not None:
-                y[2:4] += x[L.bias_acc]
-                H[2:4, L.bias_acc] = np.eye(2)
-        return y, H
+        """:meth:`h` and :meth:`jacobian` at ``x`` in one compiled pass
+        (:func:`measurement_kernel`: one torque and one spring inversion instead of two; the
+        same numbers as :meth:`h` and :meth:`jacobian` to round-off)."""
+        return measurement_kernel(np.asarray(x, float), self.constants, *self.switches)
 
     # -- eq. 15
     def h(self, x) -> np.ndarray:
@@ -405,4 +462,5 @@ class MeasurementModel:
         return H
 
 
-__all__ = ["EkfAccelerometerParameters", "Layout", "MeasurementModel", "continuous_model", "transition_matrices", "process_noise", "measurement_noise", "initial_covariance", "Q_JERK_DEFAULT", "Q_", "DQ_", "DDQ_"]
+__all__ = ["EkfAccelerometerParameters", "Layout", "MeasurementModel", "continuous_model", "transition_matrices", "process_noise", "measurement_noise", "initial_covariance", "Q_JERK_DEFAULT", "Q_", "DQ_", "DDQ_",
+           "measurement_kernel", "spring_kernel", "specific_force_kernel", "arm_torque_jacobian_kernel"]

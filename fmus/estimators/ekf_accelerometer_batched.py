@@ -1,15 +1,14 @@
 """The EKF of Axelsson, Karlsson and Norrlöf (2012) for many runs at once: states ``(runs, n)``,
 covariances ``(runs, n, n)``, for the batched study engine (:mod:`orchestration.batched`).
 
-The model is :mod:`fmus.estimators.ekf_accelerometer_model` (eqs. 3, 12-19, 26), whose
-constants (``F``, ``G_u``, ``G_w Q G_w^T``, ``R``) are used as they are; this module only
-repeats its per-sample arithmetic with a leading run axis, so that each run's numbers are the
-single filter's (measured: bit for bit on the 2012 scenario; numpy's batched matrix products
-and solves call the same LAPACK/BLAS kernels per matrix). The measurement model over runs is
-:class:`~fmus.estimators.axelsson2012_batched.BatchedMeasurement`, the compiled one the
-particle filter uses over particles (each row the scalar model's numbers, bit for bit).
-:class:`BatchedEkfAccelerometer` repeats the FMU adapter (``ekf_accelerometer_fmu.py``) and its
-base :class:`~fmus.estimators.filter_adapter.FilterAdapter`: the same commit / predict /
+The filter is :mod:`fmus.estimators.ekf_accelerometer_model` (eqs. 3, 12-19, 26) run per run:
+:class:`BatchedEkfModel` loops over the runs with the single filter's own compiled kernels and
+constants, so each run's numbers are the single filter's, bit for bit. The measurement model
+over runs (for the Cramér-Rao bound) is
+:class:`~fmus.estimators.axelsson2012_batched.BatchedMeasurement`, the compiled one the particle
+filter uses over particles. :class:`BatchedEkfAccelerometer` repeats the FMU adapter
+(``ekf_accelerometer_fmu.py``) and its base
+:class:`~fmus.estimators.filter_adapter.FilterAdapter`: the same commit / predict /
 update order and the same sample-time rule.
 """
 from __future__ import annotations
@@ -21,17 +20,13 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from fmus.common.sample_time import TIME_TOL, UNSTAMPED, intervals, measurement_time
-from fmus.common.kalman import FilterDivergence
+from fmus.common.jit import kernel
+from fmus.common.kalman import OK, FilterDivergence, linear_time_update_kernel, raise_for
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators.axelsson2012_batched import BatchedMeasurement
 
 _TRIL = np.tril_indices(6)
-
-
-def _T(a: np.ndarray) -> np.ndarray:
-    """The transpose of each matrix of a stack."""
-    return np.swapaxes(a, -1, -2)
 
 
 class Estimate(NamedTuple):
@@ -43,11 +38,44 @@ class Estimate(NamedTuple):
     u: np.ndarray                # (runs, 2)
 
 
+@kernel
+def _filtered_runs(x: np.ndarray, P: np.ndarray, y: np.ndarray, R: np.ndarray, k: np.ndarray,
+                   use_accelerometer: bool, use_bias: bool) -> tuple:
+    """:func:`~fmus.estimators.ekf_accelerometer_model.filtered_kernel` for each run."""
+    xf, Pf = np.empty_like(x), np.empty_like(P)
+    nis, status = np.empty(x.shape[0]), np.empty(x.shape[0], np.int64)
+    for r in range(x.shape[0]):
+        xf[r], Pf[r], nis[r], status[r] = em.filtered_kernel(x[r], P[r], y[r], R, k, use_accelerometer,
+                                                             use_bias)
+    return xf, Pf, nis, status
+
+
+@kernel
+def _predicted_runs(x: np.ndarray, P: np.ndarray, F: np.ndarray, Gu: np.ndarray, u: np.ndarray,
+                    GQG: np.ndarray) -> tuple:
+    """:func:`fmus.common.kalman.linear_time_update_kernel` for each run (``GQG`` per run)."""
+    xp, Pp, status = np.empty_like(x), np.empty_like(P), np.empty(x.shape[0], np.int64)
+    for r in range(x.shape[0]):
+        xp[r], Pp[r], status[r] = linear_time_update_kernel(x[r], P[r], F, Gu, u[r], GQG[r], True)
+    return xp, Pp, status
+
+
+def _raise_for_runs(status: np.ndarray, where: str, P: np.ndarray) -> None:
+    """:func:`fmus.common.kalman.raise_for` of the first diverged run, naming every one (0-based)."""
+    bad = np.flatnonzero(status != OK)
+    if bad.size:
+        try:
+            raise_for(int(status[bad[0]]), where, P[bad[0]])
+        except FilterDivergence as e:
+            raise FilterDivergence(f"{e} (runs {bad.tolist()})") from None
+
+
 class BatchedEkfModel:
     """:class:`~fmus.estimators.ekf_accelerometer_model.EkfAccelerometerModel`'s ``filtered``
     and ``predicted`` (eq. 3) for many runs of one parameter set, or of parameter sets that
     differ only in the jerk noise ``q_jerk`` (``p`` one per run): each run's ``G_w Q G_w^T``
-    is its own single filter's."""
+    is its own single filter's. Each run goes through the single filter's compiled kernels, so
+    its numbers are the single filter's, bit for bit."""
 
     def __init__(self, p: am.EkfAccelerometerParameters | Sequence[am.EkfAccelerometerParameters]) -> None:
         per_run = [p] if isinstance(p, am.EkfAccelerometerParameters) else list(p)
@@ -56,76 +84,40 @@ class BatchedEkfModel:
             raise ValueError("the runs of one batched EKF may differ in q_jerk only")
         self.singles = {q.q_jerk: em.EkfAccelerometerModel(q) for q in per_run}
         self.single = self.singles[first.q_jerk]
-        self._q_jerk = [q.q_jerk for q in per_run] if len(self.singles) > 1 else None
+        self._q_jerk = [q.q_jerk for q in per_run]
         self.layout = self.single.layout
-        self.meas = BatchedMeasurement(self.single.meas)
         self._T: float | None = None
 
-    def _matrices(self, T: float) -> None:
-        if self._T != T:
+    def _matrices(self, T: float, runs: int) -> None:
+        if self._T != T or self.GQG.shape[0] != runs:
             for s in self.singles.values():
                 s._matrices(T)
             self.F, self.Gu = self.single.F, self.single.Gu
-            self.GQG = (self.single.GQG if self._q_jerk is None
-                        else np.stack([self.singles[q].GQG for q in self._q_jerk]))
+            if len(self.singles) == 1:
+                self.GQG = np.repeat(self.single.GQG[None], runs, axis=0)
+            else:
+                self.GQG = np.stack([self.singles[q].GQG for q in self._q_jerk])
             self._T = T
 
     def filtered(self, y: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Eq. 3b (Joseph form), as ``EkfAccelerometerModel.filtered``."""
-        R, n = self.single.R, self.layout.n
-        with np.errstate(all="ignore"):
-            hx, H = self.meas.h_and_jacobian(x)
-            nu = y - hx
-            S = H @ P @ _T(H) + R
-            Sc = _cholesky(S, "the measurement update: the innovation covariance is not positive definite")
-            PHt = P @ _T(H)
-            # Sc^-1 (H P | nu) in one call: the gain's columns come out as in the single filter,
-            # the normalised innovation z to round-off
-            W = np.linalg.solve(Sc, np.concatenate([_T(PHt), nu[:, :, None]], axis=2))
-            K = _T(np.linalg.solve(_T(Sc), W[:, :, :n]))
-            z = W[:, :, n]
-            xf = x + (K @ nu[:, :, None])[:, :, 0]
-            IKH = np.eye(n) - K @ H
-            Pf = IKH @ P @ _T(IKH) + K @ R @ _T(K)
-            Pf = 0.5 * (Pf + _T(Pf))
-        _check(xf, Pf, "measurement update")
-        return xf, Pf, np.sqrt(np.einsum("ri,ri->r", z, z))
+        """Eq. 3b, as ``EkfAccelerometerModel.filtered`` for each run (the rows of ``y``,
+        ``x``, ``P``): ``(x+, P+, normalised innovation norm)``."""
+        s = self.single
+        xf, Pf, nis, status = _filtered_runs(np.ascontiguousarray(x, float), np.ascontiguousarray(P, float),
+                                             np.ascontiguousarray(y, float), s.R, s.meas.constants,
+                                             *s.meas.switches)
+        _raise_for_runs(status, "EKF diverged in the measurement update", Pf)
+        return xf, Pf, np.sqrt(nis)
 
     def predicted(self, u: np.ndarray, T: float, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Eqs. 3a, 13, as ``EkfAccelerometerModel.predicted``."""
-        self._matrices(float(T))
-        with np.errstate(all="ignore"):
-            x = (self.F @ x[:, :, None])[:, :, 0] + (self.Gu @ np.asarray(u, float)[:, :, None])[:, :, 0]
-            P = self.F @ P @ self.F.T + self.GQG
-            P = 0.5 * (P + _T(P))
-        _check(x, P, "time update")
-        return x, P
-
-
-def _cholesky(A: np.ndarray, what: str) -> np.ndarray:
-    try:
-        return np.linalg.cholesky(A)
-    except np.linalg.LinAlgError:
-        raise FilterDivergence(f"EKF diverged in {what} (runs {_bad_runs(A)})") from None
-
-
-def _bad_runs(A: np.ndarray) -> list[int]:
-    bad = []
-    for r, a in enumerate(A):
-        try:
-            np.linalg.cholesky(a)
-        except np.linalg.LinAlgError:
-            bad.append(r)
-    return bad
-
-
-def _check(x: np.ndarray, P: np.ndarray, where: str) -> None:
-    """``ekf_accelerometer_model._check`` for every run; the error names the runs (0-based)."""
-    finite = np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
-    if not finite.all():
-        raise FilterDivergence(f"EKF diverged in the {where}: non-finite state or covariance "
-                                  f"(runs {np.flatnonzero(~finite).tolist()})")
-    _cholesky(P, f"the {where}: the covariance is not positive definite")
+        """Eqs. 3a, 13, as ``EkfAccelerometerModel.predicted`` for each run."""
+        runs = x.shape[0]
+        self._matrices(float(T), runs)
+        u = np.ascontiguousarray(np.broadcast_to(u, (runs, 2)), float)
+        xp, Pp, status = _predicted_runs(np.ascontiguousarray(x, float), np.ascontiguousarray(P, float),
+                                         self.F, self.Gu, u, self.GQG)
+        _raise_for_runs(status, "EKF diverged in the time update", Pp)
+        return xp, Pp
 
 
 def tool_position(q: np.ndarray, p) -> np.ndarray:

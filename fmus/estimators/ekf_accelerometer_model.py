@@ -11,13 +11,25 @@ import math
 import numpy as np
 
 from fmus.common import kinematics
-from fmus.common.kalman import FilterDivergence, check_estimate, cholesky_lower, solve
+from fmus.common.jit import kernel
+from fmus.common.kalman import FilterDivergence, linear_time_update, measurement_update_kernel, raise_for
 from fmus.estimators.axelsson2012_model import (Q_, EkfAccelerometerParameters, Layout, MeasurementModel,
-                                                initial_covariance, measurement_noise, process_noise,
-                                                transition_matrices)
+                                                initial_covariance, measurement_kernel, measurement_noise,
+                                                process_noise, transition_matrices)
 
 
-# ---- the filter (eq. 3) --------------------------------------------------------------------
+# ---- the filter (eq. 3), compiled ---------------------------------------------------------
+@kernel
+def filtered_kernel(x: np.ndarray, P: np.ndarray, y: np.ndarray, R: np.ndarray, k: np.ndarray,
+                    use_accelerometer: bool, use_bias: bool) -> tuple:
+    """Eq. 3b at the prior ``x, P`` for the measurement ``y`` with the noise ``R``: the model's
+    linearisation (:func:`~fmus.estimators.axelsson2012_model.measurement_kernel`, constants
+    ``k``, switches ``use_accelerometer`` and ``use_bias``) and the shared update
+    (:func:`fmus.common.kalman.measurement_update_kernel`): ``(x+, P+, nis, status)``."""
+    hx, H = measurement_kernel(x, k, use_accelerometer, use_bias)
+    return measurement_update_kernel(x, P, y - hx, H, R)
+
+
 class EkfAccelerometerModel:
     """The EKF of eq. 3 with the model of eqs. 12-19.
 
@@ -28,9 +40,10 @@ class EkfAccelerometerModel:
 
     Notes
     -----
-    Per sample: :meth:`update` with the measurement ``y_t`` gives ``x_{t|t}`` (eq. 3b, Joseph
-    form), then :meth:`predict` with the jerk reference ``u_t`` gives ``x_{t+1|t}`` (eq. 3a).
-    :meth:`filtered` computes the update without committing it (for an FMU's outputs).
+    Per sample: :meth:`update` with the measurement ``y_t`` gives ``x_{t|t}`` (eq. 3b, the
+    Joseph form of :mod:`fmus.common.kalman`), then :meth:`predict` with the jerk reference
+    ``u_t`` gives ``x_{t+1|t}`` (eq. 3a). :meth:`filtered` computes the update without
+    committing it (for an FMU's outputs). Both are compiled kernels.
     """
 
     def __init__(self, p: EkfAccelerometerParameters) -> None:
@@ -43,7 +56,6 @@ class EkfAccelerometerModel:
         self.x[Q_] = p.initial_angles()
         self.P = initial_covariance(p, self.layout)
         self._T: float | None = None
-        self._I = np.eye(self.layout.n)
         self.innovation_norm = 0.0
 
     def _matrices(self, T: float) -> None:
@@ -64,30 +76,15 @@ class EkfAccelerometerModel:
         Raises
         ------
         FilterDivergence
-            If the result is non-finite or its covariance not positive definite.
+            If the innovation covariance or the result's covariance is not positive definite,
+            or the result is not finite.
         """
         x = self.x if x is None else x
         P = self.P if P is None else P
-        with np.errstate(all="ignore"):      # non-finite results are caught by check_estimate
-            return self._filtered(np.asarray(y, float), x, P)
-
-    def _filtered(self, y: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        hx, H = self.meas.h_and_jacobian(x)
-        nu = y - hx
-        S = H @ P @ H.T + self.R
-        Sc = cholesky_lower(S)
-        if Sc is None:
-            raise FilterDivergence("EKF diverged in the measurement update: the innovation covariance "
-                                   "is not positive definite")
-        PHt = P @ H.T
-        K = solve(Sc.T, solve(Sc, PHt.T)).T
-        xf = x + K @ nu
-        IKH = self._I - K @ H
-        Pf = IKH @ P @ IKH.T + K @ self.R @ K.T      # Joseph form of P - K H P
-        Pf = 0.5 * (Pf + Pf.T)
-        z = solve(Sc, nu)
-        check_estimate(xf, Pf, "EKF diverged in the measurement update")
-        return xf, Pf, float(math.sqrt(z @ z))
+        xf, Pf, nis, status = filtered_kernel(np.asarray(x, float), np.asarray(P, float), np.asarray(y, float),
+                                              self.R, self.meas.constants, *self.meas.switches)
+        raise_for(status, "EKF diverged in the measurement update", Pf)
+        return xf, Pf, math.sqrt(nis)
 
     def update(self, y) -> np.ndarray:
         """Measurement update (eq. 3b) with the measurement ``y`` (eq. 15, as stacked by
@@ -104,15 +101,9 @@ class EkfAccelerometerModel:
     def predicted(self, u, T: float, x=None, P=None) -> tuple[np.ndarray, np.ndarray]:
         """``(x, P)`` predicted over ``T`` from ``x, P`` (default: the filter's own) with the
         jerk reference ``u`` held (eqs. 3a, 13), without committing it."""
-        x = self.x if x is None else x
-        P = self.P if P is None else P
         self._matrices(float(T))
-        with np.errstate(all="ignore"):      # non-finite results are caught by check_estimate
-            x = self.F @ x + self.Gu @ np.asarray(u, float)
-            P = self.F @ P @ self.F.T + self.GQG
-            P = 0.5 * (P + P.T)
-        check_estimate(x, P, "EKF diverged in the time update")
-        return x, P
+        return linear_time_update(self.x if x is None else x, self.P if P is None else P,
+                                  self.F, self.Gu, u, self.GQG)
 
     def tool_position(self, x=None) -> np.ndarray:
         """Tool position (world x, z) [m] from the arm angles of the state ``x`` (default: the
@@ -120,4 +111,4 @@ class EkfAccelerometerModel:
         return kinematics.tool_position((self.x if x is None else x)[Q_], self.meas.p)
 
 
-__all__ = ["EkfAccelerometerModel"]
+__all__ = ["EkfAccelerometerModel", "FilterDivergence", "filtered_kernel"]

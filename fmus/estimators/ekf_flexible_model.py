@@ -68,7 +68,8 @@ static and dynamic. ``estimate_stiffness`` adds the log stiffness factor state (
 ``tilt_stiffness``; 9 states); off by default, because the hammer strikes, which eq. 7
 cannot explain, move the factor.
 
-The filter (eqs. 4-5) uses the Joseph form of eq. 4b. Divergence (a non-finite state or a
+The filter (eqs. 4-5) is the shared Kalman update and time update of
+:mod:`fmus.common.kalman` (Joseph form of eq. 4b). Divergence (a non-finite state or a
 covariance that is not positive definite) raises :class:`FilterDivergence`.
 """
 from __future__ import annotations
@@ -80,7 +81,7 @@ import numpy as np
 
 from fmus.common import dynamics, kinematics
 from fmus.common.frames import rot_rpy
-from fmus.common.kalman import FilterDivergence, check_estimate
+from fmus.common.kalman import FilterDivergence, check_estimate, measurement_update, time_update
 from fmus.common.parameters import ParameterError, param, replace
 from fmus.common.robot_params import RobotAtInitialPose, RobotParameters
 from fmus.estimators.henriksson2009_model import FlexibleModel
@@ -329,7 +330,6 @@ class EkfFlexibleModel:
         elif variant == "integrated":
             r2 += [p.r_vel ** 2] * 2
         self.R = np.diag(r2)
-        self._rdiag = np.array(r2)
         self._mount = rot_rpy(p.mount_rpy)[[0, 2]] if variant != "motor" else None   # sensor -> tool x, z
         self.x = np.zeros(n)
         self.x[0:8] = dynamics.static_equilibrium(p.initial_angles(), self.robot)
@@ -576,23 +576,8 @@ class EkfFlexibleModel:
                 aux = (phi, fx, fz)
             hx += (vx, vz)
         nu = np.array(y) - np.array(hx)
-        PHt = P @ H.T
-        S = H @ PHt + self.R
-        Sc, info = dpotrf(S, lower=1, clean=0)
-        if info != 0:
-            raise FilterDivergence("EKF diverged in the measurement update: the innovation covariance "
-                                   "is not positive definite")
-        KT = dpotrs(Sc, PHt.T, lower=1)[0]            # S^-1 H P = K^T (eq. 5c)
-        K = KT.T
-        xf = x0 + K @ nu
-        IKH = self._I - K @ H
-        Pf = IKH @ P @ IKH.T + (K * self._rdiag) @ KT   # Joseph form of eq. 4b (R diagonal)
-        Pf = 0.5 * (Pf + Pf.T)
-        check_estimate(xf, Pf, "EKF diverged in the measurement update")
-        nnu = math.sqrt(abs(float(nu @ dpotrs(Sc, nu, lower=1)[0])))
-        if not math.isfinite(nnu):
-            raise FilterDivergence("EKF diverged in the measurement update: the innovation is not finite")
-        return Filtered(xf, Pf, nnu, u, v_int, a_w, aux)
+        xf, Pf, nis = measurement_update(x0, P, nu, H, self.R)        # eq. 4 (fmus.common.kalman)
+        return Filtered(xf, Pf, math.sqrt(nis), u, v_int, a_w, aux)
 
     def commit(self, r: Filtered) -> np.ndarray:
         """Make the :meth:`filtered` result ``r`` the current estimate ``x_{k|k}``; returns it."""
@@ -613,11 +598,9 @@ class EkfFlexibleModel:
         T = float(T)
         with np.errstate(all="ignore"):
             x, A = self._dynamics(self.x, u, T, self._aux)
-            P = A @ self.P @ A.T
-            P[np.diag_indices(self.n)] += T * self._wq
-            P = 0.5 * (P + P.T)
         # A P A^T + Q is positive definite if P is: finiteness suffices here (the measurement
         # update checks definiteness)
+        P = time_update(A, self.P, self.process_noise(T), definite=False)
         check_estimate(x, P, "EKF diverged in the time update", definite=False)
         self.x, self.P, self._T = x, P, T
         self._started = True

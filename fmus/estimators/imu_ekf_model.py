@@ -14,6 +14,9 @@ of the 21-dimensional error ``(dp, dv, da, dtheta, dw, db_acc, db_gyr)`` with th
 orientation ``q = q_hat ⊗ exp(dtheta)``; after each update the error is injected into the
 nominal state and reset to zero.
 
+The update and the time update of the covariance are the shared ones of
+:mod:`fmus.common.kalman` (Joseph form, Cholesky-factored innovation covariance).
+
 Time update over ``T`` (exact for the model)::
 
     p += T v + T^2/2 a,  v += T a,  q = q ⊗ exp(w T),
@@ -44,7 +47,7 @@ import numpy as np
 
 from fmus.common import quaternion as qt
 from fmus.common.frames import G, RigidMount, rot_rpy
-from fmus.common.kalman import FilterDivergence, check_estimate
+from fmus.common.kalman import measurement_update, time_update
 from fmus.common.parameters import ParameterError, param
 
 PAPER = "IMU paper (CF vs EKF on an IRB4600), section 4.2"
@@ -123,7 +126,7 @@ class ImuEkfModel:
         self._dt = None
         self._Q = None
         self._F = np.eye(N)
-        self._I = np.eye(N)
+        self._zero = np.zeros(N)
         I3 = np.eye(3)
         self._H = np.zeros((12, N))          # the constant blocks; rows 6-8 are set per update
         self._H[0:3, P_] = I3
@@ -190,12 +193,12 @@ class ImuEkfModel:
             self._F[V_, A_] = dt * I3
             self._F[TH, W_] = dt * I3
         dq = qt.from_rotation_vector(self.w * dt)
+        F = self._F
+        F[TH, TH] = qt.to_matrix(dq).T
+        self.P = time_update(F, self.P, self._Q, definite=False)     # first: raises before any change
         self.p = self.p + dt * self.v + (0.5 * dt * dt) * self.a
         self.v = self.v + dt * self.a
         self.q = qt.normalise(qt.multiply(self.q, dq))
-        F = self._F
-        F[TH, TH] = qt.to_matrix(dq).T
-        self.P = F @ self.P @ F.T + self._Q
 
     def update(self, p_tool_fk, q_tool_fk, acc_s, gyro_s) -> None:
         """Measurement update with the kinematic pose ``p_tool_fk``, ``q_tool_fk`` and the IMU
@@ -211,21 +214,8 @@ class ImuEkfModel:
         H = self._H
         H[6:9, A_] = Rt
         H[6:9, TH] = qt.skew(f_hat)
-        PHt = self.P @ H.T
-        S = H @ PHt + self.R
-        try:
-            S_inv = np.linalg.inv(S)
-        except np.linalg.LinAlgError:
-            raise FilterDivergence("the innovation covariance is singular") from None
-        K = PHt @ S_inv
-        dx = K @ r
-        self.nis = float(r @ S_inv @ r)
-        if not self.nis >= 0.0:
-            raise FilterDivergence("the innovation covariance is not positive definite "
-                                   f"(normalised innovation squared {self.nis:g})")
-        IKH = self._I - K @ H
-        self.P = IKH @ self.P @ IKH.T + K @ self.R @ K.T
-        self.P = 0.5 * (self.P + self.P.T)
+        # the error state starts at zero: x+ is the correction to inject
+        dx, self.P, self.nis = measurement_update(self._zero, self.P, r, H, self.R)
         self.p = self.p + dx[P_]
         self.v = self.v + dx[V_]
         self.a = self.a + dx[A_]
@@ -233,7 +223,6 @@ class ImuEkfModel:
         self.w = self.w + dx[W_]
         self.b_acc = self.b_acc + dx[BA]
         self.b_gyro = self.b_gyro + dx[BG]
-        check_estimate(np.concatenate([self.p, self.q]), self.P, "EKF diverged in the measurement update")
 
     def step(self, p_tool_fk, q_tool_fk, acc_s, gyro_s, dt: float) -> None:
         """Predict over ``dt`` [s] and update with the sample at its end (``p_tool_fk``,

@@ -525,7 +525,7 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
 
 __all__ = ["StudyError", "RunArrays", "simulate", "open_executor", "ProcessPool", "map_jobs",
            "StudyFolder", "study_folder", "unrecorded", "require_recorded", "StudyInterrupted", "WorkerLost", "add_executor_arguments",
-           "dataclass_from_scalars"]
+           "dataclass_from_scalars", "check_against_fmus", "CHECK_RTOL"]
 
 
 def dataclass_from_scalars(cls: type, scalars: dict[str, Any]) -> Any:
@@ -546,3 +546,49 @@ def dataclass_from_scalars(cls: type, scalars: dict[str, Any]) -> Any:
                 vals[i - 1] = v
             kw[f.name] = tuple(vals)
     return cls(**kw)
+
+
+# ---------------------------------------------------------------------------------------------
+# the batched engine's check
+# ---------------------------------------------------------------------------------------------
+#: The relative difference allowed between a run on the batched engine
+#: (:mod:`orchestration.batched`) and the same run through the FMUs.
+CHECK_RTOL = 1e-12
+
+
+def check_against_fmus(batched: dict[str, Any] | None, fmu: dict[str, Any] | None, what: str,
+                       rtol: float = CHECK_RTOL) -> float:
+    """The largest relative difference ``max|a - b| / max|b|`` between the quantities of a run
+    on the batched engine and of the same run through the FMUs (``{name: array or number}``,
+    the same names; None: the run failed): the check every study on the batched engine makes.
+
+    Raises
+    ------
+    StudyError
+        Naming ``what`` (the run: its seed, case or candidate), the quantity, the difference and
+        the values where it is largest, if one exceeds ``rtol``, has another shape, or the run
+        fails on one path only.
+    """
+    import numpy as np
+
+    def stop(why: str) -> StudyError:
+        return StudyError(f"batched engine against the FMUs, {what}: {why}; rerun with --engine fmu")
+
+    if batched is None or fmu is None:
+        if (batched is None) != (fmu is None):
+            raise stop(f"the run fails on the {'batched engine' if batched is None else 'FMUs'} only")
+        return 0.0
+    if set(batched) != set(fmu):
+        raise stop(f"other quantities ({', '.join(sorted(set(batched) ^ set(fmu)))})")
+    worst = 0.0
+    for name in fmu:
+        a, b = np.asarray(batched[name], float), np.asarray(fmu[name], float)
+        if a.shape != b.shape:
+            raise stop(f"{name} has shape {a.shape}, not {b.shape}")
+        d = float(np.max(np.abs(a - b), initial=0.0) / max(float(np.max(np.abs(b), initial=0.0)), 1e-300))
+        if not d <= rtol:
+            i = np.unravel_index(int(np.argmax(np.nan_to_num(np.abs(a - b), nan=np.inf))), a.shape)
+            raise stop(f"{name} differs by {d:.3g} relative (batched {a[i]:.17g}, FMUs {b[i]:.17g}; "
+                       f"allowed {rtol:g})")
+        worst = max(worst, d)
+    return worst

@@ -64,7 +64,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from .scenario import connection_key, copy_document, toml_value
-from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
+from .study import (CHECK_RTOL, StudyError, add_executor_arguments, check_against_fmus, map_jobs, open_executor,
+                    simulate)
 
 #: Default search ranges per estimator FMU type (model identifier), used when no --param is
 #: given. The observer: four pole pairs (Hz, damping), section III-C-2. The EKFs: the five
@@ -93,7 +94,6 @@ ENGINES = ("batched", "fmu")
 #: Candidates of the first population also run through the FMUs on the batched engine, and the
 #: relative difference allowed (as for the Monte Carlo study's checked seeds).
 CHECK_CANDIDATES = 2
-CHECK_RTOL = 1e-12
 
 
 @dataclass
@@ -416,43 +416,14 @@ def _done(fn: Any, *args: Any) -> Future:
     return f
 
 
-def _relative(a: Any, b: Any) -> float:
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    return float(np.max(np.abs(a - b), initial=0.0) / max(float(np.max(np.abs(b), initial=0.0)), 1e-300))
-
-
-def check_against_fmus(batched: tuple | None, fmu: tuple | None, what: str, after: float, metric: str,
-                       rtol: float = CHECK_RTOL) -> float:
-    """The largest relative difference between a candidate's ``(time, estimate, truth)`` on the
-    batched engine and through the FMUs (None: the run failed), and between its costs.
-
-    Raises
-    ------
-    StudyError
-        Naming ``what`` (the candidate and seed), the quantity and the difference, if one
-        exceeds ``rtol`` or the run fails on one path only.
-    """
-    if batched is None or fmu is None:
-        if (batched is None) != (fmu is None):
-            raise StudyError(f"batched engine against the FMUs, {what}: the run fails on the "
-                             f"{'batched engine' if batched is None else 'FMUs'} only; rerun with --engine fmu")
-        return 0.0
-    quantities = {"time": (batched[0], fmu[0]), "estimate": (batched[1], fmu[1]), "truth": (batched[2], fmu[2]),
-                  "cost": (cost_of(*batched, after, metric), cost_of(*fmu, after, metric))}
-    worst = 0.0
-    for name, (a, b) in quantities.items():
-        a, b = np.asarray(a, float), np.asarray(b, float)
-        if a.shape != b.shape:
-            raise StudyError(f"batched engine against the FMUs, {what}: the {name} has shape {a.shape}, "
-                             f"not {b.shape}; rerun with --engine fmu")
-        d = _relative(a, b)
-        if not d <= rtol:
-            i = np.unravel_index(int(np.nanargmax(np.abs(a - b))) if a.size else 0, a.shape)
-            raise StudyError(f"batched engine against the FMUs, {what}: the {name} differs by {d:.3g} "
-                             f"relative (batched {a[i]:.17g}, FMUs {b[i]:.17g}; allowed {rtol:g}); "
-                             "rerun with --engine fmu")
-        worst = max(worst, d)
-    return worst
+def checked_quantities(run: tuple | None, after: float, metric: str) -> dict[str, Any] | None:
+    """What :func:`orchestration.study.check_against_fmus` compares of a candidate's run
+    ``(time, estimate, truth)`` (None: it failed) on the batched engine and through the FMUs:
+    the three and the cost."""
+    if run is None:
+        return None
+    return {"the time": run[0], "the estimate": run[1], "the truth": run[2],
+            "the cost": cost_of(*run, after, metric)}
 
 
 class _BatchedEngine:
@@ -527,7 +498,8 @@ class _BatchedEngine:
             own = list(candidates[i][len(o.base_overrides):])
             seed = "the scenario's seed" if seeds[0] is None else f"seed {seeds[0]}"
             what = f"candidate {i + 1} ({', '.join(c.split('.', 1)[1] for c in own)}) on {seed}"
-            d = check_against_fmus(kept[i], f.result(), what, o.after, o.metric)
+            d = check_against_fmus(checked_quantities(kept[i], o.after, o.metric),
+                                   checked_quantities(f.result(), o.after, o.metric), what)
             self.checked.append({"candidate": i + 1, "overrides": own, "seed": seeds[0],
                                  "max_relative_difference": d})
         return [float(np.mean([per_seed[s][i] for s in seeds])) for i in range(n)]
@@ -865,6 +837,6 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=main)
 
 
-__all__ = ["tune", "TuneResult", "write_include", "evaluate", "cost_of", "check_against_fmus", "ENGINES",
+__all__ = ["tune", "TuneResult", "write_include", "evaluate", "cost_of", "checked_quantities", "ENGINES",
            "CHECK_CANDIDATES", "CHECK_RTOL", "prune", "load_document",
            "default_bounds", "sensor_floors", "parameter_value", "parse_seeds", "DEFAULT_BOUNDS", "register", "PENALTY"]

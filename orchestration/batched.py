@@ -676,4 +676,49 @@ def simulate_runs(scenario: str | Path | dict | Scenario, runs: Sequence[Sequenc
     return BatchedRuns(scenario, runs, record, no_loop, tape=tape, replay=replay).run()
 
 
-__all__ = ["BatchError", "BatchResult", "BatchedRuns", "KERNELS", "Tape", "simulate_runs", "fmu_class"]
+def not_ours(sc: Scenario) -> list[str]:
+    """The components of ``sc`` the engine would run with the wrong math: their FMU file is
+    not in our FMU folder (:func:`orchestration.scenario.fmu_dir`, where a model identifier is
+    looked up), so it is someone else's FMU even if its model identifier is one of ours; as
+    ``"'name' (ModelIdentifier)"``. A study runs the FMUs when there is one."""
+    from .scenario import fmu_dir
+    ours = fmu_dir().resolve()
+    return [f"'{n}' ({c.model_identifier})" for n, c in sc.components.items() if c.fmu.resolve().parent != ours]
+
+
+def run_recorded(scenario: str | Path | dict, runs: Sequence[Sequence[str]], variables: Sequence[str], *,
+                 tape: bool = False, replay: Tape | None = None) -> tuple[list[dict[str, Any]], Tape | None]:
+    """The runs together, each as the FMU path gives it (:func:`orchestration.study.simulate`
+    with ``variables``): ``{"time", var: values at the recorded rows (every ``record_every``
+    base steps from t = 0; a scalar 1-D, a vector (rows, size)), "wall_time": the engine's
+    shared out over the runs}``; and the tape of the shared components (``tape=True``, else
+    None). A job for a study's executor (module level: it pickles).
+
+    Raises
+    ------
+    BatchError
+        The engine cannot run these (use the FMUs).
+    RunError
+        A component failed, or a recorded value is not finite (where the master stops a run).
+    """
+    prepared = BatchedRuns(scenario, runs, {v: None for v in variables}, tape=tape, replay=replay)
+    res = prepared.run()
+    every = prepared.scenario.record_every
+    time = res.time[::every]
+    out = []
+    for r in range(res.runs):
+        run: dict[str, Any] = {"time": time, "wall_time": res.wall_time / res.runs}
+        for var in variables:
+            v = res.values[var]
+            v = v[r if v.shape[0] > 1 else 0, ::every]
+            scalar = prepared.wanted[var] == [var.split(".", 1)[1]]
+            run[var] = v[:, 0].copy() if scalar else v.copy()
+            if not np.all(np.isfinite(v)):
+                t = float(time[np.flatnonzero(~np.all(np.isfinite(v.reshape(len(time), -1)), axis=1))[0]])
+                raise RunError(f"run {r}: {var} is not finite at t = {t:.6g} s", t, var.split(".", 1)[0])
+        out.append(run)
+    return out, res.tape
+
+
+__all__ = ["BatchError", "BatchResult", "BatchedRuns", "KERNELS", "Tape", "simulate_runs", "run_recorded", "not_ours",
+           "fmu_class"]

@@ -401,6 +401,19 @@ def study_folder(path: str | Path, *, resume: bool = False, command: str = "") -
 # ---------------------------------------------------------------------------------------------
 # running the jobs
 # ---------------------------------------------------------------------------------------------
+def submit(executor: Executor | None, fn: Callable[..., Any], *args: Any) -> Future:
+    """``executor.submit(fn, *args)``; without an executor ``fn(*args)`` run here, as a finished
+    Future (its ``result()`` raises what ``fn`` raised, as from a worker)."""
+    if executor is not None:
+        return executor.submit(fn, *args)
+    f: Future = Future()
+    try:
+        f.set_result(fn(*args))
+    except Exception as exc:  # noqa: BLE001 - raised again by result()
+        f.set_exception(exc)
+    return f
+
+
 class WorkerLost(RuntimeError):
     """The worker process running a job died (killed by a signal, out of memory, os._exit)."""
 
@@ -525,7 +538,7 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
 
 __all__ = ["StudyError", "RunArrays", "simulate", "open_executor", "ProcessPool", "map_jobs",
            "StudyFolder", "study_folder", "unrecorded", "require_recorded", "StudyInterrupted", "WorkerLost", "add_executor_arguments",
-           "dataclass_from_scalars", "check_against_fmus", "CHECK_RTOL"]
+           "dataclass_from_scalars", "check_against_fmus", "CHECK_RTOL", "submit"]
 
 
 def dataclass_from_scalars(cls: type, scalars: dict[str, Any]) -> Any:

@@ -65,7 +65,7 @@ import numpy as np
 
 from .scenario import connection_key, copy_document, toml_value
 from .study import (CHECK_RTOL, StudyError, add_executor_arguments, check_against_fmus, map_jobs, open_executor,
-                    simulate)
+                    simulate, submit)
 
 #: Default search ranges per estimator FMU type (model identifier), used when no --param is
 #: given. The observer: four pole pairs (Hz, damping), section III-C-2. The EKFs: the five
@@ -406,16 +406,6 @@ def _candidates_job(doc: dict[str, Any], tape: Any, runs: Sequence[Sequence[str]
     return costs, {i: trajectories[i] for i in keep}
 
 
-def _done(fn: Any, *args: Any) -> Future:
-    """``fn(*args)`` run here, as a finished Future (the engine without an executor)."""
-    f: Future = Future()
-    try:
-        f.set_result(fn(*args))
-    except Exception as exc:  # noqa: BLE001 - raised again by result(), as from a worker
-        f.set_exception(exc)
-    return f
-
-
 def checked_quantities(run: tuple | None, after: float, metric: str) -> dict[str, Any] | None:
     """What :func:`orchestration.study.check_against_fmus` compares of a candidate's run
     ``(time, estimate, truth)`` (None: it failed) on the batched engine and through the FMUs:
@@ -457,7 +447,7 @@ class _BatchedEngine:
         self.checked: list[dict[str, Any]] = []
 
     def _submit(self, fn: Any, *args: Any) -> Future:
-        return _done(fn, *args) if self.executor is None else self.executor.submit(fn, *args)
+        return submit(self.executor, fn, *args)
 
     def own_cost(self, seeds: Sequence[int | None]) -> float:
         """The scenario's own values: mean cost over ``seeds`` (taped ones)."""

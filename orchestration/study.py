@@ -100,6 +100,14 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Overrides = (),
     return run
 
 
+def simulate_recorded(scenario: str | Path | dict[str, Any], overrides: Overrides, variables: Sequence[str]
+                      ) -> dict[str, Any]:
+    """:func:`simulate` as a study's job result: ``{"time", "wall_time", variable: values}``
+    (the form :func:`orchestration.batched.run_recorded` gives a run on the batched engine in)."""
+    r = simulate(scenario, overrides, variables)
+    return {"time": r.time, "wall_time": r.wall_time, **{v: r[v] for v in variables}}
+
+
 def unrecorded(sc: Any, variables: Iterable[str]) -> list[str]:
     """The whole variables (``comp.var``) among ``variables`` that the loaded scenario ``sc``
     does not record, sorted."""
@@ -538,7 +546,7 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
 
 __all__ = ["StudyError", "RunArrays", "simulate", "open_executor", "ProcessPool", "map_jobs",
            "StudyFolder", "study_folder", "unrecorded", "require_recorded", "StudyInterrupted", "WorkerLost", "add_executor_arguments",
-           "dataclass_from_scalars", "check_against_fmus", "CHECK_RTOL", "submit"]
+           "dataclass_from_scalars", "check_against_fmus", "compare_checks", "simulate_recorded", "CHECK_RTOL", "submit"]
 
 
 def dataclass_from_scalars(cls: type, scalars: dict[str, Any]) -> Any:
@@ -604,4 +612,27 @@ def check_against_fmus(batched: dict[str, Any] | None, fmu: dict[str, Any] | Non
             raise stop(f"{name} differs by {d:.3g} relative (batched {a[i]:.17g}, FMUs {b[i]:.17g}; "
                        f"allowed {rtol:g})")
         worst = max(worst, d)
+    return worst
+
+
+def compare_checks(checks: dict[str, Future], batched: dict[str, dict[str, Any]], rtol: float = CHECK_RTOL) -> float:
+    """Wait for each FMU check run ``checks[what]`` (a Future of ``{name: values}``) and compare
+    it with the same run on the batched engine, ``batched[what]``, by :func:`check_against_fmus`
+    (every series but ``wall_time``); the largest relative difference.
+
+    Raises
+    ------
+    StudyError
+        A check run failed, or differs (naming ``what``).
+    """
+    def series(run: dict[str, Any]) -> dict[str, Any]:
+        return {k: v for k, v in run.items() if k != "wall_time"}
+
+    worst = 0.0
+    for what, fut in checks.items():
+        try:
+            fmu = fut.result()
+        except Exception as exc:  # noqa: BLE001 - reported with its run
+            raise StudyError(f"the FMU check run of {what} failed: {type(exc).__name__}: {exc}") from None
+        worst = max(worst, check_against_fmus(series(batched[what]), series(fmu), what, rtol))
     return worst

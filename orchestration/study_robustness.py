@@ -72,7 +72,7 @@ import numpy as np
 
 from .metrics import bandpass
 from .scenario import copy_document
-from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate, submit
+from .study import StudyError, add_executor_arguments, compare_checks, map_jobs, open_executor, simulate_recorded, submit
 from .study_montecarlo import PLANT_FMU
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
@@ -272,10 +272,7 @@ def case_jobs(tuned: Sequence[str | Path] = (), stop_time: float | None = None,
 
 def _run_case(job: tuple[dict[str, Any], list[str], list[str]]) -> dict[str, Any]:
     """One case through the FMUs: ``{"time", "wall_time", variable: values}``."""
-    doc, overrides, variables = job
-    run = simulate(doc, overrides, variables=variables)
-    return {"time": run.time, "wall_time": run.wall_time,
-            **{v: run[v] for v in variables}}
+    return simulate_recorded(*job)
 
 
 def _batched_case(job: tuple[dict[str, Any], list[str], list[str]], tape: bool, replay: Any = None
@@ -302,7 +299,7 @@ def _cases_batched(run: Sequence[tuple[tuple[str, str, str, str], Any]], executo
     """
     from .batched import not_ours
     from .scenario import load_scenario
-    from .study import check_against_fmus, CHECK_RTOL
+    from .study import CHECK_RTOL
     jobs = [job for _, job in run]
     keys = [case[0] for case, _ in run]
     foreign = list(dict.fromkeys(x for doc, overrides, _ in jobs for x in not_ours(load_scenario(doc, overrides))))
@@ -319,7 +316,7 @@ def _cases_batched(run: Sequence[tuple[tuple[str, str, str, str], Any]], executo
     picks = (taped[:1] + replayed[:1] + [i for i in range(len(run)) if i not in taped[:1] + replayed[:1]])
     picks = sorted(picks[:check_cases])
 
-    checks = {i: submit(executor, _run_case, jobs[i]) for i in picks}
+    checks = {f"case '{keys[i]}'": submit(executor, _run_case, jobs[i]) for i in picks}
 
     def phase(idx: list[int], tapes: dict[str, Any] | None) -> list[tuple[dict[str, Any], Any]]:
         calls = [(jobs[i], tapes is None, None if tapes is None else tapes[run[i][0][2]]) for i in idx]
@@ -333,21 +330,10 @@ def _cases_batched(run: Sequence[tuple[tuple[str, str, str, str], Any]], executo
         results[i], tapes[run[i][0][2]] = res, tape
     for i, (res, _) in zip(replayed, phase(replayed, tapes)):
         results[i] = res
-    worst = 0.0
-    for i in picks:
-        try:
-            fmu = checks[i].result()
-        except Exception as exc:  # noqa: BLE001 - reported with its case
-            raise StudyError(f"the FMU check run of case '{keys[i]}' failed: {type(exc).__name__}: {exc}") from None
-        worst = max(worst, check_against_fmus(_checked(results[i]), _checked(fmu), f"case '{keys[i]}'"))
+    worst = compare_checks(checks, {f"case '{keys[i]}'": results[i] for i in picks})
     return results, {"used": "batched", "taped": [keys[i] for i in taped], "replayed": [keys[i] for i in replayed],
                      "checked_cases": [keys[i] for i in picks], "check_rtol": CHECK_RTOL,
                      "max_relative_difference": worst}
-
-
-def _checked(result: dict[str, Any]) -> dict[str, Any]:
-    """What the FMU check compares of a case: every recorded series and the time."""
-    return {k: v for k, v in result.items() if k != "wall_time"}
 
 
 def _cases_fmu(jobs: Sequence[Any], executor: Executor | None, progress: bool) -> list[dict[str, Any]]:

@@ -276,19 +276,13 @@ def _run_batched(doc: dict[str, Any], jobs: Sequence[tuple], ex: Any, progress: 
     variables = jobs[0][2]
     n = len(jobs)
     picks = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(check_runs, n))})
-    checks = {i: ex.submit(run_job, *jobs[i]) for i in picks}
+    checks = {f"run {' '.join(jobs[i][1])}": ex.submit(run_job, *jobs[i]) for i in picks}
     workers = getattr(ex, "max_workers", None) or 1
     groups = [g for g in np.array_split(np.arange(n), min(workers, n)) if len(g)]
     parts = study.map_jobs(batched_job, [(doc, tuple(jobs[i][1] for i in g), variables) for g in groups], ex,
                            desc="sweep (batched)", progress=progress, star=True)
     results = [r for part in parts for r in part]
-    worst = 0.0
-    for i in picks:
-        try:
-            fmu = checks[i].result()
-        except Exception as exc:  # noqa: BLE001 - reported with its run
-            raise StudyError(f"the FMU check run {' '.join(jobs[i][1])} failed: {type(exc).__name__}: {exc}") from None
-        worst = max(worst, study.check_against_fmus(results[i], fmu, f"run {' '.join(jobs[i][1])}"))
+    worst = study.compare_checks(checks, {f"run {' '.join(jobs[i][1])}": results[i] for i in picks})
     return results, {"used": "batched", "groups": len(groups), "checked_runs": [list(jobs[i][1]) for i in picks],
                      "check_rtol": study.CHECK_RTOL, "max_relative_difference": worst}
 

@@ -360,22 +360,21 @@ def _trajectories(prepared: Any, res: Any, estimate: str, truth: str) -> list[tu
 
 
 def _tape_job(doc: dict[str, Any], overrides: Sequence[str], estimate: str, truth: str, after: float,
-              metric: str) -> tuple[Any, float]:
+              metric: str) -> tuple[Any, float | str]:
     """One run of the scenario's own values on the batched engine, kept as a tape (one run
-    shares every component): the :class:`~orchestration.batched.Tape` and the run's cost.
-
-    Raises
-    ------
-    BatchError
-        The engine cannot run the scenario, or the scenario's own values fail (no tape).
-    """
+    shares every component): the :class:`~orchestration.batched.Tape` and the run's cost; or
+    ``(None, why)`` when the engine cannot run the scenario or its own values fail (no tape:
+    the tuning runs on the FMUs; a value, not an exception, so that it reaches the tuner from
+    a worker of :func:`~orchestration.study.map_jobs` as it is)."""
     from .batched import BatchedRuns, BatchError
     from .master import RunError
-    prepared = BatchedRuns(doc, [list(overrides)], {estimate: None, truth: None}, tape=True)
     try:
+        prepared = BatchedRuns(doc, [list(overrides)], {estimate: None, truth: None}, tape=True)
         res = prepared.run()
+    except BatchError as exc:
+        return None, str(exc)
     except RunError as exc:
-        raise BatchError(f"the scenario's own values fail ({exc}): there is no run to replay") from None
+        return None, f"the scenario's own values fail ({exc}): there is no run to replay"
     return res.tape, cost_of(*_trajectories(prepared, res, estimate, truth)[0], after, metric)
 
 
@@ -423,9 +422,11 @@ class _BatchedEngine:
     seed's run of the scenario's own values is simulated once and kept as a tape
     (:func:`_tape_job`; its cost is the scenario's own cost on that seed), and every candidate
     runs on the tape in the co-simulation's schedule (:func:`_candidates_job`), a population
-    split into one job per worker and seed. In the first population, ``check`` candidates also
-    run through the FMUs on the first seed, at the same time on the executor
-    (:func:`check_against_fmus`: the study stops if they differ).
+    split into one job per worker and seed. The jobs go through
+    :func:`orchestration.study.map_jobs` (kept in the study folder, a lost worker's job retried).
+    In the first population, ``check`` candidates also run through the FMUs on the first seed,
+    at the same time on the executor (:func:`orchestration.study.check_against_fmus`: the study
+    stops if they differ).
 
     Raises
     ------
@@ -439,15 +440,25 @@ class _BatchedEngine:
         workers = getattr(executor, "max_workers", None) or (1 if executor is None else os.cpu_count() or 1)
         self.chunks = max(1, int(workers))
         o = objective
-        futures = {s: self._submit(_tape_job, o.doc, _seeded(o.base_overrides, s), o.estimate, o.truth,
-                                   o.after, o.metric) for s in seeds}
-        done = {s: f.result() for s, f in futures.items()}        # a BatchError here: use the FMUs
+        done = dict(zip(seeds, self._map(_tape_job, [(o.doc, _seeded(o.base_overrides, s), o.estimate, o.truth,
+                                                      o.after, o.metric) for s in seeds])))
+        from .batched import BatchError
+        for tape, why in done.values():
+            if tape is None:
+                raise BatchError(why)                      # use the FMUs
         self.tapes = {s: d[0] for s, d in done.items()}
         self.own_costs = {s: d[1] for s, d in done.items()}
         self.checked: list[dict[str, Any]] = []
 
     def _submit(self, fn: Any, *args: Any) -> Future:
         return submit(self.executor, fn, *args)
+
+    def _map(self, fn: Any, jobs: Sequence[tuple]) -> list[Any]:
+        """``fn(*job)`` for every job: through :func:`orchestration.study.map_jobs` on the
+        executor, or here without one."""
+        if self.executor is None:
+            return [fn(*job) for job in jobs]
+        return map_jobs(fn, list(jobs), self.executor, progress=False, star=True)
 
     def own_cost(self, seeds: Sequence[int | None]) -> float:
         """The scenario's own values: mean cost over ``seeds`` (taped ones)."""
@@ -462,25 +473,25 @@ class _BatchedEngine:
         StudyError
             A checked candidate differs from the FMUs, or the engine fails.
         """
-        from .batched import BatchError
         o, n = self.objective, len(candidates)
         n_check = 0 if self.checked else min(self.check, n)
         checks = [self._submit(_fmu_trajectory, o.doc, _seeded(candidates[i], seeds[0]), o.estimate, o.truth)
                   for i in range(n_check)]
-        jobs = []
+        parts, jobs = [], []
         for s in seeds:
             runs = [_seeded(c, s) for c in candidates]
             for chunk in np.array_split(np.arange(n), min(self.chunks, n)):
                 keep = [j for j, i in enumerate(chunk) if i < n_check and s == seeds[0]]
-                jobs.append((s, chunk, self._submit(_candidates_job, o.doc, self.tapes[s], [runs[i] for i in chunk],
-                                                    o.estimate, o.truth, o.after, o.metric, keep)))
+                parts.append((s, chunk))
+                jobs.append((o.doc, self.tapes[s], [runs[i] for i in chunk], o.estimate, o.truth, o.after,
+                             o.metric, keep))
+        try:
+            done = self._map(_candidates_job, jobs)
+        except Exception as exc:  # noqa: BLE001 - a BatchError in a job, named by map_jobs
+            raise StudyError(f"batched engine: {exc}; rerun with --engine fmu") from None
         per_seed = {s: [PENALTY] * n for s in seeds}
         kept: dict[int, Any] = {}
-        for s, chunk, f in jobs:
-            try:
-                costs, trajectories = f.result()
-            except BatchError as exc:
-                raise StudyError(f"batched engine: {exc}; rerun with --engine fmu") from None
+        for (s, chunk), (costs, trajectories) in zip(parts, done):
             for j, i in enumerate(chunk):
                 per_seed[s][int(i)] = costs[j]
             kept.update({int(chunk[j]): tr for j, tr in trajectories.items()})

@@ -676,14 +676,18 @@ def simulate_runs(scenario: str | Path | dict | Scenario, runs: Sequence[Sequenc
     return BatchedRuns(scenario, runs, record, no_loop, tape=tape, replay=replay).run()
 
 
-def not_ours(sc: Scenario) -> list[str]:
-    """The components of ``sc`` the engine would run with the wrong math: their FMU file is
-    not in our FMU folder (:func:`orchestration.scenario.fmu_dir`, where a model identifier is
-    looked up), so it is someone else's FMU even if its model identifier is one of ours; as
-    ``"'name' (ModelIdentifier)"``. A study runs the FMUs when there is one."""
+def not_ours(scenarios: Sequence[Scenario]) -> str | None:
+    """Why the engine must not run ``scenarios``: components it would run with the wrong math,
+    their FMU file not in our FMU folder (:func:`orchestration.scenario.fmu_dir`, where a model
+    identifier is looked up), so someone else's FMU even if its model identifier is one of
+    ours; None when every component is ours. A study then runs the FMUs and prints the reason."""
     from .scenario import fmu_dir
     ours = fmu_dir().resolve()
-    return [f"'{n}' ({c.model_identifier})" for n, c in sc.components.items() if c.fmu.resolve().parent != ours]
+    foreign = list(dict.fromkeys(f"'{n}' ({c.model_identifier})" for sc in scenarios
+                                 for n, c in sc.components.items() if c.fmu.resolve().parent != ours))
+    if not foreign:
+        return None
+    return f"the batched engine knows only the math of our FMUs, and {', '.join(foreign)} is not one of them"
 
 
 def run_recorded(scenario: str | Path | dict, runs: Sequence[Sequence[str]], variables: Sequence[str], *,

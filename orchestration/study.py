@@ -546,7 +546,8 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
 
 __all__ = ["StudyError", "RunArrays", "simulate", "open_executor", "ProcessPool", "map_jobs",
            "StudyFolder", "study_folder", "unrecorded", "require_recorded", "StudyInterrupted", "WorkerLost", "add_executor_arguments",
-           "dataclass_from_scalars", "check_against_fmus", "compare_checks", "simulate_recorded", "CHECK_RTOL", "submit"]
+           "dataclass_from_scalars", "check_against_fmus", "compare_checks", "simulate_recorded", "CHECK_RTOL", "ENGINES",
+           "check_engine", "check_picks", "submit"]
 
 
 def dataclass_from_scalars(cls: type, scalars: dict[str, Any]) -> Any:
@@ -575,6 +576,25 @@ def dataclass_from_scalars(cls: type, scalars: dict[str, Any]) -> Any:
 #: The relative difference allowed between a run on the batched engine
 #: (:mod:`orchestration.batched`) and the same run through the FMUs.
 CHECK_RTOL = 1e-12
+#: A study's engines (``--engine``): the batched engine with a few runs checked through the
+#: FMUs, or one co-simulation of the FMUs per run.
+ENGINES = ("batched", "fmu")
+
+
+def check_engine(engine: str, checks: int, option: str) -> None:
+    """:class:`StudyError` for an unknown ``--engine`` or a negative number of runs to check
+    (``option``, e.g. ``--check-runs``)."""
+    if engine not in ENGINES:
+        raise StudyError(f"--engine must be one of {', '.join(ENGINES)}, not {engine!r}")
+    if checks < 0:
+        raise StudyError(f"{option} must not be negative, not {checks}")
+
+
+def check_picks(n: int, k: int) -> list[int]:
+    """``k`` of ``n`` runs (their indices), spread evenly over them, first and last included:
+    the runs a study checks through the FMUs."""
+    import numpy as np
+    return sorted({int(round(i)) for i in np.linspace(0, n - 1, min(k, n))}) if n else []
 
 
 def check_against_fmus(batched: dict[str, Any] | None, fmu: dict[str, Any] | None, what: str,

@@ -53,6 +53,7 @@ from fmus.common.parameters import replace
 from fmus.force_observer import impedance_math as imp
 from orchestration.metrics import rmse
 from orchestration.results import json_safe
+from orchestration.study import ENGINES
 
 REPO = Path(__file__).resolve().parent.parent
 SCENARIOS = REPO / "orchestration" / "scenarios"
@@ -445,9 +446,7 @@ STRUCTURES = imp.STRUCTURES
 MASS_ERRORS = (0.0, 0.02, 0.05)
 STABLE_STD = 0.10        # a stationary contact varies less than this fraction of its mean force
 
-#: Engines of the cases (as the other studies'), and the cases checked through the FMUs on the
-#: batched engine.
-ENGINES = ("batched", "fmu")
+#: Cases checked through the FMUs on the batched engine.
 CHECK_CASES = 2
 
 
@@ -590,12 +589,9 @@ def run_study(out_dir: Path, overrides: tuple[str, ...] = (), workers: int | Non
     """
     import time
 
-    from orchestration.study import StudyError, map_jobs, open_executor, simulate_recorded
+    from orchestration.study import check_engine, map_jobs, open_executor, simulate_recorded
 
-    if engine not in ENGINES:
-        raise StudyError(f"--engine must be one of {', '.join(ENGINES)}, not {engine!r}")
-    if check_cases < 0:
-        raise StudyError(f"--check-cases must not be negative, not {check_cases}")
+    check_engine(engine, check_cases, "--check-cases")
     cases = study_cases(tuple(structures), tuple(mass_errors), tuple(overrides), rigid_tool)
     jobs = [(str(SCENARIO_FILES[fb]), ov, RECORDED) for fb, ov in cases.values()]
     n_workers = workers or 2
@@ -641,18 +637,17 @@ def _run_batched(keys: list[str], jobs: list[tuple[str, tuple[str, ...], tuple[s
 
     from orchestration.batched import not_ours, run_recorded
     from orchestration.scenario import load_scenario
-    from orchestration.study import CHECK_RTOL, compare_checks, map_jobs, simulate_recorded
+    from orchestration.study import CHECK_RTOL, check_picks, compare_checks, map_jobs, simulate_recorded
 
     files = list(dict.fromkeys(path for path, _, _ in jobs))
-    foreign = list(dict.fromkeys(x for path in files for x in not_ours(load_scenario(path, jobs[0][1]))))
-    if foreign:
-        reason = (f"the batched engine knows only the math of our FMUs, and {', '.join(foreign)} is not one of "
-                  "them: every case runs through the FMUs")
+    reason = not_ours([load_scenario(path, jobs[0][1]) for path in files])
+    if reason:
+        reason += ": every case runs through the FMUs"
         print(f"contact: {reason}", file=sys.stderr)
         return (map_jobs(simulate_recorded, jobs, ex, desc="contact", progress=progress, star=True),
                 {"used": "fmu", "fallback": reason})
     n = len(jobs)
-    picks = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(check_cases, n))})
+    picks = check_picks(n, check_cases)
     checks = {f"case '{keys[i]}'": ex.submit(simulate_recorded, *jobs[i]) for i in picks}
     members = {path: [i for i, job in enumerate(jobs) if job[0] == path] for path in files}
     parts = map_jobs(run_recorded, [(path, [jobs[i][1] for i in idx], RECORDED) for path, idx in members.items()],

@@ -72,7 +72,8 @@ import numpy as np
 
 from .metrics import bandpass
 from .scenario import copy_document
-from .study import StudyError, add_executor_arguments, compare_checks, map_jobs, open_executor, simulate_recorded, submit
+from .study import (ENGINES, StudyError, add_executor_arguments, check_engine, compare_checks, map_jobs,
+                    open_executor, simulate_recorded, submit)
 from .study_montecarlo import PLANT_FMU
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
@@ -95,9 +96,7 @@ IDENT_ERROR = 0.05
 IDENT_SIGN_SEED = 2009
 #: The model errors of the cases (factors on :data:`MODEL_SET`: :func:`model_error_factors`).
 MODEL_ERRORS = ("stiffness_50", "stiffness_50_joint2", "ident_5")
-#: Engines of the cases (as the Monte Carlo study's), and the cases checked through the FMUs
-#: on the batched engine.
-ENGINES = ("batched", "fmu")
+#: Cases checked through the FMUs on the batched engine.
 CHECK_CASES = 2
 
 #: Estimator FMU types and their column labels (the paper's names where it has them).
@@ -302,10 +301,9 @@ def _cases_batched(run: Sequence[tuple[tuple[str, str, str, str], Any]], executo
     from .study import CHECK_RTOL
     jobs = [job for _, job in run]
     keys = [case[0] for case, _ in run]
-    foreign = list(dict.fromkeys(x for doc, overrides, _ in jobs for x in not_ours(load_scenario(doc, overrides))))
-    if foreign:
-        reason = (f"the batched engine knows only the math of our FMUs, and {', '.join(foreign)} is not one "
-                  "of them: every case runs through the FMUs")
+    reason = not_ours([load_scenario(doc, overrides) for doc, overrides, _ in jobs])
+    if reason:
+        reason += ": every case runs through the FMUs"
         print(f"robustness: {reason}", file=sys.stderr)
         return _cases_fmu(jobs, executor, progress), {"used": "fmu", "fallback": reason}
     first: dict[str, int] = {}                   # scenario file -> its taped case
@@ -375,10 +373,7 @@ def robustness(tuned: Sequence[str | Path] = (), *, executor: Executor | None = 
     co-simulation per case); ``"engine"`` in the table says what ran."""
     from .metrics import max_error, rmse
     from .study_sweep import ARM_TRUTH
-    if engine not in ENGINES:
-        raise StudyError(f"--engine must be one of {', '.join(ENGINES)}, not {engine!r}")
-    if check_cases < 0:
-        raise StudyError(f"--check-cases must not be negative, not {check_cases}")
+    check_engine(engine, check_cases, "--check-cases")
     if stop_time is not None and stop_time <= after:
         raise StudyError(f"--stop-time {stop_time:g} s leaves nothing after the first {after:g} s "
                          "the errors leave out")

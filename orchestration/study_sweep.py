@@ -60,12 +60,10 @@ from . import study
 from .metrics import chi2_band, max_error, monte_carlo_consistency, nees, nis, rmse
 from .results import json_safe
 from .safe_io import atomic_write_json
-from .study import StudyError
+from .study import ENGINES, StudyError
 
 NEES_DOF = 2                 # the arm angles q_a (the first 2 states of the contract's P_x)
-#: Engines of the runs (as the Monte Carlo study's), and the runs checked through the FMUs on
-#: the batched engine.
-ENGINES = ("batched", "fmu")
+#: Runs checked through the FMUs on the batched engine.
 CHECK_RUNS = 2
 #: The contract's optional arm estimates, each judged against the truth component's variable of
 #: the same name without ``_hat`` (the plant's outputs, a log's truth columns): (truth, unit).
@@ -275,7 +273,7 @@ def _run_batched(doc: dict[str, Any], jobs: Sequence[tuple], ex: Any, progress: 
     same time, which must agree to :data:`orchestration.study.CHECK_RTOL`."""
     variables = jobs[0][2]
     n = len(jobs)
-    picks = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(check_runs, n))})
+    picks = study.check_picks(n, check_runs)
     checks = {f"run {' '.join(jobs[i][1])}": ex.submit(run_job, *jobs[i]) for i in picks}
     workers = getattr(ex, "max_workers", None) or 1
     groups = [g for g in np.array_split(np.arange(n), min(workers, n)) if len(g)]
@@ -360,10 +358,7 @@ def run_study(scenario: str | Path, estimators: Sequence[str], out: str | Path, 
 
     if runs < 1:
         raise StudyError(f"--runs must be at least 1, not {runs}")
-    if engine not in ENGINES:
-        raise StudyError(f"--engine must be one of {', '.join(ENGINES)}, not {engine!r}")
-    if check_runs < 0:
-        raise StudyError(f"--check-runs must not be negative, not {check_runs}")
+    study.check_engine(engine, check_runs, "--check-runs")
     doc, gives = prepare(scenario, estimators, truth, overrides, nis_dof)
     points = sweep_points(grid, lhs, samples, lhs_seed)
     sets = [tuple(f"{k}={toml_value(v)}" for k, v in p.items()) for p in points]
@@ -373,12 +368,10 @@ def run_study(scenario: str | Path, estimators: Sequence[str], out: str | Path, 
     seeds = list(range(first_seed, first_seed + runs))
     jobs = [(doc, point_set + (f"scenario.seed={s}",), variables) for point_set in sets for s in seeds]
     engine_info: dict[str, Any] = {"used": "fmu"}
-    foreign = not_ours(load_scenario(doc)) if engine == "batched" else []
+    foreign = not_ours([load_scenario(doc)]) if engine == "batched" else None
     if foreign:
-        reason = (f"the batched engine knows only the math of our FMUs, and {', '.join(foreign)} is not one of "
-                  "them: every run goes through the FMUs")
-        print(f"sweep: {reason}", file=sys.stderr)
-        engine_info["fallback"] = reason
+        engine_info["fallback"] = foreign + ": every run goes through the FMUs"
+        print(f"sweep: {engine_info['fallback']}", file=sys.stderr)
     with study.open_executor(workers, scheduler) as ex:
         if engine == "batched" and not foreign:
             results, engine_info = _run_batched(doc, jobs, ex, progress, check_runs)

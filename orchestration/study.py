@@ -635,10 +635,13 @@ def check_against_fmus(batched: dict[str, Any] | None, fmu: dict[str, Any] | Non
     return worst
 
 
-def compare_checks(checks: dict[str, Future], batched: dict[str, dict[str, Any]], rtol: float = CHECK_RTOL) -> float:
-    """Wait for each FMU check run ``checks[what]`` (a Future of ``{name: values}``) and compare
-    it with the same run on the batched engine, ``batched[what]``, by :func:`check_against_fmus`
-    (every series but ``wall_time``); the largest relative difference.
+def compare_checks(checks: dict[str, Future], batched: dict[str, dict[str, Any]],
+                   quantities: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
+                   rtol: float = CHECK_RTOL) -> float:
+    """Wait for each FMU check run ``checks[what]`` (a Future of a run's result) and compare it
+    with the same run on the batched engine, ``batched[what]``, by :func:`check_against_fmus`:
+    the ``quantities`` of each (default: every series but ``wall_time``); the largest relative
+    difference.
 
     Raises
     ------
@@ -646,7 +649,7 @@ def compare_checks(checks: dict[str, Future], batched: dict[str, dict[str, Any]]
         A check run failed, or differs (naming ``what``).
     """
     def series(run: dict[str, Any]) -> dict[str, Any]:
-        return {k: v for k, v in run.items() if k != "wall_time"}
+        return quantities(run) if quantities else {k: v for k, v in run.items() if k != "wall_time"}
 
     worst = 0.0
     for what, fut in checks.items():

@@ -341,22 +341,15 @@ def _run_jobs(engine: str, jobs: list[tuple], seeds: list[int], check_seeds: int
             print(f"montecarlo: {reason}", file=sys.stderr)
             info, results = _run_jobs("fmu", jobs, seeds, 0, ex, progress, desc)
             return dict(info, fallback=reason), results
-        picks = sorted({int(round(i)) for i in np.linspace(0, len(seeds) - 1, min(check_seeds, len(seeds)))})
+        picks = study.check_picks(len(seeds), check_seeds)
         # the checks run on the executor while the batched engine runs here
-        checks = {seeds[i]: ex.submit(run_one, *jobs[i]) for i in picks}
+        checks = {f"seed {seeds[i]}": ex.submit(run_one, *jobs[i]) for i in picks}
         try:
             results, res = _batched_results(prepared, filters, plant)
         except RunError as exc:
             raise study.StudyError(f"batched engine: {exc}") from None
-        worst = 0.0
-        for i in picks:
-            try:
-                fmu = checks[seeds[i]].result()
-            except Exception as exc:  # noqa: BLE001 - reported with its seed
-                raise study.StudyError(f"the FMU check run of seed {seeds[i]} failed: "
-                                       f"{type(exc).__name__}: {exc}") from None
-            worst = max(worst, study.check_against_fmus(checked_quantities(results[i], filters),
-                                                        checked_quantities(fmu, filters), f"seed {seeds[i]}"))
+        worst = study.compare_checks(checks, {f"seed {seeds[i]}": results[i] for i in picks},
+                                     lambda run: checked_quantities(run, filters))
         return ({"used": "batched", "checked_seeds": [seeds[i] for i in picks], "check_rtol": CHECK_RTOL,
                  "max_relative_difference": worst, "shared": res.shared, "batched": res.batched,
                  "looped": res.looped, "engine_wall_time_s": res.wall_time}, results)

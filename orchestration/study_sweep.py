@@ -48,6 +48,7 @@ from __future__ import annotations
 import argparse
 import csv
 import itertools
+import os
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -275,7 +276,7 @@ def _run_batched(doc: dict[str, Any], jobs: Sequence[tuple], ex: Any, progress: 
     n = len(jobs)
     picks = study.check_picks(n, check_runs)
     checks = {f"run {' '.join(jobs[i][1])}": ex.submit(run_job, *jobs[i]) for i in picks}
-    workers = getattr(ex, "max_workers", None) or 1
+    workers = getattr(ex, "max_workers", None) or os.cpu_count() or 1      # a Dask client has none
     groups = [g for g in np.array_split(np.arange(n), min(workers, n)) if len(g)]
     parts = study.map_jobs(batched_job, [(doc, tuple(jobs[i][1] for i in g), variables) for g in groups], ex,
                            desc="sweep (batched)", progress=progress, star=True)

@@ -676,4 +676,53 @@ def simulate_runs(scenario: str | Path | dict | Scenario, runs: Sequence[Sequenc
     return BatchedRuns(scenario, runs, record, no_loop, tape=tape, replay=replay).run()
 
 
-__all__ = ["BatchError", "BatchResult", "BatchedRuns", "KERNELS", "Tape", "simulate_runs", "fmu_class"]
+def not_ours(scenarios: Sequence[Scenario]) -> str | None:
+    """Why the engine must not run ``scenarios``: components it would run with the wrong math,
+    their FMU file not in our FMU folder (:func:`orchestration.scenario.fmu_dir`, where a model
+    identifier is looked up), so someone else's FMU even if its model identifier is one of
+    ours; None when every component is ours. A study then runs the FMUs and prints the reason."""
+    from .scenario import fmu_dir
+    ours = fmu_dir().resolve()
+    foreign = list(dict.fromkeys(f"'{n}' ({c.model_identifier})" for sc in scenarios
+                                 for n, c in sc.components.items() if c.fmu.resolve().parent != ours))
+    if not foreign:
+        return None
+    return f"the batched engine knows only the math of our FMUs, and {', '.join(foreign)} is not one of them"
+
+
+def run_recorded(scenario: str | Path | dict, runs: Sequence[Sequence[str]], variables: Sequence[str], *,
+                 tape: bool = False, replay: Tape | None = None) -> tuple[list[dict[str, Any]], Tape | None]:
+    """The runs together, each as the FMU path gives it (:func:`orchestration.study.simulate`
+    with ``variables``): ``{"time", var: values at the recorded rows (every ``record_every``
+    base steps from t = 0; a scalar 1-D, a vector (rows, size)), "wall_time": the engine's
+    shared out over the runs}``; and the tape of the shared components (``tape=True``, else
+    None). A job for a study's executor (module level: it pickles).
+
+    Raises
+    ------
+    BatchError
+        The engine cannot run these (use the FMUs).
+    RunError
+        A component failed, or a recorded value is not finite (where the master stops a run).
+    """
+    prepared = BatchedRuns(scenario, runs, {v: None for v in variables}, tape=tape, replay=replay)
+    res = prepared.run()
+    every = prepared.scenario.record_every
+    time = res.time[::every]
+    out = []
+    for r in range(res.runs):
+        run: dict[str, Any] = {"time": time, "wall_time": res.wall_time / res.runs}
+        for var in variables:
+            v = res.values[var]
+            v = v[r if v.shape[0] > 1 else 0, ::every]
+            scalar = prepared.wanted[var] == [var.split(".", 1)[1]]
+            run[var] = v[:, 0].copy() if scalar else v.copy()
+            if not np.all(np.isfinite(v)):
+                t = float(time[np.flatnonzero(~np.all(np.isfinite(v.reshape(len(time), -1)), axis=1))[0]])
+                raise RunError(f"run {r}: {var} is not finite at t = {t:.6g} s", t, var.split(".", 1)[0])
+        out.append(run)
+    return out, res.tape
+
+
+__all__ = ["BatchError", "BatchResult", "BatchedRuns", "KERNELS", "Tape", "simulate_runs", "run_recorded", "not_ours",
+           "fmu_class"]

@@ -100,6 +100,14 @@ def simulate(scenario: str | Path | dict[str, Any], overrides: Overrides = (),
     return run
 
 
+def simulate_recorded(scenario: str | Path | dict[str, Any], overrides: Overrides, variables: Sequence[str]
+                      ) -> dict[str, Any]:
+    """:func:`simulate` as a study's job result: ``{"time", "wall_time", variable: values}``
+    (the form :func:`orchestration.batched.run_recorded` gives a run on the batched engine in)."""
+    r = simulate(scenario, overrides, variables)
+    return {"time": r.time, "wall_time": r.wall_time, **{v: r[v] for v in variables}}
+
+
 def unrecorded(sc: Any, variables: Iterable[str]) -> list[str]:
     """The whole variables (``comp.var``) among ``variables`` that the loaded scenario ``sc``
     does not record, sorted."""
@@ -401,6 +409,19 @@ def study_folder(path: str | Path, *, resume: bool = False, command: str = "") -
 # ---------------------------------------------------------------------------------------------
 # running the jobs
 # ---------------------------------------------------------------------------------------------
+def submit(executor: Executor | None, fn: Callable[..., Any], *args: Any) -> Future:
+    """``executor.submit(fn, *args)``; without an executor ``fn(*args)`` run here, as a finished
+    Future (its ``result()`` raises what ``fn`` raised, as from a worker)."""
+    if executor is not None:
+        return executor.submit(fn, *args)
+    f: Future = Future()
+    try:
+        f.set_result(fn(*args))
+    except Exception as exc:  # noqa: BLE001 - raised again by result()
+        f.set_exception(exc)
+    return f
+
+
 class WorkerLost(RuntimeError):
     """The worker process running a job died (killed by a signal, out of memory, os._exit)."""
 
@@ -525,7 +546,8 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
 
 __all__ = ["StudyError", "RunArrays", "simulate", "open_executor", "ProcessPool", "map_jobs",
            "StudyFolder", "study_folder", "unrecorded", "require_recorded", "StudyInterrupted", "WorkerLost", "add_executor_arguments",
-           "dataclass_from_scalars"]
+           "dataclass_from_scalars", "check_against_fmus", "compare_checks", "simulate_recorded", "CHECK_RTOL", "ENGINES",
+           "check_engine", "check_picks", "submit"]
 
 
 def dataclass_from_scalars(cls: type, scalars: dict[str, Any]) -> Any:
@@ -546,3 +568,94 @@ def dataclass_from_scalars(cls: type, scalars: dict[str, Any]) -> Any:
                 vals[i - 1] = v
             kw[f.name] = tuple(vals)
     return cls(**kw)
+
+
+# ---------------------------------------------------------------------------------------------
+# the batched engine's check
+# ---------------------------------------------------------------------------------------------
+#: The relative difference allowed between a run on the batched engine
+#: (:mod:`orchestration.batched`) and the same run through the FMUs.
+CHECK_RTOL = 1e-12
+#: A study's engines (``--engine``): the batched engine with a few runs checked through the
+#: FMUs, or one co-simulation of the FMUs per run.
+ENGINES = ("batched", "fmu")
+
+
+def check_engine(engine: str, checks: int, option: str) -> None:
+    """:class:`StudyError` for an unknown ``--engine`` or a negative number of runs to check
+    (``option``, e.g. ``--check-runs``)."""
+    if engine not in ENGINES:
+        raise StudyError(f"--engine must be one of {', '.join(ENGINES)}, not {engine!r}")
+    if checks < 0:
+        raise StudyError(f"{option} must not be negative, not {checks}")
+
+
+def check_picks(n: int, k: int) -> list[int]:
+    """``k`` of ``n`` runs (their indices), spread evenly over them, first and last included:
+    the runs a study checks through the FMUs."""
+    import numpy as np
+    return sorted({int(round(i)) for i in np.linspace(0, n - 1, min(k, n))}) if n else []
+
+
+def check_against_fmus(batched: dict[str, Any] | None, fmu: dict[str, Any] | None, what: str,
+                       rtol: float = CHECK_RTOL) -> float:
+    """The largest relative difference ``max|a - b| / max|b|`` between the quantities of a run
+    on the batched engine and of the same run through the FMUs (``{name: array or number}``,
+    the same names; None: the run failed): the check every study on the batched engine makes.
+
+    Raises
+    ------
+    StudyError
+        Naming ``what`` (the run: its seed, case or candidate), the quantity, the difference and
+        the values where it is largest, if one exceeds ``rtol``, has another shape, or the run
+        fails on one path only.
+    """
+    import numpy as np
+
+    def stop(why: str) -> StudyError:
+        return StudyError(f"batched engine against the FMUs, {what}: {why}; rerun with --engine fmu")
+
+    if batched is None or fmu is None:
+        if (batched is None) != (fmu is None):
+            raise stop(f"the run fails on the {'batched engine' if batched is None else 'FMUs'} only")
+        return 0.0
+    if set(batched) != set(fmu):
+        raise stop(f"other quantities ({', '.join(sorted(set(batched) ^ set(fmu)))})")
+    worst = 0.0
+    for name in fmu:
+        a, b = np.asarray(batched[name], float), np.asarray(fmu[name], float)
+        if a.shape != b.shape:
+            raise stop(f"{name} has shape {a.shape}, not {b.shape}")
+        d = float(np.max(np.abs(a - b), initial=0.0) / max(float(np.max(np.abs(b), initial=0.0)), 1e-300))
+        if not d <= rtol:
+            i = np.unravel_index(int(np.argmax(np.nan_to_num(np.abs(a - b), nan=np.inf))), a.shape)
+            raise stop(f"{name} differs by {d:.3g} relative (batched {a[i]:.17g}, FMUs {b[i]:.17g}; "
+                       f"allowed {rtol:g})")
+        worst = max(worst, d)
+    return worst
+
+
+def compare_checks(checks: dict[str, Future], batched: dict[str, dict[str, Any]],
+                   quantities: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
+                   rtol: float = CHECK_RTOL) -> float:
+    """Wait for each FMU check run ``checks[what]`` (a Future of a run's result) and compare it
+    with the same run on the batched engine, ``batched[what]``, by :func:`check_against_fmus`:
+    the ``quantities`` of each (default: every series but ``wall_time``); the largest relative
+    difference.
+
+    Raises
+    ------
+    StudyError
+        A check run failed, or differs (naming ``what``).
+    """
+    def series(run: dict[str, Any]) -> dict[str, Any]:
+        return quantities(run) if quantities else {k: v for k, v in run.items() if k != "wall_time"}
+
+    worst = 0.0
+    for what, fut in checks.items():
+        try:
+            fmu = fut.result()
+        except Exception as exc:  # noqa: BLE001 - reported with its run
+            raise StudyError(f"the FMU check run of {what} failed: {type(exc).__name__}: {exc}") from None
+        worst = max(worst, check_against_fmus(series(batched[what]), series(fmu), what, rtol))
+    return worst

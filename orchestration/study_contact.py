@@ -9,7 +9,9 @@ ours (``structure = "integral"``, a labelled variant), each with the ForceObserv
 with the raw wrist-sensor reading in the loop, with the observer's tool mass 0, 2 and 5 % above
 the true one. Per case: stability, overshoot, contact losses, the free-space ratio and the
 stationary contact; then ``findings``, each claim of the paper with our number, reproduced yes
-or no and why.
+or no and why. The cases run on the batched engine by default (``--engine batched|fmu``: the
+cases of each scenario file together without FMI, two checked through the FMUs to 1e-12;
+:func:`_run_batched`).
 
 This module holds
 
@@ -51,6 +53,7 @@ from fmus.common.parameters import replace
 from fmus.force_observer import impedance_math as imp
 from orchestration.metrics import rmse
 from orchestration.results import json_safe
+from orchestration.study import ENGINES
 
 REPO = Path(__file__).resolve().parent.parent
 SCENARIOS = REPO / "orchestration" / "scenarios"
@@ -362,8 +365,8 @@ def contact_motion_window(path: Path) -> tuple[float, float]:
 
 def series_from_run(run: Any, feedback: str) -> dict[str, np.ndarray]:
     """The series of :func:`contact_metrics` / :func:`plot_contact` from a contact scenario run
-    (an :class:`orchestration.results.Result`)."""
-    return dict(t=np.asarray(run.time), F_true=-np.asarray(run["contact.f_ext"]),
+    (an :class:`orchestration.results.Result`, or a study's ``{"time", variable: values}``)."""
+    return dict(t=np.asarray(run["time"]), F_true=-np.asarray(run["contact.f_ext"]),
                 F_hat=np.asarray(run["observer.f_contact_hat"]), F_raw=np.asarray(run["observer.f_raw"]),
                 F_fb=np.asarray(run[FEEDBACK[feedback]]), p_tool=np.asarray(run["plant.p_tool"]),
                 p_ref=np.asarray(run["path.p_ref"]), a_meas=np.asarray(run["observer.a_meas"]),
@@ -442,6 +445,9 @@ PAPER_VALUES = {
 STRUCTURES = imp.STRUCTURES
 MASS_ERRORS = (0.0, 0.02, 0.05)
 STABLE_STD = 0.10        # a stationary contact varies less than this fraction of its mean force
+
+#: Cases checked through the FMUs on the batched engine.
+CHECK_CASES = 2
 
 
 def true_tool_mass(overrides: tuple[str, ...] = ()) -> float:
@@ -571,35 +577,42 @@ def findings(cases: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
 def run_study(out_dir: Path, overrides: tuple[str, ...] = (), workers: int | None = None,
               scheduler: str | None = None, progress: bool = True, compliant: bool = True,
               plots: bool = True, structures: tuple[str, ...] = STRUCTURES,
-              mass_errors: tuple[float, ...] = MASS_ERRORS, rigid_tool: bool = True) -> dict[str, Any]:
+              mass_errors: tuple[float, ...] = MASS_ERRORS, rigid_tool: bool = True,
+              engine: str = "batched", check_cases: int = CHECK_CASES) -> dict[str, Any]:
     """Run every case of :func:`study_cases` (in parallel), write ``metrics.json`` (``cases``,
-    ``findings``, ``wall_time``) and Figs. 6-8 of the paper's controller with the exact tool
-    mass (observer and raw) into ``out_dir``.
+    ``findings``, ``wall_time``, ``engine``) and Figs. 6-8 of the paper's controller with the
+    exact tool mass (observer and raw) into ``out_dir``.
 
     ``overrides`` apply to every run. With ``compliant``, the one-axis rigid vs compliant tool
-    comparison (:func:`compliant_tool_study`) is added under ``compliant_tool``.
+    comparison (:func:`compliant_tool_study`) is added under ``compliant_tool``. ``engine``:
+    ``"batched"`` (default, :func:`_run_batched`) or ``"fmu"`` (one co-simulation per case).
     """
     import time
 
-    from orchestration.study import map_jobs, open_executor, simulate
+    from orchestration.study import check_engine, map_jobs, open_executor, simulate_recorded
 
+    check_engine(engine, check_cases, "--check-cases")
     cases = study_cases(tuple(structures), tuple(mass_errors), tuple(overrides), rigid_tool)
     jobs = [(str(SCENARIO_FILES[fb]), ov, RECORDED) for fb, ov in cases.values()]
     n_workers = workers or 2
     t0 = time.perf_counter()
     with open_executor(workers=n_workers, scheduler=scheduler) as ex:
-        results = map_jobs(simulate, jobs, ex, desc="contact", progress=progress, star=True)
+        if engine == "batched":
+            results, engine_info = _run_batched(list(cases), jobs, ex, progress, check_cases)
+        else:
+            results = map_jobs(simulate_recorded, jobs, ex, desc="contact", progress=progress, star=True)
+            engine_info = {"used": "fmu"}
     wall = time.perf_counter() - t0
     setup = scenario_setup(SCENARIO_FILES["observer"], tuple(overrides))
     series = {k: series_from_run(r, fb) for (k, (fb, _)), r in zip(cases.items(), results)}
     per_case = {k: case_metrics(s, setup) for k, s in series.items()}
     for k, r in zip(cases, results):
-        per_case[k]["run_wall_time_s"] = r.wall_time
+        per_case[k]["run_wall_time_s"] = r["wall_time"]
     metrics: dict[str, Any] = {
         "setup": _setup_json(setup), "true_tool_mass": true_tool_mass(tuple(overrides)),
         "paper": PAPER_VALUES, "cases": per_case, "findings": findings(per_case),
         "wall_time": {"total_s": wall, "workers": n_workers, "runs": len(jobs)},
-        "overrides": list(overrides)}
+        "engine": engine_info, "overrides": list(overrides)}
     if compliant:
         metrics["compliant_tool"] = compliant_tool_study()
     out_dir = Path(out_dir)
@@ -609,6 +622,43 @@ def run_study(out_dir: Path, overrides: tuple[str, ...] = (), workers: int | Non
         metrics["figures"] = [f.name for f in plot_contact(main, setup, out_dir)]
     (out_dir / "metrics.json").write_text(json.dumps(json_safe(metrics), indent=2) + "\n")
     return metrics
+
+
+def _run_batched(keys: list[str], jobs: list[tuple[str, tuple[str, ...], tuple[str, ...]]], ex: Any,
+                 progress: bool, check_cases: int) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Every case on the batched engine (:func:`orchestration.batched.run_recorded`): the cases
+    of one scenario file together, one job per file through :func:`orchestration.study.map_jobs`.
+    Every case changes the closed loop (the controller's structure, the observer's tool mass),
+    so each runs its own component instances, without FMI; what the cases share (the path) runs
+    once. ``check_cases`` cases (spread over them) also run through the FMUs at the same time and
+    must agree to :data:`orchestration.study.CHECK_RTOL`. A scenario with an FMU that is not
+    ours runs on the FMUs (``fallback``)."""
+    import sys
+
+    from orchestration.batched import not_ours, run_recorded
+    from orchestration.scenario import load_scenario
+    from orchestration.study import CHECK_RTOL, check_picks, compare_checks, map_jobs, simulate_recorded
+
+    files = list(dict.fromkeys(path for path, _, _ in jobs))
+    reason = not_ours([load_scenario(path, jobs[0][1]) for path in files])
+    if reason:
+        reason += ": every case runs through the FMUs"
+        print(f"contact: {reason}", file=sys.stderr)
+        return (map_jobs(simulate_recorded, jobs, ex, desc="contact", progress=progress, star=True),
+                {"used": "fmu", "fallback": reason})
+    n = len(jobs)
+    picks = check_picks(n, check_cases)
+    checks = {f"case '{keys[i]}'": ex.submit(simulate_recorded, *jobs[i]) for i in picks}
+    members = {path: [i for i, job in enumerate(jobs) if job[0] == path] for path in files}
+    parts = map_jobs(run_recorded, [(path, [jobs[i][1] for i in idx], RECORDED) for path, idx in members.items()],
+                     ex, desc="contact (batched)", progress=progress, star=True)
+    results: list[dict[str, Any]] = [{}] * n
+    for idx, (runs, _) in zip(members.values(), parts):
+        for i, r in zip(idx, runs):
+            results[i] = r
+    worst = compare_checks(checks, {f"case '{keys[i]}'": results[i] for i in picks})
+    return results, {"used": "batched", "checked_cases": [keys[i] for i in picks], "check_rtol": CHECK_RTOL,
+                     "max_relative_difference": worst}
 
 
 def real_time_factor(kinds: tuple[str, ...] = ("observer", "raw"), overrides: tuple[str, ...] = ()
@@ -644,8 +694,11 @@ def _summary(m: dict[str, Any]) -> str:
     for f in m["findings"]:
         lines.append(f"[{f['reproduced']:>3}] {f['claim']}\n      ours: {f['ours']}" +
                      (f"\n      why: {f['why']}" if f["why"] else ""))
-    w = m["wall_time"]
+    w, eng = m["wall_time"], m.get("engine") or {}
     lines.append(f"{w['runs']} runs in {w['total_s']:.0f} s on {w['workers']} workers")
+    if eng.get("used") == "batched":
+        lines.append(f"batched engine; cases {', '.join(eng['checked_cases']) or 'none'} checked through the FMUs: "
+                     f"largest relative difference {eng['max_relative_difference']:.2g} (allowed {eng['check_rtol']:g})")
     return "\n".join(lines)
 
 
@@ -654,7 +707,8 @@ def cmd_contact(args: argparse.Namespace) -> int:
     reproduced)."""
     overrides = tuple(args.set or ())
     m = run_study(args.out, overrides, workers=args.workers, scheduler=args.scheduler,
-                  progress=not args.no_progress, compliant=not args.no_compliant)
+                  progress=not args.no_progress, compliant=not args.no_compliant, engine=args.engine,
+                  check_cases=args.check_cases)
     (Path(args.out) / "cases.md").write_text(format_cases(m["cases"]))
     print(_summary(m))
     print(f"wrote {Path(args.out) / 'metrics.json'}, cases.md" + "".join(f", {f}" for f in m.get("figures", [])))
@@ -675,5 +729,11 @@ def register(subparsers: Any) -> None:
                    help="override a parameter of both scenarios (repeatable)")
     p.add_argument("--no-compliant", action="store_true",
                    help="skip the one-axis rigid vs compliant tool comparison (about 10 s)")
+    p.add_argument("--engine", choices=ENGINES, default="batched",
+                   help="batched: the cases of each scenario file together without FMI, a few checked "
+                        "through the FMUs (default); fmu: one co-simulation of the FMUs per case")
+    p.add_argument("--check-cases", type=int, default=CHECK_CASES, metavar="N",
+                   help=f"cases checked through the FMUs with the batched engine (default {CHECK_CASES}; "
+                        "they must agree to 1e-12 relative)")
     add_executor_arguments(p)
     p.set_defaults(func=cmd_contact)

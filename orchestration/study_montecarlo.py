@@ -111,7 +111,7 @@ Q_JERK_SWEEP = (0.01, 0.1, 0.3, 1.0, 3.0, 10.0, 100.0)
 #: relative difference allowed there.
 ENGINES = ("batched", "fmu")
 CHECK_SEEDS = 3
-CHECK_RTOL = 1e-12
+CHECK_RTOL = study.CHECK_RTOL
 
 CRLB_NOTE = ("'crlb' is the paper's construction (eqs. 7-9, 21-25): the stationary Riccati solution along "
              "the true trajectory with the filter's own Q. The section-4 plant has no process noise (the "
@@ -308,46 +308,22 @@ def _batched_results(prepared: Any, filters: Sequence[FilterInfo], plant: str
     return out, res
 
 
-def check_against_fmus(batched: dict[str, np.ndarray], fmu: dict[str, np.ndarray], seed: int,
-                       filters: Sequence[FilterInfo], rtol: float = CHECK_RTOL) -> float:
-    """The largest relative difference between a run on the batched engine and the same run
-    through the FMUs: each filter's RMSE over the run (angle, velocity, acceleration, tool
-    position where judged), its mean NEES, and the true states.
-
-    Raises
-    ------
-    StudyError
-        Naming the seed, the quantity and the difference, if one exceeds ``rtol``.
-    """
-    def rel(a: np.ndarray | float, b: np.ndarray | float) -> float:
-        a, b = np.asarray(a, float), np.asarray(b, float)
-        return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300))
-
+def checked_quantities(run: dict[str, np.ndarray], filters: Sequence[FilterInfo]) -> dict[str, Any]:
+    """What :func:`orchestration.study.check_against_fmus` compares of a run (:func:`run_one`)
+    on the batched engine and through the FMUs: the time and the true states, each filter's RMSE
+    over the run (angle, velocity, acceleration, tool position where judged) and its mean NEES."""
     def rms(e: np.ndarray) -> float:
         return np.sqrt(np.mean(e * e))
 
-    quantities = {"time": (batched["time"], fmu["time"]), "true states": (batched["truth"], fmu["truth"])}
+    out: dict[str, Any] = {"time": run["time"], "true states": run["truth"]}
     for f in filters:
         for gi, g in enumerate(f.groups):
-            e_b, e_f = batched[f.name][:, 2 * gi:2 * gi + 2], fmu[f.name][:, 2 * gi:2 * gi + 2]
-            quantities[f"{f.name} {g} RMSE"] = (rms(e_b), rms(e_f))
+            out[f"{f.name} {g} RMSE"] = rms(run[f.name][:, 2 * gi:2 * gi + 2])
         if f.tool:
-            quantities[f"{f.name} tool position RMSE"] = (rms(batched[f.name + ".tool"]), rms(fmu[f.name + ".tool"]))
+            out[f"{f.name} tool position RMSE"] = rms(run[f.name + ".tool"])
         if f.has_covariance:
-            quantities[f"{f.name} mean NEES"] = (np.mean(batched[f.name + ".nees"]), np.mean(fmu[f.name + ".nees"]))
-    worst = 0.0
-    for what, (a, b) in quantities.items():
-        if np.shape(a) != np.shape(b):
-            raise study.StudyError(f"batched engine against the FMUs, seed {seed}: {what} has shape "
-                                   f"{np.shape(a)}, not {np.shape(b)}")
-        d = rel(a, b)
-        if not d <= rtol:
-            raise study.StudyError(
-                f"batched engine against the FMUs, seed {seed}: {what} differs by {d:.3g} relative "
-                f"(batched {np.ravel(a)[0]:.17g}, FMUs {np.ravel(b)[0]:.17g}; allowed {rtol:g}); "
-                "rerun with --engine fmu")
-        worst = max(worst, d)
-    return worst
+            out[f"{f.name} mean NEES"] = np.mean(run[f.name + ".nees"])
+    return out
 
 
 def _run_jobs(engine: str, jobs: list[tuple], seeds: list[int], check_seeds: int, ex: Any, progress: bool,
@@ -365,21 +341,15 @@ def _run_jobs(engine: str, jobs: list[tuple], seeds: list[int], check_seeds: int
             print(f"montecarlo: {reason}", file=sys.stderr)
             info, results = _run_jobs("fmu", jobs, seeds, 0, ex, progress, desc)
             return dict(info, fallback=reason), results
-        picks = sorted({int(round(i)) for i in np.linspace(0, len(seeds) - 1, min(check_seeds, len(seeds)))})
+        picks = study.check_picks(len(seeds), check_seeds)
         # the checks run on the executor while the batched engine runs here
-        checks = {seeds[i]: ex.submit(run_one, *jobs[i]) for i in picks}
+        checks = {f"seed {seeds[i]}": ex.submit(run_one, *jobs[i]) for i in picks}
         try:
             results, res = _batched_results(prepared, filters, plant)
         except RunError as exc:
             raise study.StudyError(f"batched engine: {exc}") from None
-        worst = 0.0
-        for i in picks:
-            try:
-                fmu = checks[seeds[i]].result()
-            except Exception as exc:  # noqa: BLE001 - reported with its seed
-                raise study.StudyError(f"the FMU check run of seed {seeds[i]} failed: "
-                                       f"{type(exc).__name__}: {exc}") from None
-            worst = max(worst, check_against_fmus(results[i], fmu, seeds[i], filters))
+        worst = study.compare_checks(checks, {f"seed {seeds[i]}": results[i] for i in picks},
+                                     lambda run: checked_quantities(run, filters))
         return ({"used": "batched", "checked_seeds": [seeds[i] for i in picks], "check_rtol": CHECK_RTOL,
                  "max_relative_difference": worst, "shared": res.shared, "batched": res.batched,
                  "looped": res.looped, "engine_wall_time_s": res.wall_time}, results)
@@ -566,7 +536,7 @@ def run_study(scenario: str | Path, runs: int, out: str | Path, overrides: Seque
     engine
         ``"batched"`` (default): every run and the sweep together on the batched engine
         (:func:`run_batched`), and ``check_seeds`` of the seeds (spread over them) also through
-        the FMUs, which must agree to :data:`CHECK_RTOL` (:func:`check_against_fmus`); when the
+        the FMUs, which must agree to :data:`CHECK_RTOL` (:func:`orchestration.study.check_against_fmus`); when the
         engine cannot run the scenario (a particle filter, an estimator FMU that is not ours),
         the study says why in one line (``engine.fallback``) and runs every run on the FMUs.
         ``"fmu"``: one co-simulation of the FMUs per run on the executor.
@@ -930,6 +900,6 @@ def format_summary(data: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["run_study", "run_one", "run_batched", "check_against_fmus", "ENGINES", "CHECK_SEEDS", "CHECK_RTOL", "nees", "findings", "register", "main", "format_summary", "PAPER_TABLE1",
+__all__ = ["run_study", "run_one", "run_batched", "checked_quantities", "ENGINES", "CHECK_SEEDS", "CHECK_RTOL", "nees", "findings", "register", "main", "format_summary", "PAPER_TABLE1",
            "PAPER_TABLE1_RUNS", "PAPER_FIG4_RUNS", "PAPER_Q_JERK", "PAPER_R_MOTOR", "PAPER_R_ACC",
            "Q_JERK_SWEEP", "FilterInfo"]

@@ -44,8 +44,18 @@ Besides the tool position, each case gives ``arm_errors``: the RMSE and largest 
 arm estimates an estimator gives (``q_a_hat``, ``dq_a_hat``, ``ddq_a_hat``, per the contract)
 against the plant's.
 
+Engines (``--engine``): ``batched`` (default) simulates the truth of each scenario once, on the
+batched engine (:mod:`orchestration.batched`), with its first case, and plays the other cases of
+that scenario (the model errors: only the estimators' parameters change) back on it; two cases
+(``--check-cases``: a taped one, a replayed one) also run through the FMUs at the same time and
+must agree to 1e-12 relative, or the study stops naming the case, the series and the
+difference. A scenario with an FMU that is not ours runs on the FMUs, with one line saying why.
+``fmu``: one co-simulation of the FMUs per case. (The estimators' own math is most of a case's
+cost, so the gain is the truth's share and the FMI layer's, not a multiple: README.)
+
 CLI: ``flexfusion study robustness --out DIR [--tuned FILE ...] [--stop-time S] [--scenario FILE]
-[--other-path FILE] [--estimator NAME ...] [--workers K | --scheduler ADDR]``.
+[--other-path FILE] [--estimator NAME ...] [--engine batched|fmu] [--check-cases N]
+[--workers K | --scheduler ADDR]``.
 """
 from __future__ import annotations
 
@@ -62,7 +72,8 @@ import numpy as np
 
 from .metrics import bandpass
 from .scenario import copy_document
-from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
+from .study import (ENGINES, StudyError, add_executor_arguments, check_engine, compare_checks, map_jobs,
+                    open_executor, simulate_recorded, submit)
 from .study_montecarlo import PLANT_FMU
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
@@ -85,6 +96,8 @@ IDENT_ERROR = 0.05
 IDENT_SIGN_SEED = 2009
 #: The model errors of the cases (factors on :data:`MODEL_SET`: :func:`model_error_factors`).
 MODEL_ERRORS = ("stiffness_50", "stiffness_50_joint2", "ident_5")
+#: Cases checked through the FMUs on the batched engine.
+CHECK_CASES = 2
 
 #: Estimator FMU types and their column labels (the paper's names where it has them).
 ESTIMATOR_TYPES = {
@@ -257,10 +270,75 @@ def case_jobs(tuned: Sequence[str | Path] = (), stop_time: float | None = None,
 
 
 def _run_case(job: tuple[dict[str, Any], list[str], list[str]]) -> dict[str, Any]:
+    """One case through the FMUs: ``{"time", "wall_time", variable: values}``."""
+    return simulate_recorded(*job)
+
+
+def _batched_case(job: tuple[dict[str, Any], list[str], list[str]], tape: bool, replay: Any = None
+                  ) -> tuple[dict[str, Any], Any]:
+    """One case on the batched engine, as :func:`_run_case` gives it, and its tape (``tape``)
+    or played back from ``replay`` (a case of the same scenario: the truth, and any estimator
+    whose parameters the case does not change)."""
+    from .batched import run_recorded
     doc, overrides, variables = job
-    run = simulate(doc, overrides, variables=variables)
-    return {"time": run.time, "wall_time": run.wall_time,
-            **{v: run[v] for v in variables}}
+    runs, taped = run_recorded(doc, [overrides], variables, tape=tape, replay=replay)
+    return runs[0], taped
+
+
+def _cases_batched(run: Sequence[tuple[tuple[str, str, str, str], Any]], executor: Executor | None,
+                   progress: bool, check_cases: int) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Every case's :func:`_run_case` result on the batched engine, and what the engine did.
+
+    The cases of one scenario differ only in the estimators' parameters (their model errors):
+    the first is simulated and kept as a tape, the others are played back on it
+    (:func:`_batched_case`). ``check_cases`` of them (a taped one first, then a replayed one)
+    also run through the FMUs, at the same time on the executor, and must agree to
+    :data:`orchestration.study.CHECK_RTOL` (:func:`orchestration.study.check_against_fmus`). A
+    scenario with an FMU that is not ours runs every case on the FMUs (``fallback``).
+    """
+    from .batched import not_ours
+    from .scenario import load_scenario
+    from .study import CHECK_RTOL
+    jobs = [job for _, job in run]
+    keys = [case[0] for case, _ in run]
+    reason = not_ours([load_scenario(doc, overrides) for doc, overrides, _ in jobs])
+    if reason:
+        reason += ": every case runs through the FMUs"
+        print(f"robustness: {reason}", file=sys.stderr)
+        return _cases_fmu(jobs, executor, progress), {"used": "fmu", "fallback": reason}
+    first: dict[str, int] = {}                   # scenario file -> its taped case
+    for i, (case, _) in enumerate(run):
+        first.setdefault(case[2], i)
+    taped = list(first.values())
+    replayed = [i for i in range(len(run)) if i not in taped]
+    picks = (taped[:1] + replayed[:1] + [i for i in range(len(run)) if i not in taped[:1] + replayed[:1]])
+    picks = sorted(picks[:check_cases])
+
+    checks = {f"case '{keys[i]}'": submit(executor, _run_case, jobs[i]) for i in picks}
+
+    def phase(idx: list[int], tapes: dict[str, Any] | None) -> list[tuple[dict[str, Any], Any]]:
+        calls = [(jobs[i], tapes is None, None if tapes is None else tapes[run[i][0][2]]) for i in idx]
+        if executor is None:
+            return [_batched_case(*c) for c in calls]
+        return map_jobs(_batched_case, calls, executor, desc="robustness", progress=progress, star=True)
+
+    results: list[dict[str, Any]] = [{}] * len(run)
+    tapes = {}
+    for i, (res, tape) in zip(taped, phase(taped, None)):
+        results[i], tapes[run[i][0][2]] = res, tape
+    for i, (res, _) in zip(replayed, phase(replayed, tapes)):
+        results[i] = res
+    worst = compare_checks(checks, {f"case '{keys[i]}'": results[i] for i in picks})
+    return results, {"used": "batched", "taped": [keys[i] for i in taped], "replayed": [keys[i] for i in replayed],
+                     "checked_cases": [keys[i] for i in picks], "check_rtol": CHECK_RTOL,
+                     "max_relative_difference": worst}
+
+
+def _cases_fmu(jobs: Sequence[Any], executor: Executor | None, progress: bool) -> list[dict[str, Any]]:
+    """Every case through the FMUs (in parallel on ``executor``; ``None``: here)."""
+    if executor is None:
+        return [_run_case(j) for j in jobs]
+    return map_jobs(_run_case, list(jobs), executor, desc="robustness", progress=progress)
 
 
 def error_stats(time_: np.ndarray, estimate: np.ndarray, truth: np.ndarray, after: float = 0.5
@@ -282,16 +360,20 @@ def robustness(tuned: Sequence[str | Path] = (), *, executor: Executor | None = 
                stop_time: float | None = None, after: float = 0.5, progress: bool = True,
                cases: Sequence[tuple[str, str, str, str]] = CASES,
                scenario_dir: Path = SCENARIOS, workers: int | None = None,
-               names: Sequence[str] = ()) -> dict[str, Any]:
+               names: Sequence[str] = (), engine: str = "batched", check_cases: int = CHECK_CASES) -> dict[str, Any]:
     """Run the cases (in parallel on ``executor``; ``None``: here, one after the other) and
     return the table: ``{"cases": {key: {"label", "columns": {label: stats}, "arm_errors":
     {label: {estimate: {rmse, max_error, unit}}}, "wall_time"}}, "paper": PAPER_TABLE,
     "findings": findings(...), "wall_time", "workers" (as given, for the record), "series":
     {key: arrays for the figures}}``, and ``"skipped"`` ``{key: why}`` for a model error no
     studied estimator takes. ``names``: the estimators to study (``--estimator``, each meeting
-    the estimator contract; default the paper's, :data:`ESTIMATOR_TYPES`)."""
+    the estimator contract; default the paper's, :data:`ESTIMATOR_TYPES`). ``engine``:
+    ``"batched"`` (default; :func:`_cases_batched`: each scenario's truth simulated once, the
+    other cases played back on it, ``check_cases`` checked through the FMUs) or ``"fmu"`` (one
+    co-simulation per case); ``"engine"`` in the table says what ran."""
     from .metrics import max_error, rmse
     from .study_sweep import ARM_TRUTH
+    check_engine(engine, check_cases, "--check-cases")
     if stop_time is not None and stop_time <= after:
         raise StudyError(f"--stop-time {stop_time:g} s leaves nothing after the first {after:g} s "
                          "the errors leave out")
@@ -300,13 +382,13 @@ def robustness(tuned: Sequence[str | Path] = (), *, executor: Executor | None = 
                for (key, *_), job in zip(cases, jobs) if job is None}
     run = [(case, job) for case, job in zip(cases, jobs) if job is not None]
     t0 = time.perf_counter()
-    if executor is None:
-        results = [_run_case(j) for _, j in run]
+    if engine == "batched":
+        results, engine_info = _cases_batched(run, executor, progress, check_cases)
     else:
-        results = map_jobs(_run_case, [j for _, j in run], executor, desc="robustness", progress=progress)
+        results, engine_info = _cases_fmu([j for _, j in run], executor, progress), {"used": "fmu"}
     wall = time.perf_counter() - t0
     table: dict[str, Any] = {"cases": {}, "paper": PAPER_TABLE, "wall_time": wall, "workers": workers,
-                             "series": {}}
+                             "engine": engine_info, "series": {}}
     if skipped:
         table["skipped"] = skipped
     for ((key, label, fname, error), (doc, overrides, variables)), res in zip(run, results):
@@ -582,14 +664,19 @@ def main(args: argparse.Namespace) -> int:
         table = robustness(args.tuned or (), executor=ex, stop_time=args.stop_time,
                            progress=not args.no_progress, cases=case_list(args.scenario, args.other_path),
                            workers=args.workers or (os.cpu_count() if args.scheduler is None else None),
-                           names=args.estimators)
+                           names=args.estimators, engine=args.engine, check_cases=args.check_cases)
     for key, why in table.get("skipped", {}).items():
         print(f"robustness: case '{key}' left out: {why}", file=sys.stderr)
+    eng = table["engine"]
     files = write(table, out)
     print(markdown(table))
     print(f"robustness study: {len(table['cases'])} cases in {table['wall_time']:.1f} s "
           + (f"({table['workers']} workers); " if table["workers"] else f"(scheduler {args.scheduler}); ")
           + f"wrote {', '.join(f.name for f in files)} to {out}")
+    if eng["used"] == "batched":
+        print(f"batched engine: cases {', '.join(eng['replayed']) or 'none'} played back on the truth of "
+              f"{', '.join(eng['taped'])}; cases {', '.join(eng['checked_cases']) or 'none'} checked through the "
+              f"FMUs: largest relative difference {eng['max_relative_difference']:.2g} (allowed {eng['check_rtol']:g})")
     return 0
 
 
@@ -608,11 +695,17 @@ def register(subparsers: Any) -> None:
     p.add_argument("--estimator", action="append", default=[], metavar="NAME", dest="estimators",
                    help="study this component, ours or anyone's meeting the estimator contract "
                         "(repeatable; default: the paper's observers and rigid kinematics)")
+    p.add_argument("--engine", choices=ENGINES, default="batched",
+                   help="batched: each scenario's truth simulated once, the other cases played back on it, "
+                        "a few cases checked through the FMUs (default); fmu: one co-simulation per case")
+    p.add_argument("--check-cases", type=int, default=CHECK_CASES, metavar="N",
+                   help=f"cases checked through the FMUs with the batched engine (default {CHECK_CASES}; "
+                        "they must agree to 1e-12 relative)")
     add_executor_arguments(p)
     p.set_defaults(func=main)
 
 
-__all__ = ["robustness", "error_stats", "markdown", "figures", "write", "case_list", "case_jobs", "estimators",
+__all__ = ["robustness", "ENGINES", "CHECK_CASES", "error_stats", "markdown", "figures", "write", "case_list", "case_jobs", "estimators",
            "column_labels", "takes_model",
            "findings", "with_model_error", "model_error_factors", "base_label", "CASES", "PAPER_TABLE",
            "MODEL_ERRORS", "register"]

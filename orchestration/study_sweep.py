@@ -31,7 +31,15 @@
   and the fraction of times inside it.
 
 Runs go through :func:`orchestration.study.map_jobs` on the local pool or Dask (``--workers``,
-``--scheduler``), each kept in ``--out`` as it finishes (``--resume``). Output: ``DIR/study.json``
+``--scheduler``), each kept in ``--out`` as it finishes (``--resume``). Engines (``--engine``):
+``batched`` (default) runs them in one group per worker on the batched engine
+(:mod:`orchestration.batched`: what the runs of a group share, e.g. the truth of a sweep over an
+estimator's parameters, simulated once; the sensors and the 2012 paper's EKF vectorised over
+seeds and ``q_jerk``; other per-run components one instance per run, without FMI), and
+``--check-runs`` of them (default 2, spread over the runs) through the FMUs at the same time:
+they must agree to 1e-12 relative, or the study stops naming the run, the series and the
+difference. A scenario with an FMU that is not ours (a user's estimator) runs on the FMUs, with
+one line saying why. ``fmu``: one co-simulation of the FMUs per run. Output: ``DIR/study.json``
 (settings, and per point its parameters and per estimator the figures above), ``DIR/study.csv``
 (one row per point and estimator) and ``DIR/study.png`` (RMSE mean +- std per point).
 """
@@ -40,6 +48,8 @@ from __future__ import annotations
 import argparse
 import csv
 import itertools
+import os
+import sys
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -51,9 +61,11 @@ from . import study
 from .metrics import chi2_band, max_error, monte_carlo_consistency, nees, nis, rmse
 from .results import json_safe
 from .safe_io import atomic_write_json
-from .study import StudyError
+from .study import ENGINES, StudyError
 
 NEES_DOF = 2                 # the arm angles q_a (the first 2 states of the contract's P_x)
+#: Runs checked through the FMUs on the batched engine.
+CHECK_RUNS = 2
 #: The contract's optional arm estimates, each judged against the truth component's variable of
 #: the same name without ``_hat`` (the plant's outputs, a log's truth columns): (truth, unit).
 ARM_TRUTH = {s.name: (s.name.removesuffix("_hat"), s.unit) for s in OPTIONAL_OUTPUTS
@@ -239,6 +251,41 @@ def run_job(doc: dict[str, Any], overrides: tuple[str, ...], variables: tuple[st
     return {"time": r.time, **{v: r[v] for v in variables}}
 
 
+def batched_job(doc: dict[str, Any], runs: Sequence[tuple[str, ...]], variables: tuple[str, ...]
+                ) -> list[dict[str, np.ndarray]]:
+    """Runs together on the batched engine (a worker's job): each as :func:`run_job` gives it.
+    What they share is simulated once, the sensors and the EKF of the 2012 paper vectorised over
+    the runs (:mod:`orchestration.batched`)."""
+    from .batched import BatchError, run_recorded
+    try:
+        results, _ = run_recorded(doc, runs, variables)
+    except BatchError as exc:
+        raise StudyError(f"the batched engine cannot run these points ({exc}); rerun with --engine fmu") from None
+    for r in results:
+        del r["wall_time"]
+    return results
+
+
+def _run_batched(doc: dict[str, Any], jobs: Sequence[tuple], ex: Any, progress: bool, check_runs: int
+                 ) -> tuple[list[dict[str, np.ndarray]], dict[str, Any]]:
+    """Every job's :func:`run_job` result on the batched engine: the jobs in one contiguous
+    group per worker (:func:`batched_job`, through :func:`orchestration.study.map_jobs`: kept in
+    the study folder), and ``check_runs`` of them (spread over the jobs) through the FMUs at the
+    same time, which must agree to :data:`orchestration.study.CHECK_RTOL`."""
+    variables = jobs[0][2]
+    n = len(jobs)
+    picks = study.check_picks(n, check_runs)
+    checks = {f"run {' '.join(jobs[i][1])}": ex.submit(run_job, *jobs[i]) for i in picks}
+    workers = getattr(ex, "max_workers", None) or os.cpu_count() or 1      # a Dask client has none
+    groups = [g for g in np.array_split(np.arange(n), min(workers, n)) if len(g)]
+    parts = study.map_jobs(batched_job, [(doc, tuple(jobs[i][1] for i in g), variables) for g in groups], ex,
+                           desc="sweep (batched)", progress=progress, star=True)
+    results = [r for part in parts for r in part]
+    worst = study.compare_checks(checks, {f"run {' '.join(jobs[i][1])}": results[i] for i in picks})
+    return results, {"used": "batched", "groups": len(groups), "checked_runs": [list(jobs[i][1]) for i in picks],
+                     "check_rtol": study.CHECK_RTOL, "max_relative_difference": worst}
+
+
 # ---------------------------------------------------------------------------------------------
 # the figures of one estimator at one point
 # ---------------------------------------------------------------------------------------------
@@ -302,13 +349,17 @@ def run_study(scenario: str | Path, estimators: Sequence[str], out: str | Path, 
               grid: Sequence[str] = (), lhs: Sequence[str] = (), samples: int = 0, lhs_seed: int = 0,
               overrides: Sequence[str] = (), nis_dof: dict[str, int] | None = None, after: float = 0.0,
               workers: int | None = None, scheduler: str | None = None, progress: bool = True,
-              plots: bool = True) -> dict[str, Any]:
+              plots: bool = True, engine: str = "batched", check_runs: int = CHECK_RUNS) -> dict[str, Any]:
     """Run the study and write ``study.json``, ``study.csv`` and ``study.png`` into ``out``;
-    returns what ``study.json`` holds."""
+    returns what ``study.json`` holds. ``engine``: ``"batched"`` (default, :func:`_run_batched`;
+    a scenario with an FMU that is not ours runs on the FMUs, with one line saying why) or
+    ``"fmu"`` (one co-simulation per run); ``"engine"`` in ``study.json`` says what ran."""
+    from .batched import not_ours
     from .scenario import load_scenario, toml_value
 
     if runs < 1:
         raise StudyError(f"--runs must be at least 1, not {runs}")
+    study.check_engine(engine, check_runs, "--check-runs")
     doc, gives = prepare(scenario, estimators, truth, overrides, nis_dof)
     points = sweep_points(grid, lhs, samples, lhs_seed)
     sets = [tuple(f"{k}={toml_value(v)}" for k, v in p.items()) for p in points]
@@ -317,13 +368,21 @@ def run_study(scenario: str | Path, estimators: Sequence[str], out: str | Path, 
     variables = tuple(doc["record"]["variables"])
     seeds = list(range(first_seed, first_seed + runs))
     jobs = [(doc, point_set + (f"scenario.seed={s}",), variables) for point_set in sets for s in seeds]
+    engine_info: dict[str, Any] = {"used": "fmu"}
+    foreign = not_ours([load_scenario(doc)]) if engine == "batched" else None
+    if foreign:
+        engine_info["fallback"] = foreign + ": every run goes through the FMUs"
+        print(f"sweep: {engine_info['fallback']}", file=sys.stderr)
     with study.open_executor(workers, scheduler) as ex:
-        results = study.map_jobs(run_job, jobs, ex, desc="sweep", progress=progress, star=True)
+        if engine == "batched" and not foreign:
+            results, engine_info = _run_batched(doc, jobs, ex, progress, check_runs)
+        else:
+            results = study.map_jobs(run_job, jobs, ex, desc="sweep", progress=progress, star=True)
     data: dict[str, Any] = {
         "scenario": str(scenario), "estimators": {n: {"gives": g} for n, g in gives.items()},
         "truth": truth, "runs": runs, "seeds": seeds, "after": after, "overrides": list(overrides),
         "grid": grid_axes(grid), "lhs": list(lhs), "samples": samples, "lhs_seed": lhs_seed,
-        "units": {"position_rmse": "m", "max_error": "m"}, "points": []}
+        "units": {"position_rmse": "m", "max_error": "m"}, "engine": engine_info, "points": []}
     for i, point in enumerate(points):
         point_runs = results[i * runs:(i + 1) * runs]
         data["points"].append({"parameters": point, "estimators": {
@@ -393,6 +452,11 @@ def plot(data: dict[str, Any], path: Path) -> None:
 
 def format_summary(data: dict[str, Any]) -> str:
     lines = [f"{data['scenario']}: {len(data['points'])} point(s) x {data['runs']} seed(s), truth {data['truth']}"]
+    eng = data.get("engine") or {}
+    if eng.get("used") == "batched":
+        lines.append(f"  batched engine ({eng['groups']} group(s)); {len(eng['checked_runs'])} run(s) checked through "
+                     f"the FMUs: largest relative difference {eng['max_relative_difference']:.2g} "
+                     f"(allowed {eng['check_rtol']:g})")
     for i, point in enumerate(data["points"]):
         params = ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}"
                            for k, v in point["parameters"].items())
@@ -443,6 +507,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("--after", type=float, default=0.0,
                    help="ignore the samples before this time [s] (default 0)")
     p.add_argument("--no-plots", action="store_true", help="no study.png")
+    p.add_argument("--engine", choices=ENGINES, default="batched",
+                   help="batched: the runs together, vectorised where our kernels allow, a few runs checked "
+                        "through the FMUs (default); fmu: one co-simulation of the FMUs per run")
+    p.add_argument("--check-runs", type=int, default=CHECK_RUNS, metavar="N",
+                   help=f"runs checked through the FMUs with the batched engine (default {CHECK_RUNS}; "
+                        "they must agree to 1e-12 relative)")
     study.add_executor_arguments(p)
     p.set_defaults(func=main)
 
@@ -452,11 +522,12 @@ def main(args: argparse.Namespace) -> int:
                      first_seed=args.first_seed, grid=args.grid, lhs=args.lhs, samples=args.samples,
                      lhs_seed=args.lhs_seed, overrides=args.overrides, nis_dof=dict(args.nis_dof),
                      after=args.after, workers=args.workers, scheduler=args.scheduler,
-                     progress=not args.no_progress, plots=not args.no_plots)
+                     progress=not args.no_progress, plots=not args.no_plots, engine=args.engine,
+                     check_runs=args.check_runs)
     print(format_summary(data))
     return 0
 
 
-__all__ = ["sweep_points", "grid_axes", "lhs_points", "contract_estimators", "arm_estimates", "prepare",
+__all__ = ["ENGINES", "CHECK_RUNS", "batched_job", "sweep_points", "grid_axes", "lhs_points", "contract_estimators", "arm_estimates", "prepare",
            "run_job", "errors_over_seeds", "estimator_figures", "ARM_TRUTH",
            "run_study", "table_rows", "write_table", "plot", "format_summary", "register", "main"]

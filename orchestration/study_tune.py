@@ -64,7 +64,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from .scenario import connection_key, copy_document, toml_value
-from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
+from .study import (CHECK_RTOL, StudyError, add_executor_arguments, check_against_fmus, map_jobs, open_executor,
+                    simulate, submit)
 
 #: Default search ranges per estimator FMU type (model identifier), used when no --param is
 #: given. The observer: four pole pairs (Hz, damping), section III-C-2. The EKFs: the five
@@ -93,7 +94,6 @@ ENGINES = ("batched", "fmu")
 #: Candidates of the first population also run through the FMUs on the batched engine, and the
 #: relative difference allowed (as for the Monte Carlo study's checked seeds).
 CHECK_CANDIDATES = 2
-CHECK_RTOL = 1e-12
 
 
 @dataclass
@@ -360,22 +360,21 @@ def _trajectories(prepared: Any, res: Any, estimate: str, truth: str) -> list[tu
 
 
 def _tape_job(doc: dict[str, Any], overrides: Sequence[str], estimate: str, truth: str, after: float,
-              metric: str) -> tuple[Any, float]:
+              metric: str) -> tuple[Any, float | str]:
     """One run of the scenario's own values on the batched engine, kept as a tape (one run
-    shares every component): the :class:`~orchestration.batched.Tape` and the run's cost.
-
-    Raises
-    ------
-    BatchError
-        The engine cannot run the scenario, or the scenario's own values fail (no tape).
-    """
+    shares every component): the :class:`~orchestration.batched.Tape` and the run's cost; or
+    ``(None, why)`` when the engine cannot run the scenario or its own values fail (no tape:
+    the tuning runs on the FMUs; a value, not an exception, so that it reaches the tuner from
+    a worker of :func:`~orchestration.study.map_jobs` as it is)."""
     from .batched import BatchedRuns, BatchError
     from .master import RunError
-    prepared = BatchedRuns(doc, [list(overrides)], {estimate: None, truth: None}, tape=True)
     try:
+        prepared = BatchedRuns(doc, [list(overrides)], {estimate: None, truth: None}, tape=True)
         res = prepared.run()
+    except BatchError as exc:
+        return None, str(exc)
     except RunError as exc:
-        raise BatchError(f"the scenario's own values fail ({exc}): there is no run to replay") from None
+        return None, f"the scenario's own values fail ({exc}): there is no run to replay"
     return res.tape, cost_of(*_trajectories(prepared, res, estimate, truth)[0], after, metric)
 
 
@@ -406,53 +405,14 @@ def _candidates_job(doc: dict[str, Any], tape: Any, runs: Sequence[Sequence[str]
     return costs, {i: trajectories[i] for i in keep}
 
 
-def _done(fn: Any, *args: Any) -> Future:
-    """``fn(*args)`` run here, as a finished Future (the engine without an executor)."""
-    f: Future = Future()
-    try:
-        f.set_result(fn(*args))
-    except Exception as exc:  # noqa: BLE001 - raised again by result(), as from a worker
-        f.set_exception(exc)
-    return f
-
-
-def _relative(a: Any, b: Any) -> float:
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    return float(np.max(np.abs(a - b), initial=0.0) / max(float(np.max(np.abs(b), initial=0.0)), 1e-300))
-
-
-def check_against_fmus(batched: tuple | None, fmu: tuple | None, what: str, after: float, metric: str,
-                       rtol: float = CHECK_RTOL) -> float:
-    """The largest relative difference between a candidate's ``(time, estimate, truth)`` on the
-    batched engine and through the FMUs (None: the run failed), and between its costs.
-
-    Raises
-    ------
-    StudyError
-        Naming ``what`` (the candidate and seed), the quantity and the difference, if one
-        exceeds ``rtol`` or the run fails on one path only.
-    """
-    if batched is None or fmu is None:
-        if (batched is None) != (fmu is None):
-            raise StudyError(f"batched engine against the FMUs, {what}: the run fails on the "
-                             f"{'batched engine' if batched is None else 'FMUs'} only; rerun with --engine fmu")
-        return 0.0
-    quantities = {"time": (batched[0], fmu[0]), "estimate": (batched[1], fmu[1]), "truth": (batched[2], fmu[2]),
-                  "cost": (cost_of(*batched, after, metric), cost_of(*fmu, after, metric))}
-    worst = 0.0
-    for name, (a, b) in quantities.items():
-        a, b = np.asarray(a, float), np.asarray(b, float)
-        if a.shape != b.shape:
-            raise StudyError(f"batched engine against the FMUs, {what}: the {name} has shape {a.shape}, "
-                             f"not {b.shape}; rerun with --engine fmu")
-        d = _relative(a, b)
-        if not d <= rtol:
-            i = np.unravel_index(int(np.nanargmax(np.abs(a - b))) if a.size else 0, a.shape)
-            raise StudyError(f"batched engine against the FMUs, {what}: the {name} differs by {d:.3g} "
-                             f"relative (batched {a[i]:.17g}, FMUs {b[i]:.17g}; allowed {rtol:g}); "
-                             "rerun with --engine fmu")
-        worst = max(worst, d)
-    return worst
+def checked_quantities(run: tuple | None, after: float, metric: str) -> dict[str, Any] | None:
+    """What :func:`orchestration.study.check_against_fmus` compares of a candidate's run
+    ``(time, estimate, truth)`` (None: it failed) on the batched engine and through the FMUs:
+    the three and the cost."""
+    if run is None:
+        return None
+    return {"the time": run[0], "the estimate": run[1], "the truth": run[2],
+            "the cost": cost_of(*run, after, metric)}
 
 
 class _BatchedEngine:
@@ -462,9 +422,11 @@ class _BatchedEngine:
     seed's run of the scenario's own values is simulated once and kept as a tape
     (:func:`_tape_job`; its cost is the scenario's own cost on that seed), and every candidate
     runs on the tape in the co-simulation's schedule (:func:`_candidates_job`), a population
-    split into one job per worker and seed. In the first population, ``check`` candidates also
-    run through the FMUs on the first seed, at the same time on the executor
-    (:func:`check_against_fmus`: the study stops if they differ).
+    split into one job per worker and seed. The jobs go through
+    :func:`orchestration.study.map_jobs` (kept in the study folder, a lost worker's job retried).
+    In the first population, ``check`` candidates also run through the FMUs on the first seed,
+    at the same time on the executor (:func:`orchestration.study.check_against_fmus`: the study
+    stops if they differ).
 
     Raises
     ------
@@ -478,15 +440,25 @@ class _BatchedEngine:
         workers = getattr(executor, "max_workers", None) or (1 if executor is None else os.cpu_count() or 1)
         self.chunks = max(1, int(workers))
         o = objective
-        futures = {s: self._submit(_tape_job, o.doc, _seeded(o.base_overrides, s), o.estimate, o.truth,
-                                   o.after, o.metric) for s in seeds}
-        done = {s: f.result() for s, f in futures.items()}        # a BatchError here: use the FMUs
+        done = dict(zip(seeds, self._map(_tape_job, [(o.doc, _seeded(o.base_overrides, s), o.estimate, o.truth,
+                                                      o.after, o.metric) for s in seeds])))
+        from .batched import BatchError
+        for tape, why in done.values():
+            if tape is None:
+                raise BatchError(why)                      # use the FMUs
         self.tapes = {s: d[0] for s, d in done.items()}
         self.own_costs = {s: d[1] for s, d in done.items()}
         self.checked: list[dict[str, Any]] = []
 
     def _submit(self, fn: Any, *args: Any) -> Future:
-        return _done(fn, *args) if self.executor is None else self.executor.submit(fn, *args)
+        return submit(self.executor, fn, *args)
+
+    def _map(self, fn: Any, jobs: Sequence[tuple]) -> list[Any]:
+        """``fn(*job)`` for every job: through :func:`orchestration.study.map_jobs` on the
+        executor, or here without one."""
+        if self.executor is None:
+            return [fn(*job) for job in jobs]
+        return map_jobs(fn, list(jobs), self.executor, progress=False, star=True)
 
     def own_cost(self, seeds: Sequence[int | None]) -> float:
         """The scenario's own values: mean cost over ``seeds`` (taped ones)."""
@@ -501,25 +473,25 @@ class _BatchedEngine:
         StudyError
             A checked candidate differs from the FMUs, or the engine fails.
         """
-        from .batched import BatchError
         o, n = self.objective, len(candidates)
         n_check = 0 if self.checked else min(self.check, n)
         checks = [self._submit(_fmu_trajectory, o.doc, _seeded(candidates[i], seeds[0]), o.estimate, o.truth)
                   for i in range(n_check)]
-        jobs = []
+        parts, jobs = [], []
         for s in seeds:
             runs = [_seeded(c, s) for c in candidates]
             for chunk in np.array_split(np.arange(n), min(self.chunks, n)):
                 keep = [j for j, i in enumerate(chunk) if i < n_check and s == seeds[0]]
-                jobs.append((s, chunk, self._submit(_candidates_job, o.doc, self.tapes[s], [runs[i] for i in chunk],
-                                                    o.estimate, o.truth, o.after, o.metric, keep)))
+                parts.append((s, chunk))
+                jobs.append((o.doc, self.tapes[s], [runs[i] for i in chunk], o.estimate, o.truth, o.after,
+                             o.metric, keep))
+        try:
+            done = self._map(_candidates_job, jobs)
+        except Exception as exc:  # noqa: BLE001 - a BatchError in a job, named by map_jobs
+            raise StudyError(f"batched engine: {exc}; rerun with --engine fmu") from None
         per_seed = {s: [PENALTY] * n for s in seeds}
         kept: dict[int, Any] = {}
-        for s, chunk, f in jobs:
-            try:
-                costs, trajectories = f.result()
-            except BatchError as exc:
-                raise StudyError(f"batched engine: {exc}; rerun with --engine fmu") from None
+        for (s, chunk), (costs, trajectories) in zip(parts, done):
             for j, i in enumerate(chunk):
                 per_seed[s][int(i)] = costs[j]
             kept.update({int(chunk[j]): tr for j, tr in trajectories.items()})
@@ -527,7 +499,8 @@ class _BatchedEngine:
             own = list(candidates[i][len(o.base_overrides):])
             seed = "the scenario's seed" if seeds[0] is None else f"seed {seeds[0]}"
             what = f"candidate {i + 1} ({', '.join(c.split('.', 1)[1] for c in own)}) on {seed}"
-            d = check_against_fmus(kept[i], f.result(), what, o.after, o.metric)
+            d = check_against_fmus(checked_quantities(kept[i], o.after, o.metric),
+                                   checked_quantities(f.result(), o.after, o.metric), what)
             self.checked.append({"candidate": i + 1, "overrides": own, "seed": seeds[0],
                                  "max_relative_difference": d})
         return [float(np.mean([per_seed[s][i] for s in seeds])) for i in range(n)]
@@ -865,6 +838,6 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=main)
 
 
-__all__ = ["tune", "TuneResult", "write_include", "evaluate", "cost_of", "check_against_fmus", "ENGINES",
+__all__ = ["tune", "TuneResult", "write_include", "evaluate", "cost_of", "checked_quantities", "ENGINES",
            "CHECK_CANDIDATES", "CHECK_RTOL", "prune", "load_document",
            "default_bounds", "sensor_floors", "parameter_value", "parse_seeds", "DEFAULT_BOUNDS", "register", "PENALTY"]

@@ -88,7 +88,8 @@ def test_batched_runs_equal_the_fmus():
     for s, b in zip(seeds, runs):
         f = study_montecarlo.run_one(str(SCENARIO), SHORT + [f"scenario.seed={s}"], filters, plant,
                                      filters[0].ratio)
-        assert study_montecarlo.check_against_fmus(b, f, s, filters) == 0.0
+        q = study_montecarlo.checked_quantities
+        assert study.check_against_fmus(q(b, filters), q(f, filters), f"seed {s}") == 0.0
         for key in f:
             if key != "wall_time":
                 assert_array_equal(b[key], f[key], err_msg=key)
@@ -103,10 +104,13 @@ def test_check_names_seed_quantity_and_difference():
     fmu = {"time": np.arange(5.0), "truth": rng.standard_normal((5, 6)),
            "ekf_acc": 1e-5 * rng.standard_normal((5, 6)), "ekf_acc.nees": rng.uniform(1, 9, 5)}
     same = {k: v.copy() for k, v in fmu.items()}
-    assert study_montecarlo.check_against_fmus(same, fmu, 4, filters) == 0.0
+    q = study_montecarlo.checked_quantities
+    assert study.check_against_fmus(q(same, filters), q(fmu, filters), "seed 4") == 0.0
     same["ekf_acc"][:, 2:4] *= 1 + 1e-9
     with pytest.raises(study.StudyError, match=r"seed 4: ekf_acc velocity RMSE differs by 1e-09"):
-        study_montecarlo.check_against_fmus(same, fmu, 4, filters)
+        study.check_against_fmus(q(same, filters), q(fmu, filters), "seed 4")
+    with pytest.raises(study.StudyError, match=r"seed 4: the run fails on the FMUs only; rerun with --engine fmu"):
+        study.check_against_fmus(q(same, filters), None, "seed 4")
 
 
 def test_noise_in_the_closed_loop_runs_the_plant_per_run():

@@ -15,7 +15,7 @@ from fmus.common.frames import G
 from fmus.force_observer import impedance_math as imp
 from orchestration import study_contact as sc
 from orchestration.scenario import scenario_document
-from orchestration.study import map_jobs, open_executor, simulate
+from orchestration.study import CHECK_RTOL, map_jobs, open_executor, simulate
 
 H = 0.004
 
@@ -121,6 +121,39 @@ def test_tiny_study_schema_and_paper_values(fmu_dir, tmp_path, monkeypatch):
     assert all(set(f) == {"claim", "ours", "reproduced", "why"} for f in saved["findings"])
     assert m["findings"][0]["reproduced"] == "yes"          # free space: ratio <= 0.2
     assert m["cases"]["paper/observer/m+0%"]["free_ratio"] <= 0.2
+    # on the batched engine, both cases identical to their runs through the FMUs
+    assert saved["engine"]["used"] == "batched"
+    assert saved["engine"]["checked_cases"] == ["paper/observer/m+0%", "paper/raw/m+0%"]
+    assert saved["engine"]["max_relative_difference"] <= CHECK_RTOL
+
+
+def test_a_difference_from_the_fmus_stops_the_contact_study(fmu_dir, tmp_path, monkeypatch):
+    """A batched force estimate off by 1e-9 relative stops the study, naming the case, the
+    series and the difference (the jobs on threads here, so that the change reaches them)."""
+    from concurrent.futures import ThreadPoolExecutor
+    from contextlib import contextmanager
+
+    from orchestration import batched, study
+
+    @contextmanager
+    def threads(workers=None, scheduler=None):
+        with ThreadPoolExecutor(1) as ex:
+            yield ex
+
+    run_recorded = batched.run_recorded
+
+    def off(*args, **kw):
+        runs, tape = run_recorded(*args, **kw)
+        runs[0]["observer.f_contact_hat"] = runs[0]["observer.f_contact_hat"] * (1 + 1e-9)
+        return runs, tape
+
+    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
+    monkeypatch.setattr(study, "open_executor", threads)
+    monkeypatch.setattr(batched, "run_recorded", off)
+    with pytest.raises(study.StudyError, match=r"case 'paper/observer/m\+0%': observer.f_contact_hat differs by "
+                                               r"1e-09 relative .*--engine fmu"):
+        sc.run_study(tmp_path, structures=("paper",), mass_errors=(0.0,), rigid_tool=False, compliant=False,
+                     plots=False, progress=False, check_cases=1)
 
 
 def test_fts_carries_the_plants_tool():

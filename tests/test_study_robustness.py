@@ -109,6 +109,13 @@ def test_short_robustness_table(fmu_env, tmp_path) -> None:
     studies (tests/data/robustness_main_reference.json; its "how" says how it was computed, with
     main's code) but for the arm estimates' errors it has now."""
     table = sr.robustness(stop_time=0.3, after=0.05, progress=False, workers=1)
+    # on the batched engine (the default): P1's truth simulated once, P2's once, the model errors
+    # played back on P1's; a taped and a replayed case identical to their FMU runs (and every
+    # case to main's FMU table, below)
+    eng = table["engine"]
+    assert eng["used"] == "batched" and eng["taped"] == ["nominal", "tuning"]
+    assert eng["replayed"] == ["model_errors", "model_errors_joint2", "ident_errors"]
+    assert eng["checked_cases"] == ["nominal", "model_errors"] and eng["max_relative_difference"] <= study.CHECK_RTOL
     cases = table["cases"]
     assert list(cases) == [c[0] for c in sr.CASES]
     for case in cases.values():
@@ -137,8 +144,27 @@ def test_short_robustness_table(fmu_env, tmp_path) -> None:
     assert set(arm[0]["EKF Motor"]) == {"q_a_hat", "dq_a_hat", "ddq_a_hat"} and set(arm[0]["Rigid kinematics"]) == {"q_a_hat"}
     for case in js["cases"].values():
         case.pop("wall_time")
-    js.pop("wall_time"), js.pop("workers")
+    js.pop("wall_time"), js.pop("workers"), js.pop("engine")
     assert_same_document(js, json.loads(REFERENCE.read_text())["table"], rtol=1e-12)
+
+
+def test_a_difference_from_the_fmus_stops_the_study(fmu_env, monkeypatch) -> None:
+    """A batched estimate off by 1e-9 relative stops the study, naming the case, the series
+    and the difference; --engine fmu runs no batched case."""
+    batched_case = sr._batched_case
+
+    def off(job, tape, replay=None):
+        res, taped = batched_case(job, tape, replay)
+        res["observer.p_tool_hat"] = res["observer.p_tool_hat"] * (1 + 1e-9)
+        return res, taped
+
+    monkeypatch.setattr(sr, "_batched_case", off)
+    nominal = sr.CASES[:1]
+    with pytest.raises(study.StudyError, match=r"case 'nominal': observer.p_tool_hat differs by 1e-09 relative "
+                                               r".*--engine fmu"):
+        sr.robustness(stop_time=0.1, after=0.05, progress=False, cases=nominal)
+    assert sr.robustness(stop_time=0.1, after=0.05, progress=False, cases=nominal, engine="fmu")["engine"] == {
+        "used": "fmu"}
 
 
 def test_runs_shorter_than_the_left_out_start_are_one_error(tmp_path, capsys) -> None:
@@ -201,9 +227,10 @@ def test_a_model_error_no_studied_estimator_takes_is_left_out_and_said(fmu_env, 
     assert _robustness(out, "--scenario", str(toy_scenarios["ok"]), "--other-path",
                        str(toy_scenarios["ok"]), "--estimator", "toy") == 0
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"robustness: case '{k}' left out: no studied estimator takes the parameter set "
-                   "'identified_robot' the model error is put in"
-                   for k in ("model_errors", "model_errors_joint2", "ident_errors")]
+    assert err == ["robustness: the batched engine knows only the math of our FMUs, and 'toy' "
+                   "(ThirdPartyEstimator) is not one of them: every case runs through the FMUs"] + [
+        f"robustness: case '{k}' left out: no studied estimator takes the parameter set "
+        "'identified_robot' the model error is put in" for k in ("model_errors", "model_errors_joint2", "ident_errors")]
     js = json.loads((out / "table.json").read_text())
     assert list(js["cases"]) == ["nominal", "tuning"] and set(js["skipped"]) == {
         "model_errors", "model_errors_joint2", "ident_errors"}

@@ -168,3 +168,55 @@ def test_seeds_are_the_scenarios_seed_on_the_flagship(tmp_path):
         assert_allclose(ekf["arm"][est]["rmse_per_seed"][1],
                         rmse(r[f"ekf.{est}"][keep], r[f"plant.{est[:-4]}"][keep]), rtol=1e-12)
     assert ekf["nis"]["band_95"] is None and np.isfinite(ekf["nis"]["mean"])
+
+
+REPLAY = REPO / "orchestration" / "scenarios" / "replay_log.toml"
+
+
+def _replay_sweep(out: Path, **kw):
+    out.mkdir()
+    return study_sweep.run_study(REPLAY, ["ekf"], out, truth="log.p_tool", runs=2, after=AFTER,
+                                 grid=["ekf.r_acc=1e-4,4e-4"], overrides=["scenario.stop_time=1.0"], workers=1,
+                                 progress=False, plots=False, **kw)
+
+
+def test_the_batched_engine_gives_the_fmus_numbers(tmp_path):
+    """Every component ours: the runs go to the batched engine (one group on one worker), all
+    four checked through the FMUs (identical to 1e-12), and the study's figures are those of
+    --engine fmu."""
+    batched = _replay_sweep(tmp_path / "b", check_runs=4)
+    eng = batched["engine"]
+    assert eng["used"] == "batched" and eng["groups"] == 1 and len(eng["checked_runs"]) == 4
+    assert eng["max_relative_difference"] <= study.CHECK_RTOL
+    fmu = _replay_sweep(tmp_path / "f", engine="fmu")
+    assert fmu["engine"] == {"used": "fmu"}
+    for pb, pf in zip(batched["points"], fmu["points"]):
+        for key in ("position_rmse_per_seed", "max_error"):
+            assert_allclose(pb["estimators"]["ekf"][key], pf["estimators"]["ekf"][key], rtol=study.CHECK_RTOL)
+        assert_allclose(pb["estimators"]["ekf"]["nees"]["mean"], pf["estimators"]["ekf"]["nees"]["mean"],
+                        rtol=study.CHECK_RTOL)
+
+
+def test_a_difference_from_the_fmus_stops_the_sweep(tmp_path, monkeypatch):
+    """A batched estimate off by 1e-9 relative stops the study, naming the run, the series and
+    the difference (the jobs on threads here, so that the change reaches them)."""
+    from concurrent.futures import ThreadPoolExecutor
+    from contextlib import contextmanager
+
+    @contextmanager
+    def threads(workers=None, scheduler=None):
+        with ThreadPoolExecutor(1) as ex:
+            yield ex
+
+    batched_job = study_sweep.batched_job
+
+    def off(doc, runs, variables):
+        out = batched_job(doc, runs, variables)
+        out[-1]["ekf.p_tool_hat"] = out[-1]["ekf.p_tool_hat"] * (1 + 1e-9)
+        return out
+
+    monkeypatch.setattr(study, "open_executor", threads)
+    monkeypatch.setattr(study_sweep, "batched_job", off)
+    with pytest.raises(study.StudyError, match=r"run .*ekf.r_acc=0.0004 scenario.seed=2: ekf.p_tool_hat differs "
+                                               r"by 1e-09 relative .*--engine fmu"):
+        _replay_sweep(tmp_path / "off")

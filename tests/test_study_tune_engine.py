@@ -16,7 +16,7 @@ from orchestration import study_tune as st
 from orchestration.build import build_all
 from orchestration.cli import main
 from orchestration.scenario import scenario_document, toml_value
-from orchestration.study import StudyError, open_executor
+from orchestration.study import StudyError, StudyFolder, open_executor
 
 pytestmark = pytest.mark.usefixtures("fmu_env_module")      # scenarios find every FMU of this test run
 
@@ -70,15 +70,20 @@ def test_the_check_stops_the_tuning_on_a_difference(monkeypatch):
                 seeds=[2], check_candidates=1, progress=False)
 
 
-def test_both_engines_tune_to_the_same_result():
+def test_both_engines_tune_to_the_same_result(tmp_path):
     """Same optimiser seed: the same candidates, costs and tuned values on both engines (on the
     study executor: the tapes go to the workers), training and held-out seeds."""
     kw = dict(after=AFTER, metric=METRIC, overrides=SHORT, maxiter=1, popsize=3, seed=3, seeds=[1],
               holdout_seeds=[2], progress=False)
     with open_executor(workers=2) as ex:
-        fast = st.tune(P1, "observer", {"pole_freq[1]": BOUNDS["pole_freq[1]"]}, engine="batched", executor=ex, **kw)
+        with StudyFolder(tmp_path / "folder"):
+            fast = st.tune(P1, "observer", {"pole_freq[1]": BOUNDS["pole_freq[1]"]}, engine="batched", executor=ex,
+                           **kw)
         ref = st.tune(P1, "observer", {"pole_freq[1]": BOUNDS["pole_freq[1]"]}, engine="fmu", executor=ex, **kw)
     assert fast.engine["used"] == "batched" and len(fast.engine["checked"]) == 2
+    # the batched jobs went through map_jobs: each seed's tape and every population's jobs
+    # (one per worker) kept in the study folder
+    assert len(list((tmp_path / "folder" / "jobs").glob("*.pickle"))) >= 2 + 2 * 2
     assert ref.engine == {"used": "fmu"}
     assert fast.params == ref.params and fast.n_evals == ref.n_evals == 10      # scipy: 5 at least
     assert_allclose([h["cost"] for h in fast.history], [h["cost"] for h in ref.history], rtol=1e-12)

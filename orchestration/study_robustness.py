@@ -44,14 +44,16 @@ Besides the tool position, each case gives ``arm_errors``: the RMSE and largest 
 arm estimates an estimator gives (``q_a_hat``, ``dq_a_hat``, ``ddq_a_hat``, per the contract)
 against the plant's.
 
-Engines (``--engine``): ``batched`` (default) simulates the truth of each scenario once, on the
+Engines (``--engine``): ``fmu`` (default): one co-simulation of the FMUs per case. ``batched``
+simulates the truth of each scenario once, on the
 batched engine (:mod:`orchestration.batched`), with its first case, and plays the other cases of
 that scenario (the model errors: only the estimators' parameters change) back on it; two cases
 (``--check-cases``: a taped one, a replayed one) also run through the FMUs at the same time and
 must agree to 1e-12 relative, or the study stops naming the case, the series and the
 difference. A scenario with an FMU that is not ours runs on the FMUs, with one line saying why.
-``fmu``: one co-simulation of the FMUs per case. (The estimators' own math is most of a case's
-cost, so the gain is the truth's share and the FMI layer's, not a multiple: README.)
+The FMUs are the default because they are faster here: the 2009 estimators' own math is most
+of a case's cost and has no batched kernel, so a replayed case saves only the truth's share
+and the FMI layer, less than the two check runs cost (measured: README).
 
 CLI: ``flexfusion study robustness --out DIR [--tuned FILE ...] [--stop-time S] [--scenario FILE]
 [--other-path FILE] [--estimator NAME ...] [--engine batched|fmu] [--check-cases N]
@@ -360,7 +362,7 @@ def robustness(tuned: Sequence[str | Path] = (), *, executor: Executor | None = 
                stop_time: float | None = None, after: float = 0.5, progress: bool = True,
                cases: Sequence[tuple[str, str, str, str]] = CASES,
                scenario_dir: Path = SCENARIOS, workers: int | None = None,
-               names: Sequence[str] = (), engine: str = "batched", check_cases: int = CHECK_CASES) -> dict[str, Any]:
+               names: Sequence[str] = (), engine: str = "fmu", check_cases: int = CHECK_CASES) -> dict[str, Any]:
     """Run the cases (in parallel on ``executor``; ``None``: here, one after the other) and
     return the table: ``{"cases": {key: {"label", "columns": {label: stats}, "arm_errors":
     {label: {estimate: {rmse, max_error, unit}}}, "wall_time"}}, "paper": PAPER_TABLE,
@@ -695,9 +697,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--estimator", action="append", default=[], metavar="NAME", dest="estimators",
                    help="study this component, ours or anyone's meeting the estimator contract "
                         "(repeatable; default: the paper's observers and rigid kinematics)")
-    p.add_argument("--engine", choices=ENGINES, default="batched",
-                   help="batched: each scenario's truth simulated once, the other cases played back on it, "
-                        "a few cases checked through the FMUs (default); fmu: one co-simulation per case")
+    p.add_argument("--engine", choices=ENGINES, default="fmu",
+                   help="fmu: one co-simulation per case (default: faster for this study); batched: each "
+                        "scenario's truth simulated once, the other cases played back on it, a few cases "
+                        "checked through the FMUs")
     p.add_argument("--check-cases", type=int, default=CHECK_CASES, metavar="N",
                    help=f"cases checked through the FMUs with the batched engine (default {CHECK_CASES}; "
                         "they must agree to 1e-12 relative)")

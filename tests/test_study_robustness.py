@@ -108,8 +108,8 @@ def test_short_robustness_table(fmu_env, tmp_path) -> None:
     """The paper's table at 0.3 s: what it holds, and table.json is main's before the generic
     studies (tests/data/robustness_main_reference.json; its "how" says how it was computed, with
     main's code) but for the arm estimates' errors it has now."""
-    table = sr.robustness(stop_time=0.3, after=0.05, progress=False, workers=1)
-    # on the batched engine (the default): P1's truth simulated once, P2's once, the model errors
+    table = sr.robustness(stop_time=0.3, after=0.05, progress=False, workers=1, engine="batched")
+    # on the batched engine: P1's truth simulated once, P2's once, the model errors
     # played back on P1's; a taped and a replayed case identical to their FMU runs (and every
     # case to main's FMU table, below)
     eng = table["engine"]
@@ -162,7 +162,7 @@ def test_a_difference_from_the_fmus_stops_the_study(fmu_env, monkeypatch) -> Non
     nominal = sr.CASES[:1]
     with pytest.raises(study.StudyError, match=r"case 'nominal': observer.p_tool_hat differs by 1e-09 relative "
                                                r".*--engine fmu"):
-        sr.robustness(stop_time=0.1, after=0.05, progress=False, cases=nominal)
+        sr.robustness(stop_time=0.1, after=0.05, progress=False, cases=nominal, engine="batched")
     assert sr.robustness(stop_time=0.1, after=0.05, progress=False, cases=nominal, engine="fmu")["engine"] == {
         "used": "fmu"}
 
@@ -225,7 +225,7 @@ def test_a_model_error_no_studied_estimator_takes_is_left_out_and_said(fmu_env, 
                                                                        capsys) -> None:
     out = tmp_path / "toy_only"
     assert _robustness(out, "--scenario", str(toy_scenarios["ok"]), "--other-path",
-                       str(toy_scenarios["ok"]), "--estimator", "toy") == 0
+                       str(toy_scenarios["ok"]), "--estimator", "toy", "--engine", "batched") == 0
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["robustness: the batched engine knows only the math of our FMUs, and 'toy' "
                    "(ThirdPartyEstimator) is not one of them: every case runs through the FMUs"] + [

@@ -228,16 +228,38 @@ def initial_covariance(p: EkfAccelerometerParameters, layout: Layout) -> np.ndar
     return np.diag(np.square(s))
 
 
-# ---- eqs. 11 and 15-19 on scalars: compiled kernels (the filter's hot path) -------------------
+# ---- eqs. 11 and 15-19 on scalars: compiled kernels (the filters' hot path) -------------------
+# The model is written once, here, per state; the particle filter and the batched EKF run it
+# over many states with :func:`fmus.estimators.axelsson2012_batched.measure_many`, which calls
+# these kernels row by row (numba inlines a kernel called from another).
+
 #: Order of the constants array of the kernels (:attr:`MeasurementModel.constants`).
 K_A, K_C, K_E, K_G1, K_G2, K_G, K_L1, K_V0, K_V1, K_KHI, K_KSOFT, K_DELTA, K_R = (
     0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 13, 15)
 
+#: ``max |d^2/dx^2 tanh(x)| / 2 = 2 / (3 sqrt(3))``: bounds Newton's next residual
+#: (:func:`spring_deflection_kernel`).
+_HALF_MAX_TANH2 = 2.0 / (3.0 * math.sqrt(3.0))
+
 
 @kernel
-def arm_torque_jacobian_kernel(x: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """``d tau_a / d(q, dq, ddq)`` (2, 6) of eq. 11 at the state ``x``, analytic; ``k`` the
-    model's constants (:attr:`MeasurementModel.constants`)."""
+def arm_torque_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
+    """The rigid arm torque ``tau_a = M(q) ddq + C(q, dq) dq + G(q)`` (eq. 11) at the state
+    ``x``, as two floats; ``k`` the model's constants (:attr:`MeasurementModel.constants`)."""
+    q1, q2, dq1, dq2, a1, a2 = x[0], x[1], x[2], x[3], x[4], x[5]
+    a, c, e, g1, g2 = k[K_A], k[K_C], k[K_E], k[K_G1], k[K_G2]
+    s2, c2 = math.sin(q2), math.cos(q2)
+    b, bd = -e * s2, -e * c2
+    cp = math.cos(q1 + q2)
+    tau0 = (a + 2 * b) * a1 + (c + b) * a2 + bd * (2 * dq1 * dq2 + dq2 * dq2) - g1 * math.sin(q1) - g2 * cp
+    tau1 = (c + b) * a1 + c * a2 - bd * dq1 * dq1 - g2 * cp
+    return tau0, tau1
+
+
+@kernel
+def arm_torque_jacobian_into(x: np.ndarray, k: np.ndarray, J: np.ndarray) -> None:
+    """``d tau_a / d(q, dq, ddq)`` of eq. 11 at the state ``x``, analytic, into ``J[0:2, 0:6]``;
+    ``k`` the model's constants (:attr:`MeasurementModel.constants`)."""
     q1, q2, dq1, dq2, a1, a2 = x[0], x[1], x[2], x[3], x[4], x[5]
     e, g2 = k[K_E], k[K_G2]
     s2, c2 = math.sin(q2), math.cos(q2)
@@ -248,7 +270,6 @@ def arm_torque_jacobian_kernel(x: np.ndarray, k: np.ndarray) -> np.ndarray:
     gsp = g2 * sp
     # d/dq1: gravity only (G1 = -g1 sin q1 - g2 cos phi, G2 = -g2 cos phi); d/dq2: M'(q2) ddq
     # + C' + G'; d/d dq: Coriolis; d/d ddq: M
-    J = np.empty((2, 6))
     J[0, 0] = -k[K_G1] * math.cos(q1) + gsp
     J[0, 1] = 2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + gsp
     J[0, 2] = 2 * bd * dq2
@@ -261,14 +282,22 @@ def arm_torque_jacobian_kernel(x: np.ndarray, k: np.ndarray) -> np.ndarray:
     J[1, 3] = 0.0
     J[1, 4] = k[K_C] + b
     J[1, 5] = k[K_C]
+
+
+@kernel
+def arm_torque_jacobian_kernel(x: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """``d tau_a / d(q, dq, ddq)`` (2, 6) of eq. 11 at the state ``x``
+    (:func:`arm_torque_jacobian_into`); ``k`` the model's constants."""
+    J = np.empty((2, 6))
+    arm_torque_jacobian_into(x, k, J)
     return J
 
 
 @kernel
-def specific_force_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
+def specific_force_into(x: np.ndarray, k: np.ndarray, f: np.ndarray, J: np.ndarray, row: int) -> None:
     """The accelerometer reading (sensor x, z) of eqs. 17-19 in closed form (module docstring)
-    and its Jacobian ``d f / d(q, dq, ddq)`` (2, 6), at the state ``x``; ``k`` the model's
-    constants."""
+    at the state ``x`` into ``f[row:row + 2]`` and, if ``J`` has rows, its Jacobian
+    ``d f / d(q, dq, ddq)`` into ``J[row:row + 2, 0:6]``; ``k`` the model's constants."""
     q1, q2, dq1, dq2, a1 = x[0], x[1], x[2], x[3], x[4]
     dphi, aphi = dq1 + dq2, a1 + x[5]
     l1, v0, v1, g = k[K_L1], k[K_V0], k[K_V1], k[K_G]
@@ -277,88 +306,133 @@ def specific_force_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
     phi = q1 + q2
     cp, sp = math.cos(phi), math.sin(phi)
     u1, u2 = a1, -dq1 * dq1                         # (ddq1, -dq1^2), rotated by R(-q2)
-    f = np.empty(2)
-    f[0] = l1 * (c2 * u1 - s2 * u2) + Sv0 * aphi - v0 * dphi * dphi - g * sp
-    f[1] = l1 * (s2 * u1 + c2 * u2) + Sv1 * aphi - v1 * dphi * dphi + g * cp
+    f[row] = l1 * (c2 * u1 - s2 * u2) + Sv0 * aphi - v0 * dphi * dphi - g * sp
+    f[row + 1] = l1 * (s2 * u1 + c2 * u2) + Sv1 * aphi - v1 * dphi * dphi + g * cp
+    if J.shape[0] == 0:
+        return
+    x_, z_ = row, row + 1
     dg0, dg1 = -g * cp, -g * sp                     # d/dphi of g (-sin phi, cos phi)
-    J = np.empty((2, 6))
-    J[0, 0], J[1, 0] = dg0, dg1
-    J[0, 1] = dg0 + l1 * (-s2 * u1 - c2 * u2)
-    J[1, 1] = dg1 + l1 * (c2 * u1 - s2 * u2)
-    J[0, 2] = l1 * (s2 * 2 * dq1) - 2 * v0 * dphi
-    J[1, 2] = l1 * (-c2 * 2 * dq1) - 2 * v1 * dphi
-    J[0, 3] = -2 * v0 * dphi
-    J[1, 3] = -2 * v1 * dphi
-    J[0, 4] = l1 * c2 + Sv0
-    J[1, 4] = l1 * s2 + Sv1
-    J[0, 5], J[1, 5] = Sv0, Sv1
+    J[x_, 0], J[z_, 0] = dg0, dg1
+    J[x_, 1] = dg0 + l1 * (-s2 * u1 - c2 * u2)
+    J[z_, 1] = dg1 + l1 * (c2 * u1 - s2 * u2)
+    J[x_, 2] = l1 * (s2 * 2 * dq1) - 2 * v0 * dphi
+    J[z_, 2] = l1 * (-c2 * 2 * dq1) - 2 * v1 * dphi
+    J[x_, 3] = -2 * v0 * dphi
+    J[z_, 3] = -2 * v1 * dphi
+    J[x_, 4] = l1 * c2 + Sv0
+    J[z_, 4] = l1 * s2 + Sv1
+    J[x_, 5], J[z_, 5] = Sv0, Sv1
+
+
+@kernel
+def specific_force_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
+    """The accelerometer reading (sensor x, z) of eqs. 17-19 and its Jacobian
+    ``d f / d(q, dq, ddq)`` (2, 6) at the state ``x`` (:func:`specific_force_into`); ``k`` the
+    model's constants."""
+    f, J = np.empty(2), np.empty((2, 6))
+    specific_force_into(x, k, f, J, 0)
     return f, J
+
+
+@kernel
+def spring_deflection_kernel(tau: float, k_hi: float, k_soft: float, delta: float, start: float,
+                             bound_stop: bool) -> tuple:
+    """The gearbox deflection ``D`` of one joint carrying the torque ``tau`` (eq. 16's spring,
+    that of :mod:`fmus.common.dynamics`: ``tau_s = k_hi D - k_soft delta tanh(D / delta)``,
+    ``k_soft = k_hi - k_lo``) and the stiffness ``d tau_s / dD`` there, as two floats.
+
+    Newton's method, as ``dynamics.spring_deflection``, from ``start`` (NaN: from the
+    high-stiffness asymptote shifted by the soft zone), at most 50 steps: step, then stop once
+    the residual before the step, ``|tau_s(D) - tau|``, is within ``1e-12 max(1, |tau|)``.
+    With ``bound_stop`` (the particle filter: warm starts, fewer ``tanh``) it also stops as soon
+    as Newton's bound on the next residual, ``max|tau_s''| / 2 (f / k)^2`` with
+    ``max|tau_s''| = 4 / (3 sqrt 3) k_soft / delta``, is within the tolerance: the same root
+    within the same tolerance, one step earlier.
+    """
+    if math.isnan(start):
+        d = (tau + math.copysign(k_soft * delta * math.tanh(abs(tau) / (k_hi * delta)), tau)) / k_hi
+    else:
+        d = start
+    tol = 1e-12 * max(1.0, abs(tau))
+    for _ in range(50):
+        th = math.tanh(d / delta)
+        f = k_hi * d - k_soft * delta * th - tau
+        slope = k_hi - k_soft * (1.0 - th * th)             # sech^2, no overflow
+        d -= f / slope
+        if abs(f) <= tol:
+            break
+        # |tau_s(d_next) - tau| <= max|tau_s''| / 2 (f / k)^2, tau_s'' = -(k_soft / delta) tanh''
+        if bound_stop and _HALF_MAX_TANH2 * k_soft / delta * (f / slope) * (f / slope) <= tol:
+            break
+    th = math.tanh(d / delta)
+    return d, k_hi - k_soft * (1.0 - th * th)
 
 
 @kernel
 def spring_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
     """The gearbox deflection ``D = tau_s^-1(tau_a)`` (2,) carrying the arm torque ``tau_a`` of
-    eq. 11 at the state ``x``, and the spring stiffness ``d tau_s / dD`` there (2,): the
-    nonlinear spring of :mod:`fmus.common.dynamics` (``tau_s = k_hi D - (k_hi - k_lo) delta
-    tanh(D / delta)``) inverted by Newton's method, as ``dynamics.spring_deflection``; ``k`` the
-    model's constants."""
-    q1, q2, dq1, dq2, a1, a2 = x[0], x[1], x[2], x[3], x[4], x[5]
-    a, c, e, g1, g2 = k[K_A], k[K_C], k[K_E], k[K_G1], k[K_G2]
-    s2, c2 = math.sin(q2), math.cos(q2)
-    b, bd = -e * s2, -e * c2
-    cp = math.cos(q1 + q2)
-    tau0 = (a + 2 * b) * a1 + (c + b) * a2 + bd * (2 * dq1 * dq2 + dq2 * dq2) - g1 * math.sin(q1) - g2 * cp
-    tau1 = (c + b) * a1 + c * a2 - bd * dq1 * dq1 - g2 * cp
-    D = np.empty(2)
-    stiffness = np.empty(2)
+    eq. 11 at the state ``x`` and the spring stiffness ``d tau_s / dD`` there (2,)
+    (:func:`spring_deflection_kernel` from the cold start); ``k`` the model's constants."""
+    tau = arm_torque_kernel(x, k)
+    D, stiffness = np.empty(2), np.empty(2)
     for i in range(2):
-        k_hi, k_soft, delta = k[K_KHI + i], k[K_KSOFT + i], k[K_DELTA + i]
-        t = tau0 if i == 0 else tau1
-        d = (t + math.copysign(k_soft * delta * math.tanh(abs(t) / (k_hi * delta)), t)) / k_hi
-        for _ in range(50):
-            th = math.tanh(d / delta)
-            f = k_hi * d - k_soft * delta * th - t
-            d -= f / (k_hi - k_soft * (1.0 - th * th))      # sech^2, no overflow
-            if abs(f) <= 1e-12 * max(1.0, abs(t)):
-                break
-        th = math.tanh(d / delta)
-        D[i] = d
-        stiffness[i] = k_hi - k_soft * (1.0 - th * th)
+        D[i], stiffness[i] = spring_deflection_kernel(tau[i], k[K_KHI + i], k[K_KSOFT + i], k[K_DELTA + i],
+                                                      math.nan, False)
     return D, stiffness
+
+
+@kernel
+def measure_into(x: np.ndarray, k: np.ndarray, use_accelerometer: bool, use_bias: bool, start0: float,
+                 start1: float, bound_stop: bool, y: np.ndarray, H: np.ndarray) -> tuple:
+    """``h(x)`` of eq. 15 into ``y`` (m,) and, if ``H`` has rows, its Jacobian ``H`` (eq. 4c)
+    into ``H`` (m, n) (the entries not written here are the caller's zeros), for the layout of
+    the two switches ``use_accelerometer`` and ``use_bias`` (:class:`Layout`); ``k`` the
+    constants (:attr:`MeasurementModel.constants`). Motor angles ``r (q_a + D)`` with
+    ``H = r (I + K(D)^-1 d tau_a / dx)`` (``K(D)`` the spring stiffness), accelerometer
+    (:func:`specific_force_into`), identities for the biases. The deflections ``D`` start
+    Newton from ``start0``, ``start1`` (NaN: cold) with ``bound_stop``
+    (:func:`spring_deflection_kernel`); returns them ``(D_1, D_2)``."""
+    jacobian = H.shape[0] > 0
+    tau0, tau1 = arm_torque_kernel(x, k)
+    d0, k0 = spring_deflection_kernel(tau0, k[K_KHI], k[K_KSOFT], k[K_DELTA], start0, bound_stop)
+    d1, k1 = spring_deflection_kernel(tau1, k[K_KHI + 1], k[K_KSOFT + 1], k[K_DELTA + 1], start1, bound_stop)
+    r0, r1 = k[K_R], k[K_R + 1]
+    y[0] = r0 * (x[0] + d0)
+    y[1] = r1 * (x[1] + d1)
+    if jacobian:
+        arm_torque_jacobian_into(x, k, H)
+        rk0, rk1 = r0 / k0, r1 / k1
+        for j in range(6):
+            H[0, j] = rk0 * H[0, j]
+            H[1, j] = rk1 * H[1, j]
+        H[0, 0] += r0
+        H[1, 1] += r1
+    if use_bias:
+        y[0] += x[6]
+        y[1] += x[7]
+        if jacobian:
+            H[0, 6] = 1.0
+            H[1, 7] = 1.0
+    if use_accelerometer:
+        specific_force_into(x, k, y, H, 2)
+        if use_bias:
+            y[2] += x[8]
+            y[3] += x[9]
+            if jacobian:
+                H[2, 8] = 1.0
+                H[3, 9] = 1.0
+    return d0, d1
 
 
 @kernel
 def measurement_kernel(x: np.ndarray, k: np.ndarray, use_accelerometer: bool, use_bias: bool) -> tuple:
     """``h(x)`` of eq. 15 and its Jacobian ``H`` (eq. 4c) for the layout of the two switches
     ``use_accelerometer`` and ``use_bias`` (:class:`Layout`), ``k`` the constants
-    (:attr:`MeasurementModel.constants`): motor angles ``r (q_a + D)`` with
-    ``H = r (I + K(D)^-1 d tau_a / dx)`` (``K(D)`` the spring stiffness), accelerometer
-    (:func:`specific_force_kernel`), identities for the biases."""
+    (:attr:`MeasurementModel.constants`): :func:`measure_into` from the cold start."""
     m = 4 if use_accelerometer else 2
     n = 6 + (2 if use_bias else 0) + (2 if use_bias and use_accelerometer else 0)
-    D, stiffness = spring_kernel(x, k)
-    Jt = arm_torque_jacobian_kernel(x, k)
-    y = np.empty(m)
-    H = np.zeros((m, n))
-    for i in range(2):
-        r = k[K_R + i]
-        rk = r / stiffness[i]
-        y[i] = r * (x[i] + D[i])
-        for j in range(6):
-            H[i, j] = rk * Jt[i, j]
-        H[i, i] += r
-        if use_bias:
-            y[i] += x[6 + i]
-            H[i, 6 + i] = 1.0
-    if use_accelerometer:
-        f, Jf = specific_force_kernel(x, k)
-        for i in range(2):
-            y[2 + i] = f[i]
-            for j in range(6):
-                H[2 + i, j] = Jf[i, j]
-            if use_bias:
-                y[2 + i] += x[8 + i]
-                H[2 + i, 8 + i] = 1.0
+    y, H = np.empty(m), np.zeros((m, n))
+    measure_into(x, k, use_accelerometer, use_bias, math.nan, math.nan, False, y, H)
     return y, H
 
 
@@ -463,4 +537,6 @@ class MeasurementModel:
 
 
 __all__ = ["EkfAccelerometerParameters", "Layout", "MeasurementModel", "continuous_model", "transition_matrices", "process_noise", "measurement_noise", "initial_covariance", "Q_JERK_DEFAULT", "Q_", "DQ_", "DDQ_",
-           "measurement_kernel", "spring_kernel", "specific_force_kernel", "arm_torque_jacobian_kernel"]
+           "measurement_kernel", "measure_into", "spring_kernel", "spring_deflection_kernel",
+           "specific_force_kernel", "specific_force_into", "arm_torque_kernel", "arm_torque_jacobian_kernel",
+           "arm_torque_jacobian_into"]

@@ -51,7 +51,8 @@ def test_each_row_is_the_scalar_model_bit_for_bit(acc: bool, bias: bool) -> None
         assert_array_equal(Y[i], y)
         assert_array_equal(H[i], h)
     assert_array_equal(B.h(X), Y)
-    assert_array_equal(B.deflection(X), [am.spring_kernel(x, meas.constants)[0] for x in X])
+    assert_array_equal(B.deflection(X), [am.deflections_kernel(am.motion(x), meas.constants, np.nan, np.nan, False)
+                                         for x in X])
 
 
 @pytest.mark.parametrize("acc,bias", LAYOUTS)
@@ -85,3 +86,15 @@ def test_the_particle_filters_rounding_and_warm_start_agree_with_the_numpy_code(
     Yw, _, Dw = _evaluate(meas, near, bound_stop=True, D0=D)            # Newton from X's deflections
     assert_allclose(Yw, ref.h(near), rtol=1e-12, atol=0)
     assert_allclose(Dw, ref.deflection(near), rtol=1e-12, atol=0)
+
+
+def test_shapes_that_do_not_fit_the_layout_are_refused() -> None:
+    """The kernels do not check indices: ``measure_many`` refuses arrays that do not fit
+    (an empty Jacobian instead of None, a state without the bias states)."""
+    meas = _model(True, True)
+    X = _states(meas.layout.n, n=5)
+    Y, D = np.empty((5, 4)), np.full((5, 2), np.nan)
+    for bad in (dict(H=np.zeros((5, 0, 0))), dict(X=X[:, :6]), dict(Y=np.empty((5, 2)))):
+        args = dict(X=X, Y=Y, H=None) | bad
+        with pytest.raises(ValueError, match="do not fit"):
+            ab.measure_many(args["X"], meas.constants, *meas.switches, False, D, args["Y"], args["H"], D)

@@ -392,7 +392,7 @@ def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, k_model, use_accelerome
                     s += L[p, j] * Z[i, j]
                 X[i, p] = M[i, p] + s
     # p(y | x) (Gaussian e_t)
-    measure_many(X, k_model, use_accelerometer, use_bias, True, D, Yh, np.zeros((N, 0, 0)), D)
+    measure_many(X, k_model, use_accelerometer, use_bias, True, D, Yh, None, D)
     for i in range(N):
         q, total = 0.0, 0.0
         for a in range(m):

@@ -229,9 +229,11 @@ def initial_covariance(p: EkfAccelerometerParameters, layout: Layout) -> np.ndar
 
 
 # ---- eqs. 11 and 15-19 on scalars: compiled kernels (the filters' hot path) -------------------
-# The model is written once, here, per state; the particle filter and the batched EKF run it
-# over many states with :func:`fmus.estimators.axelsson2012_batched.measure_many`, which calls
-# these kernels row by row (numba inlines a kernel called from another).
+# The model is written once, here, per state (the EKF: measurement_kernel); the particle filter
+# and the Cramer-Rao bound run it over many states with
+# fmus.estimators.axelsson2012_batched.measure_many, which calls these kernels row by row. The
+# pieces are inline="always": numba compiles them into their caller (one loop body, each sine
+# and cosine computed once, the layout switches constant where the caller makes them so).
 
 #: Order of the constants array of the kernels (:attr:`MeasurementModel.constants`).
 K_A, K_C, K_E, K_G1, K_G2, K_G, K_L1, K_V0, K_V1, K_KHI, K_KSOFT, K_DELTA, K_R = (
@@ -370,8 +372,9 @@ def spring_start(tau: float, k_hi: float, k_soft: float, delta: float, start: fl
 @kernel(inline="always")
 def spring_newton_step(d: float, tau: float, k_hi: float, k_soft: float, delta: float, bound_stop: bool) -> tuple:
     """One step of Newton's method on ``tau_s(d) = tau`` (:func:`spring_deflection_kernel`, with
-    its ``k_hi``, ``k_soft`` and ``delta``): ``(d_next, done)``, done when the residual at ``d`` is within the tolerance or, with
-    ``bound_stop``, Newton's bound on the residual at ``d_next`` is."""
+    its ``k_hi``, ``k_soft`` and ``delta``): ``(d_next, done)``, done when the residual at ``d``
+    is within the tolerance or, with ``bound_stop``, Newton's bound on the residual at
+    ``d_next`` is."""
     tol = NEWTON_RTOL * max(1.0, abs(tau))
     th = math.tanh(d / delta)
     f = k_hi * d - k_soft * delta * th - tau
@@ -587,7 +590,8 @@ class MeasurementModel:
 
 
 __all__ = ["EkfAccelerometerParameters", "Layout", "MeasurementModel", "continuous_model", "transition_matrices", "process_noise", "measurement_noise", "initial_covariance", "Q_JERK_DEFAULT", "Q_", "DQ_", "DDQ_",
-           "measurement_kernel", "h_into", "jacobian_into", "deflections_kernel", "spring_deflection_kernel",
-           "spring_start", "spring_newton_step", "NEWTON_STEPS", "NEWTON_RTOL",
-           "spring_stiffness_kernel", "specific_force_kernel", "specific_force_into", "specific_force_jacobian_into", "motion", "arm_torque_kernel", "arm_torque_jacobian_kernel",
-           "arm_torque_jacobian_into"]
+           "K_A", "K_C", "K_E", "K_G1", "K_G2", "K_G", "K_L1", "K_V0", "K_V1", "K_KHI", "K_KSOFT", "K_DELTA", "K_R",
+           "motion", "arm_torque_kernel", "arm_torque_jacobian_into", "arm_torque_jacobian_kernel",
+           "specific_force_into", "specific_force_jacobian_into", "specific_force_kernel", "NEWTON_STEPS",
+           "NEWTON_RTOL", "spring_start", "spring_newton_step", "spring_deflection_kernel", "spring_stiffness_kernel",
+           "deflections_kernel", "h_into", "jacobian_into", "measurement_kernel"]

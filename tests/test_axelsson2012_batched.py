@@ -29,19 +29,18 @@ def _states(n_states: int, n: int = 400, seed: int = 3) -> np.ndarray:
     return X
 
 
-def _evaluate(meas: am.MeasurementModel, X: np.ndarray, exact: bool, D0=None):
-    B = ab.BatchedMeasurement(meas)
+def _evaluate(meas: am.MeasurementModel, X: np.ndarray, bound_stop: bool, D0=None):
     N, L = len(X), meas.layout
     Y, H, D = np.empty((N, L.m)), np.zeros((N, L.m, L.n)), np.empty((N, 2))
     D0 = np.full((N, 2), np.nan) if D0 is None else D0
-    ab.measure_many(X, B.constants, *B.offsets, exact, D0, Y, H, D)
+    ab.measure_many(X, meas.constants, *meas.switches, bound_stop, D0, Y, H, D)
     return Y, H, D
 
 
 @pytest.mark.parametrize("acc,bias", LAYOUTS)
 def test_each_row_is_the_scalar_model_bit_for_bit(acc: bool, bias: bool) -> None:
-    """The batched engine's promise: every run's h and H are the single EKF's, to the bit
-    (libm's sin, cos and tanh in the scalar order, C's pow for the squares)."""
+    """Every row's h and H are the single EKF's, to the bit (the same kernels), and its
+    deflections the scalar spring solve's."""
     meas = _model(acc, bias)
     X = _states(meas.layout.n)
     B = ab.BatchedMeasurement(meas)
@@ -52,7 +51,8 @@ def test_each_row_is_the_scalar_model_bit_for_bit(acc: bool, bias: bool) -> None
         assert_array_equal(Y[i], y)
         assert_array_equal(H[i], h)
     assert_array_equal(B.h(X), Y)
-    assert_allclose(B.deflection(X), [meas._torque_deflection(x)[1] for x in X], rtol=0, atol=0)
+    assert_array_equal(B.deflection(X), [am.deflections_kernel(am.motion(x), meas.constants, np.nan, np.nan, False)
+                                         for x in X])
 
 
 @pytest.mark.parametrize("acc,bias", LAYOUTS)
@@ -73,16 +73,28 @@ def test_jacobian_equals_finite_differences(acc: bool, bias: bool) -> None:
 
 @pytest.mark.parametrize("acc,bias", LAYOUTS)
 def test_the_particle_filters_rounding_and_warm_start_agree_with_the_numpy_code(acc: bool, bias: bool) -> None:
-    """Without ``exact`` (squares as t * t, the particle filter's) and with the Newton iteration
-    started from nearby deflections, h and H are the former numpy code's to 1e-12."""
+    """With the particle filter's stopping rule (Newton's error bound) and with the Newton
+    iteration started from nearby deflections, h and H are the former numpy code's to 1e-12."""
     meas = _model(acc, bias)
     X = _states(meas.layout.n)
     ref = NumpyMeasurement(meas)
-    Y, H, D = _evaluate(meas, X, exact=False)
+    Y, H, D = _evaluate(meas, X, bound_stop=True)
     assert_allclose(Y, ref.h(X), rtol=1e-12, atol=0)
     assert_allclose(H, ref.jacobian(X), rtol=1e-12, atol=1e-12 * np.abs(H).max())
-    assert_allclose(Y, _evaluate(meas, X, exact=True)[0], rtol=1e-14, atol=0)
+    assert_allclose(Y, _evaluate(meas, X, bound_stop=False)[0], rtol=1e-14, atol=0)
     near = X * (1 + 1e-3 * np.random.default_rng(1).normal(size=X.shape))
-    Yw, _, Dw = _evaluate(meas, near, exact=False, D0=D)            # Newton from X's deflections
+    Yw, _, Dw = _evaluate(meas, near, bound_stop=True, D0=D)            # Newton from X's deflections
     assert_allclose(Yw, ref.h(near), rtol=1e-12, atol=0)
     assert_allclose(Dw, ref.deflection(near), rtol=1e-12, atol=0)
+
+
+def test_shapes_that_do_not_fit_the_layout_are_refused() -> None:
+    """The kernels do not check indices: ``measure_many`` refuses arrays that do not fit
+    (an empty Jacobian instead of None, a state without the bias states)."""
+    meas = _model(True, True)
+    X = _states(meas.layout.n, n=5)
+    Y, D = np.empty((5, 4)), np.full((5, 2), np.nan)
+    for bad in (dict(H=np.zeros((5, 0, 0))), dict(X=X[:, :6]), dict(Y=np.empty((5, 2)))):
+        args = dict(X=X, Y=Y, H=None) | bad
+        with pytest.raises(ValueError, match="do not fit"):
+            ab.measure_many(args["X"], meas.constants, *meas.switches, False, D, args["Y"], args["H"], D)

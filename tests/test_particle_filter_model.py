@@ -326,7 +326,7 @@ def test_compiled_sampling_and_weighting_equal_the_numpy_code(proposal: str, acc
         X, logw = np.empty_like(M), np.empty(len(M))
         D = f.D.copy()                         # the deflections Newton starts from
         pm.propose_and_weigh(M, np.ascontiguousarray(L), f.logw, y, f.r_inv, Z, proposal == "ekf",
-                             f.batch.constants, *f.batch.offsets, D, X, logw)
+                             f.meas.constants, *f.meas.switches, D, X, logw)
         X_ref, logw_ref = propose_and_weigh_numpy(ref, proposal, f.r_inv, M, L, f.logw, y, Z)
         assert np.isneginf(logw[[3, 7]]).all() and not X[[3, 7]].any()
         assert_allclose(D[:3], NumpyMeasurement(f.meas).deflection(X[:3]), rtol=1e-12)

@@ -228,137 +228,265 @@ def initial_covariance(p: EkfAccelerometerParameters, layout: Layout) -> np.ndar
     return np.diag(np.square(s))
 
 
-# ---- eqs. 11 and 15-19 on scalars: compiled kernels (the filter's hot path) -------------------
+# ---- eqs. 11 and 15-19 on scalars: compiled kernels (the filters' hot path) -------------------
+# The model is written once, here, per state (the EKF: measurement_kernel); the particle filter
+# and the Cramer-Rao bound run it over many states with
+# fmus.estimators.axelsson2012_batched.measure_many, which calls these kernels row by row. The
+# pieces are inline="always": numba compiles them into their caller (one loop body, each sine
+# and cosine computed once, the layout switches constant where the caller makes them so).
+
 #: Order of the constants array of the kernels (:attr:`MeasurementModel.constants`).
 K_A, K_C, K_E, K_G1, K_G2, K_G, K_L1, K_V0, K_V1, K_KHI, K_KSOFT, K_DELTA, K_R = (
     0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 13, 15)
 
+#: ``max |d^2/dx^2 tanh(x)| / 2 = 2 / (3 sqrt(3))``: bounds Newton's next residual
+#: (:func:`spring_deflection_kernel`).
+_HALF_MAX_TANH2 = 2.0 / (3.0 * math.sqrt(3.0))
 
-@kernel
-def arm_torque_jacobian_kernel(x: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """``d tau_a / d(q, dq, ddq)`` (2, 6) of eq. 11 at the state ``x``, analytic; ``k`` the
-    model's constants (:attr:`MeasurementModel.constants`)."""
-    q1, q2, dq1, dq2, a1, a2 = x[0], x[1], x[2], x[3], x[4], x[5]
+
+@kernel(inline="always")
+def motion(x: np.ndarray) -> tuple:
+    """The motion part of the state ``x`` as the kernels below take it, 11 floats:
+    ``(q_1, q_2, dq_1, dq_2, ddq_1, ddq_2, sin q_1, sin q_2, cos q_2, sin phi, cos phi)``
+    (``phi = q_1 + q_2``): the sines and cosines ``h`` needs, computed once per state for ``h``
+    and ``H`` (and stored with it over many states,
+    :func:`fmus.estimators.axelsson2012_batched.measure_many`)."""
+    q1, q2 = x[0], x[1]
+    phi = q1 + q2
+    return q1, q2, x[2], x[3], x[4], x[5], math.sin(q1), math.sin(q2), math.cos(q2), math.sin(phi), math.cos(phi)
+
+
+@kernel(inline="always")
+def arm_torque_kernel(s: tuple, k: np.ndarray) -> tuple:
+    """The rigid arm torque ``tau_a = M(q) ddq + C(q, dq) dq + G(q)`` (eq. 11) at the motion
+    ``s`` (:func:`motion`), as two floats; ``k`` the model's constants
+    (:attr:`MeasurementModel.constants`)."""
+    q1, q2, dq1, dq2, a1, a2, s1, s2, c2, sp, cp = s
+    a, c, e, g1, g2 = k[K_A], k[K_C], k[K_E], k[K_G1], k[K_G2]
+    b, bd = -e * s2, -e * c2
+    tau0 = (a + 2 * b) * a1 + (c + b) * a2 + bd * (2 * dq1 * dq2 + dq2 * dq2) - g1 * s1 - g2 * cp
+    tau1 = (c + b) * a1 + c * a2 - bd * dq1 * dq1 - g2 * cp
+    return tau0, tau1
+
+
+@kernel(inline="always")
+def arm_torque_jacobian_into(s: tuple, k: np.ndarray, w0: float, w1: float, J: np.ndarray) -> None:
+    """``d tau_a / d(q, dq, ddq)`` of eq. 11 at the motion ``s`` (:func:`motion`), analytic,
+    its rows times ``w0`` and ``w1`` (the motor angles' ``r / K(D)``, :func:`jacobian_into`;
+    1 for the Jacobian itself), into ``J[0:2, 0:6]``; ``k`` the model's constants
+    (:attr:`MeasurementModel.constants`)."""
+    q1, q2, dq1, dq2, a1, a2, s1, s2, c2, sp, cp = s
     e, g2 = k[K_E], k[K_G2]
-    s2, c2 = math.sin(q2), math.cos(q2)
-    sp = math.sin(q1 + q2)
     b = -e * s2
     bd = -e * c2
     bdd = e * s2
     gsp = g2 * sp
     # d/dq1: gravity only (G1 = -g1 sin q1 - g2 cos phi, G2 = -g2 cos phi); d/dq2: M'(q2) ddq
     # + C' + G'; d/d dq: Coriolis; d/d ddq: M
+    J[0, 0] = w0 * (-k[K_G1] * math.cos(q1) + gsp)
+    J[0, 1] = w0 * (2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + gsp)
+    J[0, 2] = w0 * (2 * bd * dq2)
+    J[0, 3] = w0 * (2 * bd * (dq1 + dq2))
+    J[0, 4] = w0 * (k[K_A] + 2 * b)
+    J[0, 5] = w0 * (k[K_C] + b)
+    J[1, 0] = w1 * gsp
+    J[1, 1] = w1 * (bd * a1 - bdd * dq1 * dq1 + gsp)
+    J[1, 2] = w1 * (-2 * bd * dq1)
+    J[1, 3] = w1 * 0.0
+    J[1, 4] = w1 * (k[K_C] + b)
+    J[1, 5] = w1 * k[K_C]
+
+
+@kernel
+def arm_torque_jacobian_kernel(x: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """``d tau_a / d(q, dq, ddq)`` (2, 6) of eq. 11 at the state ``x``
+    (:func:`arm_torque_jacobian_into`); ``k`` the model's constants."""
     J = np.empty((2, 6))
-    J[0, 0] = -k[K_G1] * math.cos(q1) + gsp
-    J[0, 1] = 2 * bd * a1 + bd * a2 + bdd * (2 * dq1 * dq2 + dq2 * dq2) + gsp
-    J[0, 2] = 2 * bd * dq2
-    J[0, 3] = 2 * bd * (dq1 + dq2)
-    J[0, 4] = k[K_A] + 2 * b
-    J[0, 5] = k[K_C] + b
-    J[1, 0] = gsp
-    J[1, 1] = bd * a1 - bdd * dq1 * dq1 + gsp
-    J[1, 2] = -2 * bd * dq1
-    J[1, 3] = 0.0
-    J[1, 4] = k[K_C] + b
-    J[1, 5] = k[K_C]
+    arm_torque_jacobian_into(motion(x), k, 1.0, 1.0, J)
     return J
+
+
+@kernel(inline="always")
+def specific_force_into(s: tuple, k: np.ndarray, f: np.ndarray, row: int) -> None:
+    """The accelerometer reading (sensor x, z) of eqs. 17-19 in closed form (module docstring)
+    at the motion ``s`` (:func:`motion`) into ``f[row:row + 2]``; ``k`` the model's constants."""
+    q1, q2, dq1, dq2, a1, a2, s1, s2, c2, sp, cp = s
+    dphi, aphi = dq1 + dq2, a1 + a2
+    l1, v0, v1, g = k[K_L1], k[K_V0], k[K_V1], k[K_G]
+    Sv0, Sv1 = v1, -v0                              # S v, S = [[0, 1], [-1, 0]]
+    u1, u2 = a1, -dq1 * dq1                         # (ddq1, -dq1^2), rotated by R(-q2)
+    f[row] = l1 * (c2 * u1 - s2 * u2) + Sv0 * aphi - v0 * dphi * dphi - g * sp
+    f[row + 1] = l1 * (s2 * u1 + c2 * u2) + Sv1 * aphi - v1 * dphi * dphi + g * cp
+
+
+@kernel(inline="always")
+def specific_force_jacobian_into(s: tuple, k: np.ndarray, J: np.ndarray, row: int) -> None:
+    """``d f / d(q, dq, ddq)`` of the accelerometer reading (:func:`specific_force_into`) at the
+    motion ``s`` (:func:`motion`), analytic, into ``J[row:row + 2, 0:6]``; ``k`` the model's
+    constants."""
+    q1, q2, dq1, dq2, a1, a2, s1, s2, c2, sp, cp = s
+    dphi = dq1 + dq2
+    l1, v0, v1, g = k[K_L1], k[K_V0], k[K_V1], k[K_G]
+    Sv0, Sv1 = v1, -v0
+    u1, u2 = a1, -dq1 * dq1
+    x_, z_ = row, row + 1
+    dg0, dg1 = -g * cp, -g * sp                     # d/dphi of g (-sin phi, cos phi)
+    J[x_, 0], J[z_, 0] = dg0, dg1
+    J[x_, 1] = dg0 + l1 * (-s2 * u1 - c2 * u2)
+    J[z_, 1] = dg1 + l1 * (c2 * u1 - s2 * u2)
+    J[x_, 2] = l1 * (s2 * 2 * dq1) - 2 * v0 * dphi
+    J[z_, 2] = l1 * (-c2 * 2 * dq1) - 2 * v1 * dphi
+    J[x_, 3] = -2 * v0 * dphi
+    J[z_, 3] = -2 * v1 * dphi
+    J[x_, 4] = l1 * c2 + Sv0
+    J[z_, 4] = l1 * s2 + Sv1
+    J[x_, 5], J[z_, 5] = Sv0, Sv1
 
 
 @kernel
 def specific_force_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
-    """The accelerometer reading (sensor x, z) of eqs. 17-19 in closed form (module docstring)
-    and its Jacobian ``d f / d(q, dq, ddq)`` (2, 6), at the state ``x``; ``k`` the model's
-    constants."""
-    q1, q2, dq1, dq2, a1 = x[0], x[1], x[2], x[3], x[4]
-    dphi, aphi = dq1 + dq2, a1 + x[5]
-    l1, v0, v1, g = k[K_L1], k[K_V0], k[K_V1], k[K_G]
-    Sv0, Sv1 = v1, -v0                              # S v, S = [[0, 1], [-1, 0]]
-    c2, s2 = math.cos(q2), math.sin(q2)
-    phi = q1 + q2
-    cp, sp = math.cos(phi), math.sin(phi)
-    u1, u2 = a1, -dq1 * dq1                         # (ddq1, -dq1^2), rotated by R(-q2)
-    f = np.empty(2)
-    f[0] = l1 * (c2 * u1 - s2 * u2) + Sv0 * aphi - v0 * dphi * dphi - g * sp
-    f[1] = l1 * (s2 * u1 + c2 * u2) + Sv1 * aphi - v1 * dphi * dphi + g * cp
-    dg0, dg1 = -g * cp, -g * sp                     # d/dphi of g (-sin phi, cos phi)
-    J = np.empty((2, 6))
-    J[0, 0], J[1, 0] = dg0, dg1
-    J[0, 1] = dg0 + l1 * (-s2 * u1 - c2 * u2)
-    J[1, 1] = dg1 + l1 * (c2 * u1 - s2 * u2)
-    J[0, 2] = l1 * (s2 * 2 * dq1) - 2 * v0 * dphi
-    J[1, 2] = l1 * (-c2 * 2 * dq1) - 2 * v1 * dphi
-    J[0, 3] = -2 * v0 * dphi
-    J[1, 3] = -2 * v1 * dphi
-    J[0, 4] = l1 * c2 + Sv0
-    J[1, 4] = l1 * s2 + Sv1
-    J[0, 5], J[1, 5] = Sv0, Sv1
+    """The accelerometer reading (sensor x, z) of eqs. 17-19 and its Jacobian
+    ``d f / d(q, dq, ddq)`` (2, 6) at the state ``x`` (:func:`specific_force_into`,
+    :func:`specific_force_jacobian_into`); ``k`` the model's constants."""
+    f, J = np.empty(2), np.empty((2, 6))
+    specific_force_into(motion(x), k, f, 0)
+    specific_force_jacobian_into(motion(x), k, J, 0)
     return f, J
 
 
-@kernel
-def spring_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
-    """The gearbox deflection ``D = tau_s^-1(tau_a)`` (2,) carrying the arm torque ``tau_a`` of
-    eq. 11 at the state ``x``, and the spring stiffness ``d tau_s / dD`` there (2,): the
-    nonlinear spring of :mod:`fmus.common.dynamics` (``tau_s = k_hi D - (k_hi - k_lo) delta
-    tanh(D / delta)``) inverted by Newton's method, as ``dynamics.spring_deflection``; ``k`` the
-    model's constants."""
-    q1, q2, dq1, dq2, a1, a2 = x[0], x[1], x[2], x[3], x[4], x[5]
-    a, c, e, g1, g2 = k[K_A], k[K_C], k[K_E], k[K_G1], k[K_G2]
-    s2, c2 = math.sin(q2), math.cos(q2)
-    b, bd = -e * s2, -e * c2
-    cp = math.cos(q1 + q2)
-    tau0 = (a + 2 * b) * a1 + (c + b) * a2 + bd * (2 * dq1 * dq2 + dq2 * dq2) - g1 * math.sin(q1) - g2 * cp
-    tau1 = (c + b) * a1 + c * a2 - bd * dq1 * dq1 - g2 * cp
-    D = np.empty(2)
-    stiffness = np.empty(2)
-    for i in range(2):
-        k_hi, k_soft, delta = k[K_KHI + i], k[K_KSOFT + i], k[K_DELTA + i]
-        t = tau0 if i == 0 else tau1
-        d = (t + math.copysign(k_soft * delta * math.tanh(abs(t) / (k_hi * delta)), t)) / k_hi
-        for _ in range(50):
-            th = math.tanh(d / delta)
-            f = k_hi * d - k_soft * delta * th - t
-            d -= f / (k_hi - k_soft * (1.0 - th * th))      # sech^2, no overflow
-            if abs(f) <= 1e-12 * max(1.0, abs(t)):
-                break
-        th = math.tanh(d / delta)
-        D[i] = d
-        stiffness[i] = k_hi - k_soft * (1.0 - th * th)
-    return D, stiffness
+#: Newton's method on the gearbox spring (:func:`spring_deflection_kernel`): at most this many
+#: steps, to the residual ``|tau_s(D) - tau| <= NEWTON_RTOL max(1, |tau|)``.
+NEWTON_STEPS, NEWTON_RTOL = 50, 1e-12
+
+
+@kernel(inline="always")
+def spring_start(tau: float, k_hi: float, k_soft: float, delta: float, start: float) -> float:
+    """Where Newton's method on the spring (:func:`spring_deflection_kernel`, with its
+    ``k_hi``, ``k_soft`` and ``delta``) starts for the torque ``tau``: ``start``, or if it is
+    NaN the high-stiffness asymptote shifted by the soft zone."""
+    if math.isnan(start):
+        return (tau + math.copysign(k_soft * delta * math.tanh(abs(tau) / (k_hi * delta)), tau)) / k_hi
+    return start
+
+
+@kernel(inline="always")
+def spring_newton_step(d: float, tau: float, k_hi: float, k_soft: float, delta: float, bound_stop: bool) -> tuple:
+    """One step of Newton's method on ``tau_s(d) = tau`` (:func:`spring_deflection_kernel`, with
+    its ``k_hi``, ``k_soft`` and ``delta``): ``(d_next, done)``, done when the residual at ``d``
+    is within the tolerance or, with ``bound_stop``, Newton's bound on the residual at
+    ``d_next`` is."""
+    tol = NEWTON_RTOL * max(1.0, abs(tau))
+    th = math.tanh(d / delta)
+    f = k_hi * d - k_soft * delta * th - tau
+    slope = k_hi - k_soft * (1.0 - th * th)                 # sech^2, no overflow
+    d -= f / slope
+    if abs(f) <= tol:
+        return d, True
+    # |tau_s(d_next) - tau| <= max|tau_s''| / 2 (f / k)^2, tau_s'' = -(k_soft / delta) tanh''
+    return d, bound_stop and _HALF_MAX_TANH2 * k_soft / delta * (f / slope) * (f / slope) <= tol
+
+
+@kernel(inline="always")
+def spring_deflection_kernel(tau: float, k_hi: float, k_soft: float, delta: float, start: float,
+                             bound_stop: bool) -> float:
+    """The gearbox deflection ``D`` of one joint carrying the torque ``tau`` (eq. 16's spring,
+    that of :mod:`fmus.common.dynamics`: ``tau_s = k_hi D - k_soft delta tanh(D / delta)``,
+    ``k_soft = k_hi - k_lo``).
+
+    Newton's method, as ``dynamics.spring_deflection``, from ``start`` (NaN: from the
+    high-stiffness asymptote shifted by the soft zone, :func:`spring_start`), at most
+    :data:`NEWTON_STEPS` steps (:func:`spring_newton_step`): step, then stop once the residual
+    before the step, ``|tau_s(D) - tau|``, is within ``NEWTON_RTOL max(1, |tau|)``. With
+    ``bound_stop`` (the particle filter: warm starts, fewer ``tanh``) it also stops as soon as
+    Newton's bound on the next residual, ``max|tau_s''| / 2 (f / k)^2`` with
+    ``max|tau_s''| = 4 / (3 sqrt 3) k_soft / delta``, is within the tolerance: the same root
+    within the same tolerance, one step earlier.
+    """
+    d = spring_start(tau, k_hi, k_soft, delta, start)
+    for _ in range(NEWTON_STEPS):
+        d, done = spring_newton_step(d, tau, k_hi, k_soft, delta, bound_stop)
+        if done:
+            break
+    return d
+
+
+@kernel(inline="always")
+def spring_stiffness_kernel(d: float, k_hi: float, k_soft: float, delta: float) -> float:
+    """``d tau_s / dD = k_hi - k_soft (1 - tanh^2(D / delta))`` of the spring of
+    :func:`spring_deflection_kernel` at the deflection ``d``."""
+    th = math.tanh(d / delta)
+    return k_hi - k_soft * (1.0 - th * th)
+
+
+@kernel(inline="always")
+def deflections_kernel(s: tuple, k: np.ndarray, start0: float, start1: float, bound_stop: bool) -> tuple:
+    """The gearbox deflections ``D = tau_s^-1(tau_a)`` (two floats) carrying the arm torque of
+    eq. 11 at the motion ``s`` (:func:`motion`), by :func:`spring_deflection_kernel` from
+    ``start0``, ``start1`` (NaN: cold) with ``bound_stop``; ``k`` the model's constants."""
+    tau0, tau1 = arm_torque_kernel(s, k)
+    return (spring_deflection_kernel(tau0, k[K_KHI], k[K_KSOFT], k[K_DELTA], start0, bound_stop),
+            spring_deflection_kernel(tau1, k[K_KHI + 1], k[K_KSOFT + 1], k[K_DELTA + 1], start1, bound_stop))
+
+
+@kernel(inline="always")
+def h_into(x: np.ndarray, s: tuple, k: np.ndarray, use_accelerometer: bool, use_bias: bool, d0: float, d1: float,
+           y: np.ndarray) -> None:
+    """``h(x)`` of eq. 15 into ``y`` (m,) for the layout of the two switches
+    ``use_accelerometer`` and ``use_bias`` (:class:`Layout`), given ``s`` the motion of ``x``
+    (:func:`motion`) and its gearbox deflections ``d0``, ``d1`` (:func:`deflections_kernel`);
+    ``k`` the constants (:attr:`MeasurementModel.constants`): motor angles
+    ``r (q_a + D) + b_m`` (eq. 16), the accelerometer (:func:`specific_force_into`) ``+ b_acc``."""
+    y[0] = k[K_R] * (s[0] + d0)
+    y[1] = k[K_R + 1] * (s[1] + d1)
+    if use_bias:
+        y[0] += x[6]
+        y[1] += x[7]
+    if use_accelerometer:
+        specific_force_into(s, k, y, 2)
+        if use_bias:
+            y[2] += x[8]
+            y[3] += x[9]
+
+
+@kernel(inline="always")
+def jacobian_into(s: tuple, k: np.ndarray, use_accelerometer: bool, use_bias: bool, d0: float, d1: float,
+                  H: np.ndarray) -> None:
+    """``H = dh/dx`` (eq. 4c) of :func:`h_into` at a state of motion ``s`` (:func:`motion`; the
+    Jacobian does not depend on the biases) with the gearbox deflections
+    ``d0``, ``d1`` (:func:`deflections_kernel`) into ``H`` (m, n) (the entries not written
+    here are the caller's zeros), for the layout of the switches ``use_accelerometer`` and
+    ``use_bias`` and the constants ``k`` (as :func:`h_into`): ``r (I + K(D)^-1 d tau_a / dx)``
+    for the motor angles (``K(D)`` the spring stiffness, :func:`spring_stiffness_kernel`), the
+    accelerometer's (:func:`specific_force_jacobian_into`), identities for the biases."""
+    r0, r1 = k[K_R], k[K_R + 1]
+    rk0 = r0 / spring_stiffness_kernel(d0, k[K_KHI], k[K_KSOFT], k[K_DELTA])
+    rk1 = r1 / spring_stiffness_kernel(d1, k[K_KHI + 1], k[K_KSOFT + 1], k[K_DELTA + 1])
+    arm_torque_jacobian_into(s, k, rk0, rk1, H)
+    H[0, 0] += r0
+    H[1, 1] += r1
+    if use_bias:
+        H[0, 6] = 1.0
+        H[1, 7] = 1.0
+    if use_accelerometer:
+        specific_force_jacobian_into(s, k, H, 2)
+        if use_bias:
+            H[2, 8] = 1.0
+            H[3, 9] = 1.0
 
 
 @kernel
 def measurement_kernel(x: np.ndarray, k: np.ndarray, use_accelerometer: bool, use_bias: bool) -> tuple:
     """``h(x)`` of eq. 15 and its Jacobian ``H`` (eq. 4c) for the layout of the two switches
     ``use_accelerometer`` and ``use_bias`` (:class:`Layout`), ``k`` the constants
-    (:attr:`MeasurementModel.constants`): motor angles ``r (q_a + D)`` with
-    ``H = r (I + K(D)^-1 d tau_a / dx)`` (``K(D)`` the spring stiffness), accelerometer
-    (:func:`specific_force_kernel`), identities for the biases."""
+    (:attr:`MeasurementModel.constants`): :func:`deflections_kernel` from the cold start,
+    :func:`h_into` and :func:`jacobian_into`."""
     m = 4 if use_accelerometer else 2
     n = 6 + (2 if use_bias else 0) + (2 if use_bias and use_accelerometer else 0)
-    D, stiffness = spring_kernel(x, k)
-    Jt = arm_torque_jacobian_kernel(x, k)
-    y = np.empty(m)
-    H = np.zeros((m, n))
-    for i in range(2):
-        r = k[K_R + i]
-        rk = r / stiffness[i]
-        y[i] = r * (x[i] + D[i])
-        for j in range(6):
-            H[i, j] = rk * Jt[i, j]
-        H[i, i] += r
-        if use_bias:
-            y[i] += x[6 + i]
-            H[i, 6 + i] = 1.0
-    if use_accelerometer:
-        f, Jf = specific_force_kernel(x, k)
-        for i in range(2):
-            y[2 + i] = f[i]
-            for j in range(6):
-                H[2 + i, j] = Jf[i, j]
-            if use_bias:
-                y[2 + i] += x[8 + i]
-                H[2 + i, 8 + i] = 1.0
+    y, H = np.empty(m), np.zeros((m, n))
+    s = motion(x)                    # one sine and cosine per angle for h and H
+    d0, d1 = deflections_kernel(s, k, math.nan, math.nan, False)
+    h_into(x, s, k, use_accelerometer, use_bias, d0, d1, y)
+    jacobian_into(s, k, use_accelerometer, use_bias, d0, d1, H)
     return y, H
 
 
@@ -388,12 +516,11 @@ class MeasurementModel:
         self.v = np.array([p.l2 + p.sensor_offset[0], p.sensor_offset[1]], float)   # mount, tool frame
         self.Sv = np.array([self.v[1], -self.v[0]])
         self.r = np.asarray(p.gear_ratio, float)
-        self._k_hi = tuple(map(float, p.k_hi))
-        self._k_soft = tuple(float(h - lo) for h, lo in zip(p.k_hi, p.k_lo))
-        self._delta = tuple(map(float, p.delta))
-        #: The kernels' constants, in the order of the ``K_*`` indices.
+        k_soft = [h - lo for h, lo in zip(p.k_hi, p.k_lo)]
+        #: The kernels' constants (the one vector of the model, single or over many states), in
+        #: the order of the ``K_*`` indices.
         self.constants = np.array([self.a, self.c, self.e, self.g1, self.g2, self.g, self.l1, *self.v,
-                                   *self._k_hi, *self._k_soft, *self._delta, *self.r], float)
+                                   *p.k_hi, *k_soft, *p.delta, *self.r], float)
         #: The kernels' layout switches ``(use_accelerometer, use_bias)``.
         self.switches = (bool(layout.use_accelerometer), bool(layout.use_bias))
 
@@ -463,4 +590,8 @@ class MeasurementModel:
 
 
 __all__ = ["EkfAccelerometerParameters", "Layout", "MeasurementModel", "continuous_model", "transition_matrices", "process_noise", "measurement_noise", "initial_covariance", "Q_JERK_DEFAULT", "Q_", "DQ_", "DDQ_",
-           "measurement_kernel", "spring_kernel", "specific_force_kernel", "arm_torque_jacobian_kernel"]
+           "K_A", "K_C", "K_E", "K_G1", "K_G2", "K_G", "K_L1", "K_V0", "K_V1", "K_KHI", "K_KSOFT", "K_DELTA", "K_R",
+           "motion", "arm_torque_kernel", "arm_torque_jacobian_into", "arm_torque_jacobian_kernel",
+           "specific_force_into", "specific_force_jacobian_into", "specific_force_kernel", "NEWTON_STEPS",
+           "NEWTON_RTOL", "spring_start", "spring_newton_step", "spring_deflection_kernel", "spring_stiffness_kernel",
+           "deflections_kernel", "h_into", "jacobian_into", "measurement_kernel"]

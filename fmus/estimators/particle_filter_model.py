@@ -6,8 +6,9 @@ Model
 Exactly the model of :mod:`fmus.estimators.axelsson2012_model` (section 3.2, eqs. 12-19):
 the state, the transition matrices ``F, G_u, G_w`` (eq. 14), ``Q`` and ``R`` (eq. 26, the
 EKF's parameters) and the measurement function ``h`` (eq. 15), evaluated for all particles by
-the compiled :mod:`fmus.estimators.axelsson2012_batched` (each particle's numbers the scalar
-:class:`~fmus.estimators.axelsson2012_model.MeasurementModel`'s). Sampling and weighting run as
+the compiled :mod:`fmus.estimators.axelsson2012_batched` (the scalar
+:class:`~fmus.estimators.axelsson2012_model.MeasurementModel`'s kernels, particle by particle,
+the gearbox's Newton warm-started and stopped on its error bound). Sampling and weighting run as
 one compiled pass over the particles (:func:`propose_and_weigh`).
 
 Algorithm (section 2.2, Algorithm 1)
@@ -105,7 +106,7 @@ from fmus.common.noise import make_rng
 from fmus.common.kalman import FilterDivergence
 from fmus.common.jit import kernel
 from fmus.common.parameters import param
-from fmus.estimators.axelsson2012_batched import BatchedMeasurement, measure_many
+from fmus.estimators.axelsson2012_batched import measure_many
 from fmus.estimators.axelsson2012_model import (DDQ_, DQ_, Q_, EkfAccelerometerParameters, Layout,
                                                 MeasurementModel, initial_covariance, measurement_noise,
                                                 process_noise, transition_matrices)
@@ -279,7 +280,7 @@ def _move(X, idx, x, S, a, c, Z, out):
 
 
 @kernel
-def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, c, m, bias_m, bias_acc, D, X, logw):
+def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, k_model, use_accelerometer, use_bias, D, X, logw):
     """Algorithm 1, steps 2 and 4, in one compiled call over the particles: sample
     ``x_i = m_i + L e_i`` from the proposal and weight it (the module docstring's formulas).
 
@@ -296,9 +297,10 @@ def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, c, m, bias_m, bias_acc,
     ekf
         True: the EKF proposal (eq. 30), ``e = A^-1 H_e^T R^-1 (y - h(m_i)) + C^-T z`` with
         ``A = I + H_e^T R^-1 H_e = C C^T``, ``H_e = H(m_i) L``; false: the prior (eq. 28), ``e = z``.
-    c, m, bias_m, bias_acc
-        The measurement model (:func:`~fmus.estimators.axelsson2012_batched.measure_many`,
-        squares rounded exactly: ``exact`` false there).
+    k_model, use_accelerometer, use_bias
+        The measurement model: its constants and layout switches
+        (:func:`~fmus.estimators.axelsson2012_batched.measure_many`, with Newton's bound as the
+        stopping rule).
     D
         In: the gearbox deflections (N, 2) of the particles the means ``M`` were predicted
         from (NaN: none), where the Newton iterations start (for the means, then for the new
@@ -310,11 +312,12 @@ def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, c, m, bias_m, bias_acc,
     """
     N, n = M.shape
     k = L.shape[1]
+    m = 4 if use_accelerometer else 2
     Yh = np.empty((N, m))
     dlog = np.zeros(N)
     if ekf:                                    # eq. 30: one EKF update per particle, at m_i
         Hm = np.zeros((N, m, n))
-        measure_many(M, c, m, bias_m, bias_acc, False, D, Yh, Hm, D)
+        measure_many(M, k_model, use_accelerometer, use_bias, True, D, Yh, Hm, D)
         He, C = np.empty((m, k)), np.empty((k, k))
         nu, e, z = np.empty(m), np.empty(k), np.empty(k)
     for i in range(N):
@@ -389,7 +392,7 @@ def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, c, m, bias_m, bias_acc,
                     s += L[p, j] * Z[i, j]
                 X[i, p] = M[i, p] + s
     # p(y | x) (Gaussian e_t)
-    measure_many(X, c, m, bias_m, bias_acc, False, D, Yh, np.zeros((N, 0, 0)), D)
+    measure_many(X, k_model, use_accelerometer, use_bias, True, D, Yh, None, D)
     for i in range(N):
         q, total = 0.0, 0.0
         for a in range(m):
@@ -442,7 +445,6 @@ class ParticleFilterModel:
         self.p = p
         self.layout = Layout(bool(p.use_accelerometer), bool(p.use_bias))
         self.meas = MeasurementModel(p.robot(), self.layout)
-        self.batch = BatchedMeasurement(self.meas)
         self.Q = process_noise(p, self.layout)
         self.R = measurement_noise(p, self.layout)
         self.r_inv = 1.0 / np.diag(self.R)
@@ -523,7 +525,7 @@ class ParticleFilterModel:
         Z = rng.standard_normal((M.shape[0], L.shape[1]))
         X, logw = np.empty(M.shape), np.empty(M.shape[0])
         propose_and_weigh(np.ascontiguousarray(M), np.ascontiguousarray(L), logw_prev, y, self.r_inv, Z,
-                          self.proposal == "ekf", self.batch.constants, *self.batch.offsets, D, X, logw)
+                          self.proposal == "ekf", self.meas.constants, *self.meas.switches, D, X, logw)
         if not np.isfinite(logw).any():
             return None
         w, logw = normalise_log_weights(logw)

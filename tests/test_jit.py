@@ -113,3 +113,12 @@ def test_unwritable_cache_falls_back_to_the_temporary_folder(tmp_path):
     code = "from fmus.common import jit; print(jit._kernel_cache_dir())"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert "flexfusion-numba-" in out.stdout and str(blocker) not in out.stdout
+
+
+def test_a_kernel_without_a_source_file_compiles_uncached():
+    """Code run from a string (a benchmark's baseline module taken from git) has no file for the
+    cache to key on: it still compiles, without the cache."""
+    namespace: dict = {}
+    exec(compile("from fmus.common.jit import kernel\n@kernel\ndef twice(x):\n    return 2.0 * x\n",
+                 "6324638:fmus/common/kern.py", "exec"), namespace)
+    assert namespace["twice"](1.5) == 3.0

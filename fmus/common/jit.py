@@ -128,9 +128,14 @@ def kernel(function: Callable | None = None, **options: Any) -> Any:
     """``numba.njit`` with the on-disk cache of this module; ``@kernel`` or ``@kernel(...)``.
 
     ``function`` is the kernel (or None when options are given); ``options`` go to
-    ``numba.njit`` (``cache=True`` is implied; ``fastmath`` stays off).
+    ``numba.njit`` (``cache=True`` is implied; ``fastmath`` stays off). A function with no source
+    file behind it (code run from a string, e.g. a benchmark's baseline taken from git) is
+    compiled without the cache: there is nothing to key it by.
     """
     import numba
     _register_locator()
-    decorate = numba.njit(cache=True, **options)
+
+    def decorate(fn: Callable) -> Any:
+        cache = os.path.isfile(fn.__code__.co_filename)
+        return numba.njit(cache=cache, **options)(fn)
     return decorate if function is None else decorate(function)

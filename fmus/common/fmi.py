@@ -217,8 +217,8 @@ class FlexFusionSlave(Fmi2Slave):
         self._output_vrs: set[int] = set()
         self._host_log = _host_logger(kwargs.get("logger"), self.instance_name)
         self._real_setters: dict | None = None   # value reference -> setter, built on first use
-        # value reference of each Real scalar (of the inputs only) -> (its array, index) or
-        # (None, attribute name)
+        # value reference of each Real scalar (of the inputs only: _input_slots) -> (the array
+        # that holds it, index) or (None, attribute name)
         self._real_slots: dict[int, tuple[np.ndarray | None, int | str]] = {}
         self._input_slots: dict[int, tuple[np.ndarray | None, int | str]] = {}
         # a host reads the same value references at every step: the reading of each list is
@@ -266,7 +266,7 @@ class FlexFusionSlave(Fmi2Slave):
                                 variability=variability, initial=initial,
                                 getter=lambda attr=attr: getattr(self, attr), setter=setter), unit)
             return
-        first = sum(b - a for a, b in self._output_spans.values())
+        first = max((b for _, b in self._output_spans.values()), default=0)
         if causality == Fmi2Causality.output and first + size <= len(self._outputs):
             values = self._outputs[first:first + size]
             values[:] = start

@@ -4,6 +4,9 @@ pythonfmu (0.7) knows scalar variables without units, and declares every output 
 every input. This base class adds what our FMUs all need, once:
 
 * vector variables as 1-based indexed scalars (``q_a[1]``, ``q_a[2]``) backed by numpy arrays;
+  the vector outputs are consecutive views of one buffer (``_outputs``, in declaration order),
+  so that ``fmi2GetReal`` of a step's outputs copies runs of it, planned once per list of value
+  references, and an adapter may write several outputs at once (:meth:`FlexFusionSlave.output_span`);
 * a unit and a description on every variable, and the ``<UnitDefinitions>`` they refer to;
 * the real direct-feedthrough dependencies of each output in ``<ModelStructure>``, which the
   master algorithm uses to order the components;

@@ -200,3 +200,37 @@ def test_fmu_state_restores_bit_exactly_and_survives_serialisation() -> None:
         s.do_step((k + 1) * 1e-3, 1e-3)
     assert_array_equal(s.x, after)
     assert s.get_real([vr(s, "x[1]")]) == [after[0]]      # the getters see the restored array
+
+
+def test_get_real_reads_any_list_of_references_live() -> None:
+    """get_real plans each list of references once (runs of one array read with one copy): any
+    order, repeats, scalars, inputs and parameters read what each variable's getter reads, at
+    every call (the plan holds views, not values), and after an FMU state is restored."""
+    s = started()
+    reals = [r for r, v in s.vars.items() if type(v).__name__ == "Real"]
+    lists = [reals, reals[::-1], [vr(s, "x[2]"), vr(s, "x[1]"), vr(s, "x[2]")],
+             [vr(s, "x[1]"), vr(s, "y"), vr(s, "x[2]"), vr(s, "lag[2]"), vr(s, "w[1]")]]
+    saved = s._get_fmu_state()
+    for k in range(3):
+        s.set_real([vr(s, "u"), vr(s, "w[1]"), vr(s, "w[2]")], [0.1 * k + 0.2, k, -k])
+        s.do_step(k * 1e-3, 1e-3)
+        for refs in lists:
+            assert s.get_real(refs) == [s.vars[r].getter() for r in refs]
+    s._set_fmu_state(saved)
+    for refs in lists:
+        assert s.get_real(refs) == [s.vars[r].getter() for r in refs]
+    assert s.get_real([vr(s, "x[1]"), vr(s, "x[2]")]) == [0.0, 0.0]
+
+
+def test_vector_outputs_share_one_buffer_in_declaration_order() -> None:
+    s = started()
+    span = s.output_span("x", "x")
+    s._outputs[span] = (1.5, -2.5)
+    assert_array_equal(s.x, [1.5, -2.5])
+    with pytest.raises(ValueError, match="'y' is not a vector output"):
+        s.output_span("y", "x")
+
+
+def test_nominal_step_keeps_the_sign_of_zero() -> None:
+    assert math.copysign(1.0, nominal_step(-0.0)) == -1.0
+    assert math.copysign(1.0, nominal_step(0.0)) == 1.0

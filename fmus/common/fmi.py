@@ -4,6 +4,9 @@ pythonfmu (0.7) knows scalar variables without units, and declares every output 
 every input. This base class adds what our FMUs all need, once:
 
 * vector variables as 1-based indexed scalars (``q_a[1]``, ``q_a[2]``) backed by numpy arrays;
+  the vector outputs are consecutive views of one buffer (``_outputs``, in declaration order),
+  so that ``fmi2GetReal`` of a step's outputs copies runs of it, planned once per list of value
+  references, and an adapter may write several outputs at once (:meth:`FlexFusionSlave.output_span`);
 * a unit and a description on every variable, and the ``<UnitDefinitions>`` they refer to;
 * the real direct-feedthrough dependencies of each output in ``<ModelStructure>``, which the
   master algorithm uses to order the components;
@@ -95,8 +98,11 @@ def known_units() -> tuple[str, ...]:
 # attributes that are declarations, not state (see FlexFusionSlave._get_fmu_state)
 _NOT_STATE = frozenset({"vars", "log_queue", "instance_name", "resources", "visible", "guid",
                         "_units", "_inputs", "_depends", "_arrays", "_output_vrs", "_host_log",
-                        "_real_getters", "_real_setters", "_input_slots"})
+                        "_real_setters", "_input_slots", "_real_slots", "_read_plans",
+                        "_outputs", "_output_spans"})
 _BOUND = "flexfusion.bound"   # deepcopy memo key: the live objects _Bound names stand for
+_OUTPUT_CAPACITY = 512        # floats of a slave's output buffer (vector outputs beyond it: own arrays)
+_NOMINAL: dict[float, float] = {}    # nominal_step's results: a run meets few distinct steps
 
 
 def nominal_step(h: float) -> float:
@@ -107,7 +113,12 @@ def nominal_step(h: float) -> float:
     discretisation (F, Q of the sample period) would carry those bits into its estimate, so
     every FMU steps with the nominal step instead (a relative change below 5e-13).
     """
-    return float(f"{h:.12g}")
+    nominal = _NOMINAL.get(h)
+    if nominal is None:
+        nominal = float(f"{h:.12g}")
+        if h and len(_NOMINAL) < 4096:     # not 0.0 == -0.0 (two results); bounded (NaN never hits)
+            _NOMINAL[h] = nominal
+    return nominal
 
 
 class _Bound:
@@ -208,10 +219,18 @@ class FlexFusionSlave(Fmi2Slave):
         self._arrays: dict[str, np.ndarray] = {}   # every vector variable's array, by attribute
         self._output_vrs: set[int] = set()
         self._host_log = _host_logger(kwargs.get("logger"), self.instance_name)
-        self._real_getters: dict | None = None   # value reference -> getter, built on first use
-        self._real_setters: dict | None = None
-        # value reference of each input scalar -> (its array, index) or (None, attribute name)
+        self._real_setters: dict | None = None   # value reference -> setter, built on first use
+        # value reference of each Real scalar (of the inputs only: _input_slots) -> (the array
+        # that holds it, index) or (None, attribute name)
+        self._real_slots: dict[int, tuple[np.ndarray | None, int | str]] = {}
         self._input_slots: dict[int, tuple[np.ndarray | None, int | str]] = {}
+        # a host reads the same value references at every step: the reading of each list is
+        # planned once (see _plan), keyed by the tuple of references
+        self._read_plans: dict[tuple[int, ...], tuple] = {}
+        # the vector outputs are consecutive views of one buffer, in declaration order: a host
+        # reads them with one copy, an adapter may write several at once (output_span)
+        self._outputs = np.zeros(_OUTPUT_CAPACITY)
+        self._output_spans: dict[str, tuple[int, int]] = {}   # output name -> buffer positions
         self._inputs_unchecked = True   # an input may be non-finite: check each at the next step
         self._ready = False
         self._time = 0.0
@@ -241,6 +260,7 @@ class FlexFusionSlave(Fmi2Slave):
                 setattr(self, attr, float(v))
                 if after_set:
                     after_set()
+            self._real_slots[len(self.vars)] = (None, attr)
             if causality == Fmi2Causality.output:
                 self._output_vrs.add(len(self.vars))
             elif causality == Fmi2Causality.input:
@@ -249,12 +269,21 @@ class FlexFusionSlave(Fmi2Slave):
                                 variability=variability, initial=initial,
                                 getter=lambda attr=attr: getattr(self, attr), setter=setter), unit)
             return
-        values = np.broadcast_to(np.asarray(start, dtype=float), (size,)).copy()
+        first = max((b for _, b in self._output_spans.values()), default=0)
+        if causality == Fmi2Causality.output and first + size <= len(self._outputs):
+            values = self._outputs[first:first + size]
+            values[:] = start
+            self._output_spans[attr] = (first, first + size)
+            base = self._outputs
+        else:
+            values = np.broadcast_to(np.asarray(start, dtype=float), (size,)).copy()
+            base, first = values, 0
         setattr(self, attr, values)
         self._arrays[attr] = values
         # getters and setters bind the array itself (fast): assign vectors in place, never rebind
         for i in range(size):
             getter = partial(values.item, i)
+            self._real_slots[len(self.vars)] = (base, first + i)
             if causality == Fmi2Causality.output:
                 self._output_vrs.add(len(self.vars))
             elif causality == Fmi2Causality.input:
@@ -295,6 +324,15 @@ class FlexFusionSlave(Fmi2Slave):
             self._depends[n] = deps
         self._declare_real_array(name, size, Fmi2Causality.output, unit, description, start,
                                  Fmi2Variability.continuous, Fmi2Initial.calculated)
+
+    def output_span(self, first: str, last: str) -> slice:
+        """The positions in ``self._outputs`` (the vector outputs' buffer) of the vector outputs
+        declared from ``first`` to ``last``, for one assignment ``self._outputs[span] = ...``
+        (the scalar outputs declared between them are not in the buffer)."""
+        try:
+            return slice(self._output_spans[first][0], self._output_spans[last][1])
+        except KeyError as exc:
+            raise ValueError(f"'{exc.args[0]}' is not a vector output in the output buffer") from None
 
     def _declare_parameters(self, defaults: Any) -> None:
         for f in _parameters.fields(defaults):
@@ -485,18 +523,43 @@ class FlexFusionSlave(Fmi2Slave):
             except Exception as exc:  # noqa: BLE001
                 self._fail(f"output update at t = {self._time:.6g} s", exc)
                 raise
-        getters = self._real_getters
-        if getters is None:
-            getters = self._real_getters = {vr: var.getter for vr, var in self.vars.items()
-                                            if isinstance(var, Real)}
-        try:
-            values = [getters[vr]() for vr in vrs]    # floats or numpy float64 (a float)
-        except KeyError:
-            return super().get_real(vrs)     # pythonfmu's message for a non-Real reference
+        key = tuple(vrs)
+        plan = self._read_plans.get(key)
+        if plan is None:
+            try:
+                plan = self._plan(key, self._real_slots, self._read_plans)
+            except KeyError:
+                return super().get_real(vrs)     # pythonfmu's message for a non-Real reference
+        values: list[float] = []
+        for view, attr in plan:
+            if view is None:
+                values.append(getattr(self, attr))
+            else:
+                values += view.tolist()
         total = sum(values)
         if total - total != 0.0 and self.nan_outputs == "error":   # NaN, inf, or an overflowed sum
             self._check_outputs(vrs, values)
         return values
+
+    @staticmethod
+    def _plan(vrs: tuple[int, ...], slots: dict, plans: dict) -> tuple:
+        """The reading of the value references ``vrs`` (each a key of ``slots``, else KeyError):
+        one ``(view, None)`` per run of consecutive elements of one array (a view of them: read
+        with one ``tolist``), one ``(None, attribute)`` per scalar; kept in ``plans``."""
+        runs: list[list] = []        # [array, first index, count] or [None, attribute, 1]
+        for vr in vrs:
+            array, index = slots[vr]
+            last = runs[-1] if runs else None
+            if array is not None and last is not None and last[0] is array \
+                    and last[1] + last[2] == index:
+                last[2] += 1
+            else:
+                runs.append([array, index, 1])
+        plan = tuple((None, index) if array is None else (array[index:index + n], None)
+                     for array, index, n in runs)
+        if len(plans) < 64:              # a host's few lists (bounded whatever the host does)
+            plans[vrs] = plan
+        return plan
 
     def _check_outputs(self, vrs: list[int], values: list[float]) -> None:
         bad = [(self.vars[vr].name, v) for vr, v in zip(vrs, values)

@@ -22,7 +22,8 @@ from fmus.common.frames import G
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 
-_TRIL = np.tril_indices(6)     # the arm states' covariance, packed (output P_x)
+# the arm states' covariance, packed (output P_x): the flat positions of its lower triangle
+_TRIL = np.ravel_multi_index(np.tril_indices(6), (6, 6))
 
 
 class Estimate(NamedTuple):
@@ -60,9 +61,10 @@ class EkfAccelerometer(FilterAdapter):
         self.output("innovation_norm", unit="1", depends_on=deps,
                     description="normalised innovation norm sqrt(nu^T S^-1 nu) of the last update")
         # the whole covariance, for consistency checks against the truth (NEES) in studies
-        self.output("P_x", len(_TRIL[0]), unit="1", depends_on=deps,
+        self.output("P_x", len(_TRIL), unit="1", depends_on=deps,
                     description="filtered covariance of (q_a, dq_a, ddq_a), lower triangle row by row "
                     "(numpy.tril_indices(6)); SI units (rad, rad/s, rad/s2) of each product")
+        self._states = self.output_span("q_a_hat", "ddq_a_hat")     # the arm states x[0:6]
 
     def setup(self, params: am.EkfAccelerometerParameters) -> None:
         self.ekf = em.EkfAccelerometerModel(params)
@@ -82,11 +84,9 @@ class EkfAccelerometer(FilterAdapter):
         return Estimate(*self.ekf.filtered(y, prior.x, prior.P), prior.u)
 
     def _show(self, est: Estimate) -> None:
-        x = est.x
-        self.q_a_hat[:] = x[0:2]
-        self.dq_a_hat[:] = x[2:4]
-        self.ddq_a_hat[:] = x[4:6]
+        x, P = est.x, est.P
+        self._outputs[self._states] = x[0:6]
         self.p_tool_hat[:] = self.ekf.tool_position(x)
-        self.trace_P_q = float(est.P[0, 0] + est.P[1, 1])
+        self.trace_P_q = float(P[0, 0] + P[1, 1])
         self.innovation_norm = est.innovation_norm
-        self.P_x[:] = est.P[_TRIL]
+        P.take(_TRIL, out=self.P_x)

@@ -4,12 +4,14 @@ The math is in :mod:`fmus.robot_plant.motion_control_model` and :mod:`fmus.robot
 """
 from __future__ import annotations
 
+import numpy as np
+
 from fmus.common.fmi import FlexFusionSlave
 from fmus.robot_plant.motion_control_model import COLUMNS, MotionControllerParameters, build_controller
 
 # outputs copied straight from the reference-table row
-_ROW_OUTPUTS = tuple((name, COLUMNS[name]) for name in
-                     ("dq_a_ref", "ddq_a_ref", "dddq_a_ref", "v_ref", "a_ref", "dq_m_ref", "tau_ff"))
+_ROW_OUTPUTS = ("dq_a_ref", "ddq_a_ref", "dddq_a_ref", "v_ref", "a_ref", "dq_m_ref", "tau_ff")
+_ROW_COLUMNS = np.r_[tuple(COLUMNS[name] for name in _ROW_OUTPUTS)]
 
 
 class MotionController(FlexFusionSlave):
@@ -53,6 +55,8 @@ class MotionController(FlexFusionSlave):
         self.output("e_m", 2, unit="rad", description="motor angle error q_m_ref - q_m, motor side",
                     depends_on=meas)
         self._eval_t = None
+        # the row outputs' positions in the output buffer: copied from a row with one take
+        self._row_positions = np.r_[tuple(self.output_span(n, n) for n in _ROW_OUTPUTS)]
 
     def setup(self, params: MotionControllerParameters) -> None:
         self.ctrl = build_controller(params)
@@ -66,8 +70,7 @@ class MotionController(FlexFusionSlave):
         row = c.row
         if c.row_time != self._shown_t:      # the references of a new time (once per time)
             self._shown_t = c.row_time
-            for name, cols in _ROW_OUTPUTS:
-                getattr(self, name)[:] = row[cols]
+            self._outputs[self._row_positions] = row.take(_ROW_COLUMNS)
         self.tau_m[:] = c.tau
         self.q_a_ref[:] = c.q_a_ref
         self.q_m_ref[:] = c.q_m_ref

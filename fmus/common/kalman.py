@@ -84,6 +84,20 @@ def estimate_status_kernel(x: np.ndarray, P: np.ndarray, definite: bool) -> int:
 
 
 @kernel
+def _product(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A B`` summed in index order (pass ``X.T`` for a transposed factor: a view, no copy)."""
+    n, m = A.shape[0], B.shape[1]
+    out = np.empty((n, m))
+    for i in range(n):
+        for j in range(m):
+            s = 0.0
+            for k in range(A.shape[1]):
+                s += A[i, k] * B[k, j]
+            out[i, j] = s
+    return out
+
+
+@kernel
 def _symmetrised(A: np.ndarray) -> np.ndarray:
     n = A.shape[0]
     out = np.empty((n, n))
@@ -96,22 +110,7 @@ def _symmetrised(A: np.ndarray) -> np.ndarray:
 @kernel
 def _sandwich(A: np.ndarray, P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     """``A P A^T + Q``, symmetrised."""
-    n, k = A.shape
-    AP = np.zeros((n, k))
-    for i in range(n):
-        for j in range(k):
-            s = 0.0
-            for l in range(k):
-                s += A[i, l] * P[l, j]
-            AP[i, j] = s
-    out = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for l in range(k):
-                s += AP[i, l] * A[j, l]
-            out[i, j] = s + Q[i, j]
-    return _symmetrised(out)
+    return _symmetrised(_product(_product(A, P), A.T) + Q)
 
 
 @kernel
@@ -121,20 +120,8 @@ def measurement_update_kernel(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: n
     ``P``, innovation ``nu``, Jacobian ``H``, noise ``R``): ``(x+, P+, nis, status)``; with
     :data:`INNOVATION_NOT_FINITE` or :data:`INNOVATION_NOT_PD` the other results are meaningless."""
     n, m = x.size, nu.size
-    PHt = np.zeros((n, m))
-    for i in range(n):
-        for j in range(m):
-            s = 0.0
-            for k in range(n):
-                s += P[i, k] * H[j, k]
-            PHt[i, j] = s
-    S = np.empty((m, m))
-    for i in range(m):
-        for j in range(m):
-            s = 0.0
-            for k in range(n):
-                s += H[i, k] * PHt[k, j]
-            S[i, j] = s + R[i, j]
+    PHt = _product(P, H.T)
+    S = _product(H, PHt) + R
     for i in range(m):
         if not math.isfinite(nu[i]):
             return x.copy(), P.copy(), math.nan, INNOVATION_NOT_FINITE
@@ -174,27 +161,8 @@ def measurement_update_kernel(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: n
             s += KT[k, i] * nu[k]
         xf[i] = x[i] + s
     # Joseph form: (I - K H) P (I - K H)^T + K R K^T
-    IKH = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(m):
-                s += KT[k, i] * H[k, j]
-            IKH[i, j] = (1.0 if i == j else 0.0) - s
-    KR = np.zeros((n, m))
-    for i in range(n):
-        for j in range(m):
-            s = 0.0
-            for k in range(m):
-                s += KT[k, i] * R[k, j]
-            KR[i, j] = s
-    KRKt = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(m):
-                s += KR[i, k] * KT[k, j]
-            KRKt[i, j] = s
+    IKH = np.eye(n) - _product(KT.T, H)
+    KRKt = _product(_product(KT.T, R), KT)
     Pf = _sandwich(IKH, P, KRKt)
     return xf, Pf, nis, estimate_status_kernel(xf, Pf, True)
 

@@ -772,30 +772,32 @@ def _plots(out: Path, data: dict[str, Any], filters: Sequence[FilterInfo]) -> No
     plt.close(fig)
     pfs = [f for f in filters if f.fmu == "ParticleFilter"]
     if pfs:
-        fig, ax = plt.subplots(figsize=(8, 4.5))
-        for f in [e for e in ekfs if e.use_accelerometer] + pfs:
-            ax.semilogy(t, data["per_time"][f.name]["position"], label=f"{f.fmu} ({f.name})")
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel("angular position RMSE [rad]")
-        ax.set_title(f"{data['scenario']}: PF against EKF (cf. Axelsson et al. 2012, Fig. 4)")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(out / "fig4.png", dpi=120)
-        plt.close(fig)
+        _rmse_figure(out / "fig4.png", t, {f"{f.fmu} ({f.name})": data["per_time"][f.name]["position"]
+                                           for f in [e for e in ekfs if e.use_accelerometer] + pfs},
+                     "angular position RMSE [rad]",
+                     f"{data['scenario']}: PF against EKF (cf. Axelsson et al. 2012, Fig. 4)")
     tool = [f for f in filters if f.tool]
     if tool:
-        fig, ax = plt.subplots(figsize=(8, 4.5))
-        for f in tool:
-            ax.semilogy(t, data["per_time"][f.name]["tool_position"], label=f"{f.name} ({f.fmu})")
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel("tool position RMSE [m]")
-        ax.set_title(f"{data['scenario']}: {data['runs']} Monte Carlo runs, against {data['tool_truth']}")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(out / "tool_position.png", dpi=120)
-        plt.close(fig)
+        _rmse_figure(out / "tool_position.png", t,
+                     {f"{f.name} ({f.fmu})": data["per_time"][f.name]["tool_position"] for f in tool},
+                     "tool position RMSE [m]",
+                     f"{data['scenario']}: {data['runs']} Monte Carlo runs, against {data['tool_truth']}")
+
+
+def _rmse_figure(path: Path, t: np.ndarray, series: dict[str, Any], ylabel: str, title: str) -> None:
+    """One figure of RMSEs over time (log scale), a line per labelled series."""
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for label, y in series.items():
+        ax.semilogy(t, y, label=label)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 # ---------------------------------------------------------------------------------------------

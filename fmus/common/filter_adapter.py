@@ -38,7 +38,47 @@ from fmus.common.sample_time import (T_MEAS_DESCRIPTION, TIME_TOL, UNSTAMPED, in
                                      measurement_time)
 
 
-class FilterAdapter(FlexFusionSlave):
+class FusionSchedule:
+    """The fusion schedule of the module docstring, without FMI: the committed estimate and its
+    time, the pending update and the stamp last fused. :class:`FilterAdapter` runs it for one
+    filter in an FMU; the batched engine's EKF over runs
+    (``fmus/estimators/ekf_accelerometer_batched.py``) runs the same code, so the two cannot
+    drift apart. A user sets ``_est``, ``_t_state``, ``_t_fused``, ``_pending``, ``_step`` and
+    the input ``t_meas``, and implements ``_predicted``, ``_fused`` (or ``_advanced``) and
+    ``_show`` (see :class:`FilterAdapter`)."""
+
+    def _advanced(self, est: Any, t0: float, t1: float) -> Any:
+        return self._fused(self._predicted_to(est, t0, t1))
+
+    def _committed(self, est: Any, t: float) -> None:
+        pass
+
+    def _predicted_to(self, est: Any, t0: float, t1: float) -> Any:
+        if t1 <= t0 + TIME_TOL:
+            return est
+        n, T = intervals(t0, t1, self._step)
+        for _ in range(n):
+            est = self._predicted(est, T)
+        return est
+
+    def _commit(self) -> None:
+        (self._t_state, self._est), self._pending = self._pending, None
+        self._t_fused = self._t_state
+        self._committed(self._est, self._t_state)
+
+    def _fuse_and_show(self, t_m: float, now: float) -> None:
+        """Fuse the measurement inputs stamped ``t_m`` (pending until the next step) and show
+        the estimate at ``now``."""
+        if t_m <= now + TIME_TOL:
+            if self._pending is not None and t_m > self._pending[0] + TIME_TOL:
+                self._commit()                          # a newer sample: the pending one is final
+            if t_m > self._t_fused + TIME_TOL:          # not fused yet
+                self._pending = (t_m, self._advanced(self._est, self._t_state, t_m))
+        t, est = self._pending if self._pending is not None else (self._t_state, self._est)
+        self._show(self._predicted_to(est, t, now))
+
+
+class FilterAdapter(FusionSchedule, FlexFusionSlave):
     """Base of an estimator FMU (module docstring).
 
     A subclass declares its inputs and outputs (with :meth:`declare_t_meas`), calls
@@ -93,30 +133,11 @@ class FilterAdapter(FlexFusionSlave):
     def _fused(self, prior: Any) -> Any:
         raise NotImplementedError
 
-    def _advanced(self, est: Any, t0: float, t1: float) -> Any:
-        return self._fused(self._predicted_to(est, t0, t1))
-
     def _show(self, est: Any) -> None:
         raise NotImplementedError
 
     def _before_step(self) -> None:
         pass
-
-    def _committed(self, est: Any, t: float) -> None:
-        pass
-
-    def _predicted_to(self, est: Any, t0: float, t1: float) -> Any:
-        if t1 <= t0 + TIME_TOL:
-            return est
-        n, T = intervals(t0, t1, self._step)
-        for _ in range(n):
-            est = self._predicted(est, T)
-        return est
-
-    def _commit(self) -> None:
-        (self._t_state, self._est), self._pending = self._pending, None
-        self._t_fused = self._t_state
-        self._committed(self._est, self._t_state)
 
     def _refresh(self, now: float) -> None:
         """Fuse the measurement inputs at their time (pending until the next step) and set the
@@ -125,13 +146,7 @@ class FilterAdapter(FlexFusionSlave):
             return                                      # hold the last good estimate
         t_m = measurement_time(self.t_meas, now)
         try:
-            if t_m <= now + TIME_TOL:
-                if self._pending is not None and t_m > self._pending[0] + TIME_TOL:
-                    self._commit()                      # a newer sample: the pending one is final
-                if t_m > self._t_fused + TIME_TOL:      # not fused yet
-                    self._pending = (t_m, self._advanced(self._est, self._t_state, t_m))
-            t, est = self._pending if self._pending is not None else (self._t_state, self._est)
-            self._show(self._predicted_to(est, t, now))
+            self._fuse_and_show(t_m, now)
         except self.divergence as exc:
             self._diverged = f"{exc} (measurements of t = {t_m:.6g} s)"
             self._pending = None
@@ -157,4 +172,4 @@ class FilterAdapter(FlexFusionSlave):
             raise self.divergence(self._diverged)
 
 
-__all__ = ["FilterAdapter"]
+__all__ = ["FilterAdapter", "FusionSchedule"]

@@ -19,7 +19,8 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from fmus.common.sample_time import TIME_TOL, UNSTAMPED, intervals, measurement_time
+from fmus.common.filter_adapter import FusionSchedule
+from fmus.common.sample_time import UNSTAMPED, measurement_time
 from fmus.common.jit import kernel
 from fmus.common.kalman import OK, FilterDivergence, linear_time_update_kernel, raise_for
 from fmus.estimators import axelsson2012_model as am
@@ -130,15 +131,17 @@ def tool_position(q: np.ndarray, p) -> np.ndarray:
     return np.stack([p.l1 * s1 + r2x, p.l1 * c1 + r2z], axis=1)
 
 
-class BatchedEkfAccelerometer:
+class BatchedEkfAccelerometer(FusionSchedule):
     """The EkfAccelerometer FMU (``ekf_accelerometer_fmu.py`` on ``fmus/common/filter_adapter.py``)
     for many runs of one parameter set (or sets differing in ``q_jerk``, one per run:
     :class:`BatchedEkfModel`): the measurement inputs are ``(runs, ...)`` arrays, the
     times (``t``, ``t_meas``) are shared. Call :meth:`initial` where the FMU leaves
     Initialization Mode, :meth:`refresh` where an input changed without a step (the FMU's
     output update) and :meth:`step` per communication step; :meth:`outputs` are then the
-    FMU's outputs. A diverged run raises :class:`~.ekf_accelerometer_model.FilterDivergence`
-    naming it (the FMU ends its step with an error there)."""
+    FMU's outputs. The fusion schedule (pending update, commit, prediction to the stamp) is the
+    FMU's own code, :class:`~fmus.common.filter_adapter.FusionSchedule`. A diverged run raises
+    :class:`~.ekf_accelerometer_model.FilterDivergence` naming it (the FMU ends its step with an
+    error there)."""
 
     def __init__(self, p: am.EkfAccelerometerParameters | Sequence[am.EkfAccelerometerParameters],
                  step: float) -> None:
@@ -161,7 +164,7 @@ class BatchedEkfAccelerometer:
         self._est = Estimate(np.broadcast_to(s.x, (runs, n)).copy(), np.broadcast_to(s.P, (runs, n, n)).copy(),
                              np.zeros(runs), self._u)
         self._t_state, self._t_fused, self._pending = t0, -math.inf, None
-        self._refresh(t0)
+        self.refresh(t0)
 
     def _predicted(self, est: Estimate, T: float) -> Estimate:
         x, P = self.ekf.predicted(0.5 * (est.u + self._u), T, est.x, est.P)
@@ -189,42 +192,18 @@ class BatchedEkfAccelerometer:
                 "P_x": lambda: P[:, _TRIL[0], _TRIL[1]]}
         return {n: make[n]() for n in names}
 
-    # -- the base (filter_adapter.FilterAdapter), without the FMI parts
-    def _predicted_to(self, est: Estimate, t0: float, t1: float) -> Estimate:
-        if t1 <= t0 + TIME_TOL:
-            return est
-        n, T = intervals(t0, t1, self._step)
-        for _ in range(n):
-            est = self._predicted(est, T)
-        return est
-
-    def _commit(self) -> None:
-        (self._t_state, self._est), self._pending = self._pending, None
-        self._t_fused = self._t_state
-
-    def _refresh(self, now: float) -> None:
-        t_m = measurement_time(self.t_meas, now)
-        if t_m <= now + TIME_TOL:
-            if self._pending is not None and t_m > self._pending[0] + TIME_TOL:
-                self._commit()
-            if t_m > self._t_fused + TIME_TOL:
-                prior = self._predicted_to(self._est, self._t_state, t_m)
-                self._pending = (t_m, self._fused(prior))
-        t, est = self._pending if self._pending is not None else (self._t_state, self._est)
-        self._show(self._predicted_to(est, t, now))
-
     def refresh(self, now: float) -> None:
         """The FMU's ``update_outputs`` at time ``now`` (an input was set)."""
-        self._refresh(now)
+        self._fuse_and_show(measurement_time(self.t_meas, now), now)
 
     def step(self, t: float, dt: float) -> None:
         """The FMU's ``step(t, dt)``: commit the pending update, read the jerk input, fuse."""
         if self._pending is None:
-            self._refresh(t)
+            self.refresh(t)
         if self._pending is not None:
             self._commit()
         self._u = np.array(np.broadcast_to(self.dddq_a_ref, self._est.u.shape), dtype=float)
-        self._refresh(t + dt)
+        self.refresh(t + dt)
 
 
 __all__ = ["BatchedMeasurement", "BatchedEkfModel", "BatchedEkfAccelerometer", "Estimate", "tool_position"]

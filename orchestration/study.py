@@ -544,8 +544,22 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
                         help="continue the study in --out: reuse its finished runs, compute the rest")
 
 
+def add_engine_arguments(parser: argparse.ArgumentParser, checked: str, checks: int, batched: str,
+                         fmu: str, default: str = "batched") -> None:
+    """``--engine batched|fmu`` (``default``) and ``--check-<checked> N`` (default ``checks``)
+    for a study on the batched engine; ``batched`` and ``fmu`` say what each engine does with
+    this study, ``checked`` names its units (``runs``, ``seeds``, ``cases``, ``candidates``)."""
+    described = {"batched": batched, "fmu": fmu}
+    described[default] += " (default)"
+    parser.add_argument("--engine", choices=ENGINES, default=default,
+                        help="; ".join(f"{e}: {described[e]}" for e in sorted(described, key=lambda e: e != default)))
+    parser.add_argument(f"--check-{checked}", type=int, default=checks, metavar="N",
+                        help=f"{checked} checked through the FMUs with the batched engine (default {checks}; "
+                             f"0: none; they must agree to {CHECK_RTOL:g} relative)")
+
+
 __all__ = ["StudyError", "RunArrays", "simulate", "open_executor", "ProcessPool", "map_jobs",
-           "StudyFolder", "study_folder", "unrecorded", "require_recorded", "StudyInterrupted", "WorkerLost", "add_executor_arguments",
+           "StudyFolder", "study_folder", "unrecorded", "require_recorded", "StudyInterrupted", "WorkerLost", "add_executor_arguments", "add_engine_arguments",
            "dataclass_from_scalars", "check_against_fmus", "compare_checks", "simulate_recorded", "CHECK_RTOL", "ENGINES",
            "check_engine", "check_picks", "submit"]
 

@@ -53,7 +53,7 @@ from fmus.common.parameters import replace
 from fmus.force_observer import impedance_math as imp
 from orchestration.metrics import rmse
 from orchestration.results import json_safe
-from orchestration.study import ENGINES
+from orchestration.study import add_engine_arguments
 
 REPO = Path(__file__).resolve().parent.parent
 SCENARIOS = REPO / "orchestration" / "scenarios"
@@ -729,11 +729,8 @@ def register(subparsers: Any) -> None:
                    help="override a parameter of both scenarios (repeatable)")
     p.add_argument("--no-compliant", action="store_true",
                    help="skip the one-axis rigid vs compliant tool comparison (about 10 s)")
-    p.add_argument("--engine", choices=ENGINES, default="batched",
-                   help="batched: the cases of each scenario file together without FMI, a few checked "
-                        "through the FMUs (default); fmu: one co-simulation of the FMUs per case")
-    p.add_argument("--check-cases", type=int, default=CHECK_CASES, metavar="N",
-                   help=f"cases checked through the FMUs with the batched engine (default {CHECK_CASES}; "
-                        "they must agree to 1e-12 relative)")
+    add_engine_arguments(p, "cases", CHECK_CASES,
+                         batched="the cases of each scenario file together without FMI, a few checked through the FMUs",
+                         fmu="one co-simulation of the FMUs per case")
     add_executor_arguments(p)
     p.set_defaults(func=cmd_contact)

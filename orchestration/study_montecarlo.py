@@ -109,7 +109,7 @@ Q_JERK_SWEEP = (0.01, 0.1, 0.3, 1.0, 3.0, 10.0, 100.0)
 #: Engines of the runs: vectorised over the runs (orchestration.batched), or one co-simulation
 #: of the FMUs per run. Seeds checked through the FMUs when the batched engine runs, and the
 #: relative difference allowed there.
-ENGINES = ("batched", "fmu")
+ENGINES = study.ENGINES
 CHECK_SEEDS = 3
 CHECK_RTOL = study.CHECK_RTOL
 
@@ -404,10 +404,7 @@ def _check_arguments(runs: int, engine: str, check_seeds: int, sweep: Sequence[f
                      validation_runs: int) -> None:
     if runs < 1:
         raise study.StudyError(f"--runs must be at least 1, not {runs}")
-    if engine not in ENGINES:
-        raise study.StudyError(f"--engine must be one of {', '.join(ENGINES)}, not {engine!r}")
-    if check_seeds < 0:
-        raise study.StudyError(f"--check-seeds must not be negative, not {check_seeds}")
+    study.check_engine(engine, check_seeds, "--check-seeds")
     if sweep_runs < 0 or validation_runs < 0:
         raise study.StudyError("--sweep-runs and --validation-runs must not be negative")
     if any(not (q > 0 and math.isfinite(q)) for q in sweep):
@@ -825,15 +822,12 @@ def register(subparsers: Any) -> None:
                    help="runs per q_jerk value of the sweep (default 10; 0: no sweep)")
     p.add_argument("--validation-runs", type=int, default=50, metavar="M",
                    help="runs of the CRLB validation case (default 50; 0: none)")
-    p.add_argument("--engine", choices=ENGINES, default="batched",
-                   help="batched: all runs vectorised together, a few seeds checked through the FMUs "
-                        "(default); fmu: one co-simulation of the FMUs per run")
+    study.add_engine_arguments(p, "seeds", CHECK_SEEDS,
+                               batched="all runs vectorised together, a few seeds checked through the FMUs",
+                               fmu="one co-simulation of the FMUs per run")
     p.add_argument("--estimator", action="append", default=[], metavar="NAME", dest="estimators",
                    help="study this component, ours or anyone's meeting the estimator contract "
                         "(repeatable; default: the paper's EkfAccelerometer and ParticleFilter components)")
-    p.add_argument("--check-seeds", type=int, default=CHECK_SEEDS, metavar="N",
-                   help=f"seeds checked through the FMUs with the batched engine (default {CHECK_SEEDS}; "
-                        f"0: none; they must agree to {CHECK_RTOL:g} relative)")
     study.add_executor_arguments(p)
     p.set_defaults(func=main)
 

@@ -74,7 +74,7 @@ import numpy as np
 
 from .metrics import bandpass
 from .scenario import copy_document
-from .study import (ENGINES, StudyError, add_executor_arguments, check_engine, compare_checks, map_jobs,
+from .study import (ENGINES, StudyError, add_engine_arguments, add_executor_arguments, check_engine, compare_checks, map_jobs,
                     open_executor, simulate_recorded, submit)
 from .study_montecarlo import PLANT_FMU
 
@@ -697,13 +697,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--estimator", action="append", default=[], metavar="NAME", dest="estimators",
                    help="study this component, ours or anyone's meeting the estimator contract "
                         "(repeatable; default: the paper's observers and rigid kinematics)")
-    p.add_argument("--engine", choices=ENGINES, default="fmu",
-                   help="fmu: one co-simulation per case (default: faster for this study); batched: each "
-                        "scenario's truth simulated once, the other cases played back on it, a few cases "
-                        "checked through the FMUs")
-    p.add_argument("--check-cases", type=int, default=CHECK_CASES, metavar="N",
-                   help=f"cases checked through the FMUs with the batched engine (default {CHECK_CASES}; "
-                        "they must agree to 1e-12 relative)")
+    add_engine_arguments(p, "cases", CHECK_CASES, default="fmu",
+                         batched="each scenario's truth simulated once, the other cases played back on it, "
+                                 "a few cases checked through the FMUs",
+                         fmu="one co-simulation per case, faster for this study")
     add_executor_arguments(p)
     p.set_defaults(func=main)
 

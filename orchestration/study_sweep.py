@@ -507,12 +507,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--after", type=float, default=0.0,
                    help="ignore the samples before this time [s] (default 0)")
     p.add_argument("--no-plots", action="store_true", help="no study.png")
-    p.add_argument("--engine", choices=ENGINES, default="batched",
-                   help="batched: the runs together, vectorised where our kernels allow, a few runs checked "
-                        "through the FMUs (default); fmu: one co-simulation of the FMUs per run")
-    p.add_argument("--check-runs", type=int, default=CHECK_RUNS, metavar="N",
-                   help=f"runs checked through the FMUs with the batched engine (default {CHECK_RUNS}; "
-                        "they must agree to 1e-12 relative)")
+    study.add_engine_arguments(p, "runs", CHECK_RUNS,
+                               batched="the runs together, vectorised where our kernels allow, a few runs "
+                                       "checked through the FMUs",
+                               fmu="one co-simulation of the FMUs per run")
     study.add_executor_arguments(p)
     p.set_defaults(func=main)
 

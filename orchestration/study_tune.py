@@ -64,8 +64,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from .scenario import connection_key, copy_document, toml_value
-from .study import (CHECK_RTOL, StudyError, add_executor_arguments, check_against_fmus, map_jobs, open_executor,
-                    simulate, submit)
+from .study import (CHECK_RTOL, ENGINES, StudyError, add_engine_arguments, add_executor_arguments,
+                    check_against_fmus, check_engine, map_jobs, open_executor, simulate, submit)
 
 #: Default search ranges per estimator FMU type (model identifier), used when no --param is
 #: given. The observer: four pole pairs (Hz, damping), section III-C-2. The EKFs: the five
@@ -90,7 +90,6 @@ METRICS = ("rmse", "bandpass_mean", "bandpass_max")
 PENALTY = 1.0e3          # cost of a failed run (metres): far worse than any estimate
 #: Engines of the evaluations: the truth of each seed simulated once and every candidate
 #: replayed on it (orchestration.batched), or one co-simulation of the FMUs per candidate and seed.
-ENGINES = ("batched", "fmu")
 #: Candidates of the first population also run through the FMUs on the batched engine, and the
 #: relative difference allowed (as for the Monte Carlo study's checked seeds).
 CHECK_CANDIDATES = 2
@@ -594,8 +593,7 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
 
     if metric not in METRICS:
         raise StudyError(f"unknown tuning metric {metric!r} (one of {', '.join(METRICS)})")
-    if engine not in ENGINES:
-        raise StudyError(f"--engine must be one of {', '.join(ENGINES)}, not {engine!r}")
+    check_engine(engine, check_candidates, "--check-candidates")
     if set(seeds) & set(holdout_seeds):
         raise StudyError(f"held-out seeds {sorted(set(seeds) & set(holdout_seeds))} are also "
                          "training seeds: a held-out cost must come from noise the tuner never saw")
@@ -829,11 +827,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--apply-to", action="append", metavar="COMPONENT",
                    help="also write the tuned values for this component (repeatable; e.g. a variant "
                         "of the estimator)")
-    p.add_argument("--engine", choices=ENGINES, default="batched",
-                   help="batched: each seed's truth simulated once, every candidate replayed on it, a few "
-                        "candidates checked through the FMUs (default); fmu: one co-simulation per candidate")
-    p.add_argument("--check-candidates", type=int, default=CHECK_CANDIDATES, metavar="N",
-                   help=f"candidates checked through the FMUs with the batched engine (default {CHECK_CANDIDATES})")
+    add_engine_arguments(p, "candidates", CHECK_CANDIDATES,
+                         batched="each seed's truth simulated once, every candidate replayed on it, a few "
+                                 "candidates checked through the FMUs",
+                         fmu="one co-simulation per candidate")
     add_executor_arguments(p)
     p.set_defaults(func=main)
 

@@ -124,18 +124,24 @@ def _register_locator() -> None:
     impl._locator_classes.insert(0, BundleLocator)
 
 
-def kernel(function: Callable | None = None, **options: Any) -> Any:
+def kernel(function: Callable | None = None, *, aot: str | None = None, **options: Any) -> Any:
     """``numba.njit`` with the on-disk cache of this module; ``@kernel`` or ``@kernel(...)``.
 
     ``function`` is the kernel (or None when options are given); ``options`` go to
     ``numba.njit`` (``cache=True`` is implied; ``fastmath`` stays off). A function with no source
     file behind it (code run from a string, e.g. a benchmark's baseline taken from git) is
     compiled without the cache: there is nothing to key it by.
+
+    ``aot``: the numba signature of a kernel that Python code calls (e.g.
+    ``"float64(float64[:], float64)"``), for compiling it ahead of time; a kernel that only
+    other kernels call needs none. The just-in-time path compiles lazily and ignores it.
     """
     import numba
     _register_locator()
 
     def decorate(fn: Callable) -> Any:
         cache = os.path.isfile(fn.__code__.co_filename)
-        return numba.njit(cache=cache, **options)(fn)
+        dispatcher = numba.njit(cache=cache, **options)(fn)
+        dispatcher.aot_signature = aot
+        return dispatcher
     return decorate if function is None else decorate(function)

@@ -67,6 +67,7 @@ def unavailable() -> str | None:
 def library() -> Any:
     """The loaded C loop (``cosim_steps`` ready to call), compiled first if it is not in the
     cache; None without a C compiler, when compiling fails, or with ``FLEXFUSION_PYTHON_LOOP=1``."""
+    _WHY_NOT.clear()
     if os.environ.get("FLEXFUSION_PYTHON_LOOP", "") not in ("", "0"):
         _WHY_NOT.append("FLEXFUSION_PYTHON_LOOP is set")
         return None

@@ -15,6 +15,11 @@
 * Per component and step: one batched ``fmi2SetReal`` of all connected inputs and one batched
   ``fmi2GetReal`` of all needed outputs, straight from/to one shared value buffer (ctypes arrays
   and numpy views, value references precomputed), through the library's raw functions.
+* The stepping loop runs in C (``orchestration/cosim_loop.c``, :mod:`orchestration.cloop`), in
+  chunks of at most 100 base steps; between chunks Python sinks the recorded rows, saves a
+  fork's state, checks for a signal and reports progress. :func:`_python_steps` is the same
+  loop in Python, the reference, run where there is no C compiler or with
+  ``FLEXFUSION_PYTHON_LOOP=1``: the results are the same, bit for bit.
 * A NaN on a connection, or an FMU status error/discard/fatal, stops the run with a
   :class:`RunError` naming the component, the variable and the time (with the FMU's own log).
   The NaN check runs once per base step; a consumer that fails on a NaN input before it is
@@ -548,7 +553,8 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
             if stopped is not None:
                 k, i, function, status = stopped
                 t_now = k * h
-                _check_nan(slots, values, (k + 1) * h)     # a NaN handed to a failing FMU is the cause
+                # a NaN (i None) raises here; so does one handed to a failing FMU, the cause
+                _check_nan(slots, values, (k + 1) * h)
                 _fail(slots[i].inst, function, status, t_now)
             k = end
             t_now = (k - 1) * h

@@ -157,7 +157,7 @@ class CLoop:
         self._loop = _Loop(_pointer(self._slots), len(slots), array(ctypes.c_int64, [i for d in due for i in d]),
                            array(ctypes.c_int64, starts.tolist()), len(due), _pointer(values_c),
                            array(ctypes.c_int64, record_idx.tolist()), len(record_idx), every, h)
-        self._keep = keep                       # the arrays the structures point into
+        self._keep = (keep, slots, values_c)    # what the structures point into
         self._stop = _Stop()
 
     def __call__(self, k0: int, k1: int, rows: np.ndarray) -> tuple[int, tuple[int, int | None, str, int] | None]:

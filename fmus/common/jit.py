@@ -59,22 +59,15 @@ def bundle_id() -> str:
     return package_digest(PACKAGE)
 
 
-def cache_root() -> Path:
-    """The folder of FlexFusion's compiled caches (numba's kernels here, the master's C loop in
-    ``orchestration/cloop.py``): ``$FLEXFUSION_CACHE_DIR``, else ``$XDG_CACHE_HOME/flexfusion``,
-    else ``~/.cache/flexfusion``."""
+def cache_dir() -> Path:
+    """The folder holding the compiled kernels of this package's sources (see the module doc)."""
     base = os.environ.get("FLEXFUSION_CACHE_DIR")
     if not base:
         xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
         base = os.path.join(xdg, "flexfusion")
-    return Path(base)
-
-
-def cache_dir() -> Path:
-    """The folder holding the compiled kernels of this package's sources (see the module doc)."""
     # the package's name too: an FMU's copy (``fmus_<hash>``, imports rewritten) and the working
     # tree (``fmus``) have one bundle id but different source files
-    return cache_root() / "numba" / f"{bundle_id()[:16]}-{PACKAGE.name}"
+    return Path(base) / "numba" / f"{bundle_id()[:16]}-{PACKAGE.name}"
 
 
 def _writable(path: Path) -> bool:

@@ -11,7 +11,6 @@ import warnings
 from pathlib import Path
 
 import pytest
-from numpy.testing import assert_array_equal
 
 from orchestration import CouplingWarning, RunError, cloop, fork, master, run
 from orchestration.build import BuildError

@@ -15,6 +15,11 @@
 * Per component and step: one batched ``fmi2SetReal`` of all connected inputs and one batched
   ``fmi2GetReal`` of all needed outputs, straight from/to one shared value buffer (ctypes arrays
   and numpy views, value references precomputed), through the library's raw functions.
+* The stepping loop runs in C (``orchestration/cosim_loop.c``, :mod:`orchestration.cloop`), in
+  chunks of at most 100 base steps; between chunks Python sinks the recorded rows, saves a
+  fork's state, checks for a signal and reports progress. :func:`_python_steps` is the same
+  loop in Python, the reference, run where there is no C compiler or with
+  ``FLEXFUSION_PYTHON_LOOP=1``: the results are the same, bit for bit.
 * A NaN on a connection, or an FMU status error/discard/fatal, stops the run with a
   :class:`RunError` naming the component, the variable and the time (with the FMU's own log).
   The NaN check runs once per base step; a consumer that fails on a NaN input before it is
@@ -41,6 +46,7 @@ import time
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
@@ -526,54 +532,39 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
         sink(round(k0 * h, 12), values[record_idx])
 
         # ---- stepping --------------------------------------------------------------------
-        # Per due component one fmi2SetReal, fmi2DoStep and fmi2GetReal through the raw
-        # function pointers, straight from/to ``values``. One NaN check per base step: the dot
-        # product of ``values`` with itself is NaN if and only if a value is NaN; only then are
-        # the connected outputs searched for the producer to name.
-        def stop(s: _Slot, function: str, status: int, k: int) -> None:
-            _check_nan(slots, values, (k + 1) * h)      # a NaN handed to it is the cause
-            _fail(s.inst, function, status, k * h)
-
+        # In chunks of at most ``tick`` base steps, ending at the hook's save step: the C loop
+        # (orchestration/cosim_loop.c) or its reference, _python_steps, runs a chunk into a row
+        # buffer; between chunks the rows go to the sink (before an error is raised, so nothing
+        # computed is lost), then the hook's save, the signal check and the progress.
         n_steps = scenario.n_steps
         every = scenario.record_every
         tick = max(1, min(n_steps // 200, 100))
         save_at = getattr(hook, "step", None)
-        slot_of = {s.inst.name: s for s in slots}
-        stepping = [[slot_of[n] for n in names] for names in due(scenario, p.order)]
-        period = len(stepping)
-        t_c = ctypes.c_double()          # the communication point of every doStep of a base step
-        true = ctypes.c_int(1)           # noSetFMUStatePriorToCurrentPoint
-        take, dot = values.take, values.dot
-        for k in range(k0, n_steps):
-            t_c.value = t_now = k * h
-            for s in stepping[k % period]:
-                if k > s.last_k:        # its next step would pass the stop time
-                    continue
-                inst = s.inst
-                if s.n_in:
-                    take(s.in_idx, out=s.in_view)
-                    st = inst.c_set(inst.handle, s.in_vr, s.n_in, s.in_buf)
-                    if st > 1:
-                        stop(s, "fmi2SetReal", st, k)
-                st = inst.c_step(inst.handle, t_c, s.step, true)
-                if st > 1:
-                    stop(s, "fmi2DoStep", st, k)
-                if s.n_out:
-                    st = inst.c_get(inst.handle, s.out_vr, s.n_out, s.out_ptr)
-                    if st > 1:
-                        stop(s, "fmi2GetReal", st, k)
-            d = dot(values)
-            if d != d:
+        index = {s.inst.name: i for i, s in enumerate(slots)}
+        pattern = [[index[n] for n in names] for names in due(scenario, p.order)]
+        steps = _stepper(slots, pattern, layout, every, h)
+        k = k0
+        while k < n_steps:
+            end = min(n_steps, (k // tick + 1) * tick, save_at if save_at is not None and save_at > k else n_steps)
+            rows = np.empty((end - k, 1 + len(record_idx)))
+            n_rows, stopped = steps(k, end, rows)
+            for row in rows[:n_rows]:
+                sink(round(float(row[0]), 12), row[1:])
+            if stopped is not None:
+                k, i, function, status = stopped
+                t_now = k * h
+                # a NaN (i None) raises here; so does one handed to a failing FMU, the cause
                 _check_nan(slots, values, (k + 1) * h)
-            if (k + 1) % every == 0:
-                sink(round((k + 1) * h, 12), values[record_idx])
-            if k + 1 == save_at:
-                hook.save(k + 1, by_name, values, layout.offsets)
-            if (k + 1) % tick == 0:
+                _fail(slots[i].inst, function, status, t_now)
+            k = end
+            t_now = (k - 1) * h
+            if k == save_at:
+                hook.save(k, by_name, values, layout.offsets)
+            if k % tick == 0:
                 if _STOP[0]:
-                    raise Interrupted(_STOP[0], round((k + 1) * h, 12))
+                    raise Interrupted(_STOP[0], round(k * h, 12))
                 if progress is not None:
-                    progress(k + 1)
+                    progress(k)
         if progress is not None:
             progress(n_steps)
         t_now = scenario.stop_time
@@ -647,16 +638,86 @@ def _fail(inst: _Instance, function: str, status: int, t: float) -> None:
                    f"{label}; FMU log: {inst.log_text()}", t, inst.name)
 
 
-def _check_nan(slots: list[_Slot], values: np.ndarray, t: float) -> None:
-    """A :class:`RunError` naming the first of ``slots`` with a NaN on a connected output, if any
+def _nan_outputs(slots: list[_Slot], values: np.ndarray) -> tuple[_Slot, list[str]] | None:
+    """The first of ``slots`` with a NaN on a connected output and those outputs' names, or None
     (a NaN on an output that is only recorded is not an error)."""
     for s in slots:
         chk = values[s.out_start:s.out_start + s.n_check]
         bad = [s.out_names[i] for i in np.flatnonzero(np.isnan(chk))]
         if bad:
-            raise RunError(f"NaN on a connection: component '{s.inst.name}' output "
-                           f"'{bad[0]}' is NaN at t = {t:.6g} s"
-                           + (f" (also {', '.join(bad[1:])})" if len(bad) > 1 else ""), t, s.inst.name)
+            return s, bad
+    return None
+
+
+def _check_nan(slots: list[_Slot], values: np.ndarray, t: float) -> None:
+    """A :class:`RunError` naming the first of ``slots`` with a NaN on a connected output, if any."""
+    found = _nan_outputs(slots, values)
+    if found:
+        s, bad = found
+        raise RunError(f"NaN on a connection: component '{s.inst.name}' output "
+                       f"'{bad[0]}' is NaN at t = {t:.6g} s"
+                       + (f" (also {', '.join(bad[1:])})" if len(bad) > 1 else ""), t, s.inst.name)
+
+
+# ---------------------------------------------------------------------------------------------
+# the stepping loop: in C (orchestration/cosim_loop.c), and here in Python, its reference
+# ---------------------------------------------------------------------------------------------
+_Stopped = tuple[int, "int | None", str, int]   # base step, slot index (None: a NaN), function, status
+
+
+def _stepper(slots: list[_Slot], pattern: list[list[int]], layout: _Layout, every: int,
+             h: float) -> Callable[[int, int, np.ndarray], tuple[int, _Stopped | None]]:
+    """``steps(k0, k1, rows)``: run base steps ``k0 .. k1-1``, write the recorded rows (t, then
+    the recorded values) into ``rows`` and return how many, and where it stopped early (an FMU
+    status above warning, a NaN on a connection) or None. The C loop
+    (:mod:`orchestration.cloop`), or where there is none, :func:`_python_steps`."""
+    from . import cloop
+    lib = cloop.library()
+    if lib is None:
+        return partial(_python_steps, slots, pattern, layout.values, layout.record_idx, every, h)
+    return cloop.CLoop(lib, slots, pattern, layout.values_c, layout.record_idx, every, h)
+
+
+def _python_steps(slots: list[_Slot], pattern: list[list[int]], values: np.ndarray, record_idx: np.ndarray,
+                  every: int, h: float, k0: int, k1: int, rows: np.ndarray) -> tuple[int, _Stopped | None]:
+    """The stepping loop in Python, line by line as ``cosim_steps`` in cosim_loop.c (keep them
+    alike): per base step, each due component of ``pattern[k % period]`` (slot indices, in
+    Gauss–Seidel order) that has not taken its last step gets one fmi2SetReal, fmi2DoStep and
+    fmi2GetReal through the raw function pointers, straight from/to ``values``; then one NaN
+    check (the dot product of ``values`` with itself is NaN if and only if a value is) and,
+    every ``every`` base steps, a row."""
+    t_c = ctypes.c_double()          # the communication point of every doStep of a base step
+    true = ctypes.c_int(1)           # noSetFMUStatePriorToCurrentPoint
+    take, dot = values.take, values.dot
+    period = len(pattern)
+    n_rows = 0
+    for k in range(k0, k1):
+        t_c.value = k * h
+        for i in pattern[k % period]:
+            s = slots[i]
+            if k > s.last_k:        # its next step would pass the stop time
+                continue
+            inst = s.inst
+            if s.n_in:
+                take(s.in_idx, out=s.in_view)
+                st = inst.c_set(inst.handle, s.in_vr, s.n_in, s.in_buf)
+                if st > 1:
+                    return n_rows, (k, i, "fmi2SetReal", st)
+            st = inst.c_step(inst.handle, t_c, s.step, true)
+            if st > 1:
+                return n_rows, (k, i, "fmi2DoStep", st)
+            if s.n_out:
+                st = inst.c_get(inst.handle, s.out_vr, s.n_out, s.out_ptr)
+                if st > 1:
+                    return n_rows, (k, i, "fmi2GetReal", st)
+        d = dot(values)
+        if d != d and _nan_outputs(slots, values):
+            return n_rows, (k, None, "NaN", 0)
+        if (k + 1) % every == 0:
+            rows[n_rows, 0] = (k + 1) * h
+            take(record_idx, out=rows[n_rows, 1:])
+            n_rows += 1
+    return n_rows, None
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,0 +1,180 @@
+"""The master's stepping loop in C: ``orchestration/cosim_loop.c`` compiled with the system C
+compiler and loaded with ctypes (:func:`library`), and its arguments built from the master's
+slots (:class:`CLoop`).
+
+The library is compiled on first use, once per content of the source and the flags, into
+``<cache root>/loop/<hash>/`` (:func:`cache_root`; about 0.1 s of gcc): not at
+``flexfusion build``, so a run with FMUs built elsewhere, or a fresh cache, still gets it, and
+the FMU build stays the FMUs'. A new library is compiled to a temporary name and renamed, so
+parallel processes never load half a file.
+
+Where no C compiler is found, compiling fails, or ``FLEXFUSION_PYTHON_LOOP=1`` is set,
+:func:`library` is None (:func:`unavailable` says why) and the master runs its Python loop, the
+reference: both give the same results, bit for bit (tests/test_cosim_loop.py).
+"""
+from __future__ import annotations
+
+import ctypes
+import functools
+import hashlib
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+SOURCE = Path(__file__).with_name("cosim_loop.c")
+# no -ffast-math: the loop's NaN test (x != x) must stay
+CFLAGS = ["-std=c99", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra"]
+LIBRARY_NAME = "libcosim_loop.so"
+FUNCTIONS = ("fmi2SetReal", "fmi2DoStep", "fmi2GetReal", "NaN")   # cosim_loop.c's Stop.function
+
+
+class _Slot(ctypes.Structure):
+    _fields_ = [("set_real", ctypes.c_void_p), ("do_step", ctypes.c_void_p), ("get_real", ctypes.c_void_p),
+                ("component", ctypes.c_void_p),
+                ("n_in", ctypes.c_size_t), ("in_vr", ctypes.c_void_p), ("in_idx", ctypes.c_void_p),
+                ("in_buf", ctypes.c_void_p),
+                ("n_out", ctypes.c_size_t), ("out_vr", ctypes.c_void_p), ("out_start", ctypes.c_int64),
+                ("n_check", ctypes.c_int64), ("step", ctypes.c_double), ("last_k", ctypes.c_int64)]
+
+
+class _Loop(ctypes.Structure):
+    _fields_ = [("slots", ctypes.c_void_p), ("n_slots", ctypes.c_int64), ("due", ctypes.c_void_p),
+                ("due_start", ctypes.c_void_p), ("period", ctypes.c_int64), ("values", ctypes.c_void_p),
+                ("record_idx", ctypes.c_void_p), ("n_record", ctypes.c_int64), ("every", ctypes.c_int64),
+                ("h", ctypes.c_double)]
+
+
+class _Stop(ctypes.Structure):
+    _fields_ = [("k", ctypes.c_int64), ("slot", ctypes.c_int64), ("function", ctypes.c_int32),
+                ("status", ctypes.c_int32)]
+
+
+_WHY_NOT: list[str] = []
+
+
+def unavailable() -> str | None:
+    """Why the C loop is not used in this process (None: it is)."""
+    library()
+    return _WHY_NOT[0] if _WHY_NOT else None
+
+
+@functools.lru_cache(maxsize=None)
+def library() -> Any:
+    """The loaded C loop (``cosim_steps`` ready to call), compiled first if it is not in the
+    cache; None without a C compiler, when compiling fails, or with ``FLEXFUSION_PYTHON_LOOP=1``."""
+    _WHY_NOT.clear()
+    if os.environ.get("FLEXFUSION_PYTHON_LOOP", "") not in ("", "0"):
+        _WHY_NOT.append("FLEXFUSION_PYTHON_LOOP is set")
+        return None
+    try:
+        path = _compiled()
+    except Exception as exc:  # noqa: BLE001 - no compiler, a failed compilation: the Python loop runs
+        _WHY_NOT.append(str(exc))
+        return None
+    # PyDLL: the GIL stays held through the loop; each FMU call into Python (our native layer's
+    # PyGILState_Ensure) then nests instead of taking it from scratch
+    lib = ctypes.PyDLL(str(path))
+    lib.cosim_steps.restype = ctypes.c_int64
+    lib.cosim_steps.argtypes = [ctypes.POINTER(_Loop), ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p,
+                                ctypes.POINTER(_Stop)]
+    return lib
+
+
+def cache_root() -> Path:
+    """FlexFusion's cache folder, the one of the kernels' cache (:func:`fmus.common.jit.cache_dir`
+    is ``<root>/numba/<bundle>``; tests/test_cosim_loop.py holds them equal), found here again:
+    a run imports nothing of the working tree's ``fmus``, only the FMUs' own copies
+    (tests/test_fmi_run.py)."""
+    base = os.environ.get("FLEXFUSION_CACHE_DIR")
+    if not base:
+        base = os.path.join(os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache"), "flexfusion")
+    return Path(base)
+
+
+def _compiled() -> Path:
+    """The library compiled from ``cosim_loop.c``: the cached one, or compiled now."""
+    digest = hashlib.sha256(SOURCE.read_bytes())
+    digest.update("\0".join([*CFLAGS, sys.platform, os.uname().machine]).encode())
+    key = Path("loop") / digest.hexdigest()[:16] / LIBRARY_NAME
+    for root in (cache_root(), Path(tempfile.gettempdir()) / f"flexfusion-{os.getuid()}"):
+        target = root / key
+        if target.is_file():
+            return target
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=".tmp", suffix=".so", dir=target.parent)
+        except OSError:
+            continue                                   # not writable: the fallback folder
+        os.close(fd)
+        try:
+            _compile(tmp)
+            os.replace(tmp, target)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        return target
+    raise OSError(f"no writable cache folder for the C loop ({cache_root()})")
+
+
+def _compile(out: str) -> None:
+    from .native import c_compiler
+
+    command = [*c_compiler(), *CFLAGS, str(SOURCE), "-o", out]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        raise RuntimeError(f"compiling {SOURCE.name} failed ({' '.join(command)}):\n{result.stderr}")
+
+
+def _pointer(array: Any) -> int:
+    return ctypes.cast(array, ctypes.c_void_p).value
+
+
+class CLoop:
+    """``cosim_steps`` bound to one run: the master's slots (``orchestration.master._Slot``), the
+    components due at each base step of the pattern (indices into ``slots``), the shared buffer.
+
+    ``loop(k0, k1, rows)`` runs base steps ``k0 .. k1-1`` and returns ``(rows written, stop)``,
+    ``stop`` None or ``(k, slot index or None, function name, status)``, as the master's
+    ``_python_steps``.
+    """
+
+    def __init__(self, lib: Any, slots: Sequence[Any], due: list[list[int]], values_c: Any,
+                 record_idx: np.ndarray, every: int, h: float) -> None:
+        self._steps = lib.cosim_steps
+        keep: list[Any] = []
+
+        def array(kind: Any, items: Sequence[Any]) -> int:
+            a = (kind * max(len(items), 1))(*items)
+            keep.append(a)
+            return _pointer(a)
+
+        self._slots = (_Slot * len(slots))()
+        for c, s in zip(self._slots, slots):
+            inst = s.inst
+            c.set_real, c.do_step, c.get_real = (_pointer(f) for f in (inst.c_set, inst.c_step, inst.c_get))
+            c.component = inst.handle.value
+            c.n_in, c.in_vr, c.in_buf = s.n_in.value, _pointer(s.in_vr), _pointer(s.in_buf)
+            c.in_idx = array(ctypes.c_int64, [int(i) for i in s.in_idx])
+            c.n_out, c.out_vr, c.out_start, c.n_check = s.n_out.value, _pointer(s.out_vr), s.out_start, s.n_check
+            c.step, c.last_k = s.step.value, s.last_k
+        starts = np.cumsum([0] + [len(d) for d in due])
+        self._loop = _Loop(_pointer(self._slots), len(slots), array(ctypes.c_int64, [i for d in due for i in d]),
+                           array(ctypes.c_int64, starts.tolist()), len(due), _pointer(values_c),
+                           array(ctypes.c_int64, record_idx.tolist()), len(record_idx), every, h)
+        self._keep = (keep, slots, values_c)    # what the structures point into
+        self._stop = _Stop()
+
+    def __call__(self, k0: int, k1: int, rows: np.ndarray) -> tuple[int, tuple[int, int | None, str, int] | None]:
+        n = self._steps(ctypes.byref(self._loop), k0, k1, rows.ctypes.data, ctypes.byref(self._stop))
+        s = self._stop
+        if s.function < 0:
+            return n, None
+        return n, (s.k, s.slot if s.slot >= 0 else None, FUNCTIONS[s.function], s.status)
+
+
+__all__ = ["CLoop", "library", "unavailable"]

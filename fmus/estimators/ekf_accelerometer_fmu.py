@@ -67,10 +67,10 @@ class EkfAccelerometer(FilterAdapter):
     def setup(self, params: am.EkfAccelerometerParameters) -> None:
         self.ekf = ekf = em.EkfAccelerometerModel(params)
         robot = ekf.meas.p
-        # the kernel's constant arguments: measurement model, the accelerometer's axes, links
-        self._model = (ekf.R, ekf.meas.constants, *ekf.meas.switches)
-        self._axes = (params.index_x - 1, params.index_z - 1)
-        self._links = (float(robot.l1), float(robot.l2))
+        # the kernel's constant arguments: the accelerometer's axes, the measurement model, the links
+        self._fixed = (params.index_x - 1, params.index_z - 1, ekf.R, ekf.meas.constants, *ekf.meas.switches,
+                       float(robot.l1), float(robot.l2))
+        self._no_prediction = (0, *ekf.transition(0.0))
         self._u = self.dddq_a_ref.copy()           # the jerk input at the last step
         self.start_fusion(em.packed_estimate(ekf.x, ekf.P, 0.0, self._u))
 
@@ -81,7 +81,7 @@ class EkfAccelerometer(FilterAdapter):
         """The prediction from ``t0`` to ``t1``: the number of sample periods and their
         matrices (:meth:`~.ekf_accelerometer_model.EkfAccelerometerModel.transition`)."""
         if t1 <= t0 + TIME_TOL:
-            return (0, *self.ekf.transition(0.0))
+            return self._no_prediction
         n, T = intervals(t0, t1, self._step)
         return (n, *self.ekf.transition(T))
 
@@ -91,8 +91,8 @@ class EkfAccelerometer(FilterAdapter):
         the estimate at ``t1``."""
         new = np.empty(est.size)
         status, stage, trace, norm = em.fusion_step_kernel(
-            est, self._u, *self._periods(t0, t1), fuse, self.q_m_meas, self.acc_s, *self._axes, *self._model,
-            *self._periods(t1, now), *self._links, new, self._outputs, self._first_shown)
+            est, self._u, *self._periods(t0, t1), fuse, self.q_m_meas, self.acc_s, *self._periods(t1, now), new,
+            self._outputs, self._first_shown, *self._fixed)
         if status != OK:
             raise_for(status, _WHERE[stage], em.packed_covariance(new, self.ekf.layout.n))
         self.trace_P_q, self.innovation_norm = trace, norm

@@ -80,14 +80,14 @@ def _pack_into(x: np.ndarray, P: np.ndarray, norm: float, u: np.ndarray, e: np.n
 
 
 @kernel(aot="Tuple((int64, int64, float64, float64))(float64[:], float64[:], int64, float64[:, :], "
-            "float64[:, :], float64[:, :], boolean, float64[:], float64[:], int64, int64, float64[:, :], "
-            "float64[:], boolean, boolean, int64, float64[:, :], float64[:, :], float64[:, :], float64, float64, "
-            "float64[:], float64[:], int64)")
+            "float64[:, :], float64[:, :], boolean, float64[:], float64[:], int64, float64[:, :], float64[:, :], "
+            "float64[:, :], float64[:], float64[:], int64, int64, int64, float64[:, :], float64[:], boolean, boolean, "
+            "float64, float64)")
 def fusion_step_kernel(e: np.ndarray, u: np.ndarray, n: int, F: np.ndarray, Gu: np.ndarray, GQG: np.ndarray,
-                       fuse: bool, q_m: np.ndarray, acc: np.ndarray, ix: int, iz: int, R: np.ndarray,
-                       k: np.ndarray, use_accelerometer: bool, use_bias: bool, n_show: int, F_show: np.ndarray,
-                       Gu_show: np.ndarray, GQG_show: np.ndarray, l1: float, l2: float, out: np.ndarray,
-                       outputs: np.ndarray, first: int) -> tuple:
+                       fuse: bool, q_m: np.ndarray, acc: np.ndarray, n_show: int, F_show: np.ndarray,
+                       Gu_show: np.ndarray, GQG_show: np.ndarray, out: np.ndarray, outputs: np.ndarray, first: int,
+                       ix: int, iz: int, R: np.ndarray, k: np.ndarray, use_accelerometer: bool, use_bias: bool,
+                       l1: float, l2: float) -> tuple:
     """One fusion of the filter in one call: the estimate ``e`` (:func:`packed_estimate`)
     carried over ``n`` sample periods (eqs. 3a, 13, the matrices ``F``, ``Gu``, ``GQG`` of
     :meth:`EkfAccelerometerModel.transition`; the jerk reference the mean of the estimate's

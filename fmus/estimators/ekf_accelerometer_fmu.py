@@ -71,6 +71,7 @@ class EkfAccelerometer(FilterAdapter):
         self._fixed = (params.index_x - 1, params.index_z - 1, ekf.R, ekf.meas.constants, *ekf.meas.switches,
                        float(robot.l1), float(robot.l2))
         self._no_prediction = (0, *ekf.transition(0.0))
+        self._periods_of: dict[tuple[float, float], tuple] = {}
         self._u = self.dddq_a_ref.copy()           # the jerk input at the last step
         self.start_fusion(em.packed_estimate(ekf.x, ekf.P, 0.0, self._u))
 
@@ -79,11 +80,18 @@ class EkfAccelerometer(FilterAdapter):
 
     def _periods(self, t0: float, t1: float) -> tuple:
         """The prediction from ``t0`` to ``t1``: the number of sample periods and their
-        matrices (:meth:`~.ekf_accelerometer_model.EkfAccelerometerModel.transition`)."""
+        matrices (:meth:`~.ekf_accelerometer_model.EkfAccelerometerModel.transition`), kept
+        per length and step (a run meets a few: the stamps' differences vary in the last bits)."""
         if t1 <= t0 + TIME_TOL:
             return self._no_prediction
-        n, T = intervals(t0, t1, self._step)
-        return (n, *self.ekf.transition(T))
+        key = (t1 - t0, self._step)
+        periods = self._periods_of.get(key)
+        if periods is None:
+            n, T = intervals(t0, t1, self._step)
+            periods = (n, *self.ekf.transition(T))
+            if len(self._periods_of) < 256:
+                self._periods_of[key] = periods
+        return periods
 
     def _run(self, est: np.ndarray, t0: float, t1: float, fuse: bool, now: float) -> np.ndarray:
         """:func:`~.ekf_accelerometer_model.fusion_step_kernel`: ``est`` (time ``t0``) carried

@@ -43,7 +43,7 @@ SHOWN_SIZE = 6 + 2 + 21
 def packed_estimate(x: np.ndarray, P: np.ndarray, innovation_norm: float, u: np.ndarray) -> np.ndarray:
     """An estimate as :func:`fusion_step_kernel` takes it, one array: the state ``x`` (n),
     its covariance ``P`` row by row (n * n), the normalised innovation norm of its last update
-    and the jerk reference ``u`` (2) at its time."""
+    ``innovation_norm`` and the jerk reference ``u`` (2) at its time."""
     return np.concatenate([np.asarray(x, float), np.ravel(P), [float(innovation_norm)], np.asarray(u, float)])
 
 
@@ -93,10 +93,10 @@ def fusion_step_kernel(e: np.ndarray, u: np.ndarray, n: int, F: np.ndarray, Gu: 
     :meth:`EkfAccelerometerModel.transition`; the jerk reference the mean of the estimate's
     and ``u``, then ``u``) and, with ``fuse``, updated (eq. 3b, :func:`filtered_kernel`) with the
     motor angles ``q_m`` and the accelerometer's ``acc[ix]``, ``acc[iz]`` (eq. 15), into
-    ``out``; then that estimate carried ``n_show`` periods further (``F_show``, ...) and shown:
-    :data:`SHOWN_SIZE` outputs from ``outputs[first]`` on, the tool position by the rigid
-    forward kinematics (eq. 29) of the links ``l1``, ``l2``. ``R``, ``k``,
-    ``use_accelerometer``, ``use_bias`` as for :func:`filtered_kernel`.
+    ``out``; then that estimate carried ``n_show`` periods further (``F_show``, ``Gu_show``,
+    ``GQG_show``) and shown: :data:`SHOWN_SIZE` outputs from ``outputs[first]`` on, the tool
+    position by the rigid forward kinematics (eq. 29) of the links ``l1``, ``l2``. ``R``,
+    ``k``, ``use_accelerometer``, ``use_bias`` as for :func:`filtered_kernel`.
 
     The arithmetic is the separate calls' (:meth:`EkfAccelerometerModel.predicted`,
     :meth:`~EkfAccelerometerModel.filtered`), bit for bit. Returns ``(status, stage, trace of
@@ -155,8 +155,9 @@ class EkfAccelerometerModel:
     -----
     Per sample: :meth:`update` with the measurement ``y_t`` gives ``x_{t|t}`` (eq. 3b, the
     Joseph form of :mod:`fmus.common.kalman`), then :meth:`predict` with the jerk reference
-    ``u_t`` gives ``x_{t+1|t}`` (eq. 3a). :meth:`filtered` computes the update without
-    committing it (for an FMU's outputs). Both are compiled kernels.
+    ``u_t`` gives ``x_{t+1|t}`` (eq. 3a). :meth:`filtered` and :meth:`predicted` compute them
+    without committing (the batched engine's per-run filter). All are compiled kernels; the FMU
+    runs both and its outputs in one call (:func:`fusion_step_kernel`).
     """
 
     def __init__(self, p: EkfAccelerometerParameters) -> None:

@@ -4,10 +4,12 @@ Python), bit for bit: every output after initialisation, after each output updat
 each step, under the fusion schedules of :mod:`fmus.common.filter_adapter` (stamps on time, one
 step late, a slower sensor's held samples, unstamped at 100 Hz), for the filter with and
 without the accelerometer and with bias states, and a divergence (its messages and the outputs
-it holds).
+it holds). One difference is intended: with bias states (10) ``P_x`` was taken from the wrong
+entries of the covariance before; it is now the plain model's (checked here).
 
 The inputs are the flagship's (``orchestration/scenarios/flagship.toml``, seed 1: encoder,
-IMU, jerk reference and stamps of its first 0.4 s), stored with the outputs in
+IMU, jerk reference and stamps of its first 0.375 s; the filter has the flagship's noise
+settings on the nominal robot model), stored with the outputs in
 ``tests/data/ekf_step_reference.npz``, recorded by :func:`save` with the code of commit
 c530927 (in that tree, with this file and ``toys.py`` copied to its tests/:
 ``PYTHONPATH=. python -c "import sys; sys.path.insert(0, 'tests'); from test_ekf_accelerometer_step

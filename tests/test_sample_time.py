@@ -26,41 +26,9 @@ from fmus.robot_plant.flexible_robot_fmu import FlexibleRobot2DOF
 from fmus.robot_plant.imu_fmu import Imu
 from fmus.robot_plant.sensor_model import SensorChannels, input_time
 from fmus.robot_plant.tracker_fmu import Tracker
+from toys import InProcess
 
 T = 1e-3
-
-
-class InProcess:
-    """An FMU class instance driven through its FMI methods by variable name."""
-
-    def __init__(self, cls, start: float = 0.0, **params) -> None:
-        self.s = cls(instance_name="t")
-        self.vr = {v.name: vr for vr, v in self.s.vars.items()}
-        self.s.setup_experiment(start, None, None)
-        self.s.enter_initialization_mode()
-        for k, v in params.items():
-            self.set(**{k: v}) if isinstance(v, (tuple, list)) else setattr(self.s, k, v)
-        self.t = start
-
-    def names(self, name: str, size: int | None) -> list[str]:
-        return [name] if size is None else [f"{name}[{i + 1}]" for i in range(size)]
-
-    def set(self, **values) -> None:
-        for k, v in values.items():
-            v = np.atleast_1d(np.asarray(v, float))
-            names = [k] if k in self.vr else self.names(k, v.size)
-            self.s.set_real([self.vr[n] for n in names], list(map(float, v)))
-
-    def get(self, name: str, size: int | None = None):
-        values = self.s.get_real([self.vr[n] for n in self.names(name, size)])
-        return values[0] if size is None else np.array(values)
-
-    def init(self) -> None:
-        self.s.exit_initialization_mode()
-
-    def step(self, h: float = T) -> None:
-        assert self.s.do_step(self.t, h)
-        self.t += h
 
 
 # ---- sensors -------------------------------------------------------------------------------

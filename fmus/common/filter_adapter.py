@@ -45,10 +45,18 @@ class FusionSchedule:
     (``fmus/estimators/ekf_accelerometer_batched.py``) runs the same code, so the two cannot
     drift apart. A user sets ``_est``, ``_t_state``, ``_t_fused``, ``_pending``, ``_step`` and
     the input ``t_meas``, and implements ``_predicted``, ``_fused`` (or ``_advanced``) and
-    ``_show`` (see :class:`FilterAdapter`)."""
+    ``_show``, or ``_advanced_and_shown`` and ``_show_at`` (see :class:`FilterAdapter`)."""
 
     def _advanced(self, est: Any, t0: float, t1: float) -> Any:
         return self._fused(self._predicted_to(est, t0, t1))
+
+    def _advanced_and_shown(self, est: Any, t0: float, t1: float, now: float) -> Any:
+        new = self._advanced(est, t0, t1)
+        self._show_at(new, t1, now)
+        return new
+
+    def _show_at(self, est: Any, t: float, now: float) -> None:
+        self._show(self._predicted_to(est, t, now))
 
     def _committed(self, est: Any, t: float) -> None:
         pass
@@ -73,9 +81,10 @@ class FusionSchedule:
             if self._pending is not None and t_m > self._pending[0] + TIME_TOL:
                 self._commit()                          # a newer sample: the pending one is final
             if t_m > self._t_fused + TIME_TOL:          # not fused yet
-                self._pending = (t_m, self._advanced(self._est, self._t_state, t_m))
+                self._pending = (t_m, self._advanced_and_shown(self._est, self._t_state, t_m, now))
+                return
         t, est = self._pending if self._pending is not None else (self._t_state, self._est)
-        self._show(self._predicted_to(est, t, now))
+        self._show_at(est, t, now)
 
 
 class FilterAdapter(FusionSchedule, FlexFusionSlave):
@@ -95,6 +104,11 @@ class FilterAdapter(FusionSchedule, FlexFusionSlave):
         IMU's rates); ``T`` is 0 for the initial inputs of a filter with feedthrough;
     ``_show(est)``
         set the outputs from an estimate;
+    ``_advanced_and_shown(est, t0, t1, now)`` and ``_show_at(est, t, now)`` (optional)
+        instead of the three above, for a filter that does a fusion in one call: ``est`` (of
+        time ``t0``) carried to the measurement inputs' time ``t1`` and updated with them (the
+        result), and the result predicted on to ``now`` shown; ``est`` (of time ``t``)
+        predicted to ``now`` and shown (by default from the three above);
     ``_before_step()`` (optional)
         read the inputs a step uses besides the measurements (e.g. the model's input);
     ``_committed(est, t)`` (optional)

@@ -98,19 +98,22 @@ def _product(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 @kernel
-def _symmetrised(A: np.ndarray) -> np.ndarray:
+def _sandwich(A: np.ndarray, P: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """``A P A^T + Q``, symmetrised: ``(S + S^T) / 2`` of ``S = (A P) A^T + Q`` (each sum in
+    index order, as :func:`_product`), in place (``S_ij + S_ji`` is ``S_ji + S_ij``)."""
+    AP = _product(A, P)
     n = A.shape[0]
     out = np.empty((n, n))
     for i in range(n):
         for j in range(n):
-            out[i, j] = 0.5 * (A[i, j] + A[j, i])
+            s = 0.0
+            for k in range(A.shape[1]):
+                s += AP[i, k] * A[j, k]
+            out[i, j] = s + Q[i, j]
+    for i in range(n):
+        for j in range(i, n):
+            out[i, j] = out[j, i] = 0.5 * (out[i, j] + out[j, i])
     return out
-
-
-@kernel
-def _sandwich(A: np.ndarray, P: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """``A P A^T + Q``, symmetrised."""
-    return _symmetrised(_product(_product(A, P), A.T) + Q)
 
 
 @kernel
@@ -121,7 +124,8 @@ def measurement_update_kernel(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: n
     :data:`INNOVATION_NOT_FINITE` or :data:`INNOVATION_NOT_PD` the other results are meaningless."""
     n, m = x.size, nu.size
     PHt = _product(P, H.T)
-    S = _product(H, PHt) + R
+    S = _product(H, PHt)
+    S += R
     for i in range(m):
         if not math.isfinite(nu[i]):
             return x.copy(), P.copy(), math.nan, INNOVATION_NOT_FINITE
@@ -161,7 +165,10 @@ def measurement_update_kernel(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: n
             s += KT[k, i] * nu[k]
         xf[i] = x[i] + s
     # Joseph form: (I - K H) P (I - K H)^T + K R K^T
-    IKH = np.eye(n) - _product(KT.T, H)
+    IKH = _product(KT.T, H)
+    for i in range(n):
+        for j in range(n):
+            IKH[i, j] = (1.0 if i == j else 0.0) - IKH[i, j]
     KRKt = _product(_product(KT.T, R), KT)
     Pf = _sandwich(IKH, P, KRKt)
     return xf, Pf, nis, estimate_status_kernel(xf, Pf, True)

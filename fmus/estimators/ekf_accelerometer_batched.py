@@ -31,7 +31,8 @@ _TRIL = np.tril_indices(6)
 
 
 class Estimate(NamedTuple):
-    """The adapter's estimate (``ekf_accelerometer_fmu.Estimate``) for every run."""
+    """The adapter's estimate (the FMU packs the same in one array:
+    :func:`~fmus.estimators.ekf_accelerometer_model.packed_estimate`) for every run."""
 
     x: np.ndarray                # (runs, n)
     P: np.ndarray                # (runs, n, n)
@@ -91,13 +92,11 @@ class BatchedEkfModel:
 
     def _matrices(self, T: float, runs: int) -> None:
         if self._T != T or self.GQG.shape[0] != runs:
-            for s in self.singles.values():
-                s._matrices(T)
-            self.F, self.Gu = self.single.F, self.single.Gu
+            self.F, self.Gu, GQG = self.single.transition(T)
             if len(self.singles) == 1:
-                self.GQG = np.repeat(self.single.GQG[None], runs, axis=0)
+                self.GQG = np.repeat(GQG[None], runs, axis=0)
             else:
-                self.GQG = np.stack([self.singles[q].GQG for q in self._q_jerk])
+                self.GQG = np.stack([self.singles[q].transition(T)[2] for q in self._q_jerk])
             self._T = T
 
     def filtered(self, y: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

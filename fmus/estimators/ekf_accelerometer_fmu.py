@@ -10,30 +10,25 @@ the optional input ``t_meas`` (the sensors' output of that name), and predicted 
 jerk reference at its ends (the input at the step and at the last fused measurement), not the
 end value alone, which would lead the model by half the interval. Direct feedthrough from
 ``q_m_meas``, ``acc_s`` and ``t_meas``.
+
+A fusion (the prediction to the stamp, the update and the outputs) is one compiled call,
+:func:`~fmus.estimators.ekf_accelerometer_model.fusion_step_kernel`, on the estimate packed in
+one array (:func:`~fmus.estimators.ekf_accelerometer_model.packed_estimate`): the adapter's
+Python is the fusion schedule and the call (issue 16: a few microseconds per step).
 """
 from __future__ import annotations
-
-from typing import NamedTuple
 
 import numpy as np
 
 from fmus.common.filter_adapter import FilterAdapter
 from fmus.common.frames import G
+from fmus.common.kalman import OK, raise_for
+from fmus.common.sample_time import TIME_TOL, intervals
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 
-# the arm states' covariance, packed (output P_x): the flat positions of its lower triangle
-_TRIL = np.ravel_multi_index(np.tril_indices(6), (6, 6))
-
-
-class Estimate(NamedTuple):
-    """The filter's state and covariance, the innovation norm of its last update and the jerk
-    reference at its time."""
-
-    x: np.ndarray
-    P: np.ndarray
-    innovation_norm: float
-    u: np.ndarray
+_WHERE = {em.TIME_UPDATE: "EKF diverged in the time update",
+          em.MEASUREMENT_UPDATE: "EKF diverged in the measurement update"}
 
 
 class EkfAccelerometer(FilterAdapter):
@@ -61,32 +56,58 @@ class EkfAccelerometer(FilterAdapter):
         self.output("innovation_norm", unit="1", depends_on=deps,
                     description="normalised innovation norm sqrt(nu^T S^-1 nu) of the last update")
         # the whole covariance, for consistency checks against the truth (NEES) in studies
-        self.output("P_x", len(_TRIL), unit="1", depends_on=deps,
+        self.output("P_x", 21, unit="1", depends_on=deps,
                     description="filtered covariance of (q_a, dq_a, ddq_a), lower triangle row by row "
                     "(numpy.tril_indices(6)); SI units (rad, rad/s, rad/s2) of each product")
-        self._states = self.output_span("q_a_hat", "ddq_a_hat")     # the arm states x[0:6]
+        # the vector outputs in the kernel's order (em.SHOWN_SIZE; the scalars are not in the buffer)
+        shown = self.output_span("q_a_hat", "P_x")
+        assert shown.stop - shown.start == em.SHOWN_SIZE
+        self._first_shown = shown.start
 
     def setup(self, params: am.EkfAccelerometerParameters) -> None:
-        self.ekf = em.EkfAccelerometerModel(params)
-        self._ix, self._iz = params.index_x - 1, params.index_z - 1
+        self.ekf = ekf = em.EkfAccelerometerModel(params)
+        robot = ekf.meas.p
+        # the kernel's constant arguments: the accelerometer's axes, the measurement model, the links
+        self._fixed = (params.index_x - 1, params.index_z - 1, ekf.R, ekf.meas.constants, *ekf.meas.switches,
+                       float(robot.l1), float(robot.l2))
+        self._no_prediction = (0, *ekf.transition(0.0))
+        self._periods_of: dict[tuple[float, float], tuple] = {}
         self._u = self.dddq_a_ref.copy()           # the jerk input at the last step
-        self.start_fusion(Estimate(self.ekf.x, self.ekf.P, 0.0, self._u))
+        self.start_fusion(em.packed_estimate(ekf.x, ekf.P, 0.0, self._u))
 
     def _before_step(self) -> None:
         self._u = self.dddq_a_ref.copy()     # read at the step only: no direct feedthrough
 
-    def _predicted(self, est: Estimate, T: float) -> Estimate:
-        x, P = self.ekf.predicted(0.5 * (est.u + self._u), T, est.x, est.P)
-        return Estimate(x, P, est.innovation_norm, self._u)
+    def _periods(self, t0: float, t1: float) -> tuple:
+        """The prediction from ``t0`` to ``t1``: the number of sample periods and their
+        matrices (:meth:`~.ekf_accelerometer_model.EkfAccelerometerModel.transition`), kept
+        per length and step (a run meets a few: the stamps' differences vary in the last bits)."""
+        if t1 <= t0 + TIME_TOL:
+            return self._no_prediction
+        key = (t1 - t0, self._step)
+        periods = self._periods_of.get(key)
+        if periods is None:
+            n, T = intervals(t0, t1, self._step)
+            periods = (n, *self.ekf.transition(T))
+            if len(self._periods_of) < 256:
+                self._periods_of[key] = periods
+        return periods
 
-    def _fused(self, prior: Estimate) -> Estimate:
-        y = self.ekf.measurement_vector(self.q_m_meas, (self.acc_s[self._ix], self.acc_s[self._iz]))
-        return Estimate(*self.ekf.filtered(y, prior.x, prior.P), prior.u)
+    def _run(self, est: np.ndarray, t0: float, t1: float, fuse: bool, now: float) -> np.ndarray:
+        """:func:`~.ekf_accelerometer_model.fusion_step_kernel`: ``est`` (time ``t0``) carried
+        to ``t1``, updated with the measurement inputs if ``fuse``, shown predicted to ``now``;
+        the estimate at ``t1``."""
+        new = np.empty(est.size)
+        status, stage, trace, norm = em.fusion_step_kernel(
+            est, self._u, *self._periods(t0, t1), fuse, self.q_m_meas, self.acc_s, *self._periods(t1, now), new,
+            self._outputs, self._first_shown, *self._fixed)
+        if status != OK:
+            raise_for(status, _WHERE[stage], em.packed_covariance(new, self.ekf.layout.n))
+        self.trace_P_q, self.innovation_norm = trace, norm
+        return new
 
-    def _show(self, est: Estimate) -> None:
-        x, P = est.x, est.P
-        self._outputs[self._states] = x[0:6]
-        self.p_tool_hat[:] = self.ekf.tool_position(x)
-        self.trace_P_q = float(P[0, 0] + P[1, 1])
-        self.innovation_norm = est.innovation_norm
-        P.take(_TRIL, out=self.P_x)
+    def _advanced_and_shown(self, est: np.ndarray, t0: float, t1: float, now: float) -> np.ndarray:
+        return self._run(est, t0, t1, True, now)
+
+    def _show_at(self, est: np.ndarray, t: float, now: float) -> None:
+        self._run(est, t, t, False, now)

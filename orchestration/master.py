@@ -587,35 +587,118 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
             inst.close()
         _ACTIVE_RUNS[0] -= 1
         if not _ACTIVE_RUNS[0]:
-            _remove_extracted()
+            _release_extracted()
     return notes
 
 
-_EXTRACTED: dict[tuple[str, float], str] = {}   # FMU file version -> its folder in this process
-_EXTRACT_ROOT: list[str] = []
+_EXTRACTED: dict[tuple[str, int, int], str] = {}   # FMU file version -> its folder in this process
+_EXTRACT_ROOT: list[str] = []     # this process's temporary folder (when there is no cache)
+_CACHED: set[str] = set()         # the cached folders this process uses
 _ACTIVE_RUNS = [0]
+_CACHE_KEEP = 32                  # cached FMU folders kept (about 2 MB each), the last used
 
 
 def _extracted(comp: Component) -> str:
-    """The folder an FMU is extracted to: one path per process and FMU file version, so its
+    """The folder an FMU is extracted to, one per FMU file version for the process, so its
     shared library is loaded once and reused by every instance (the dynamic loader matches an
     already loaded library by its path, even after the file was removed and extracted again).
 
-    The folders are removed when the last run of the process ends (:func:`_remove_extracted`),
-    not at exit: study workers end without running Python's exit handlers. A package this
-    process has imported already is not extracted (:func:`_still_read`).
+    That folder is the FMU's entry in the cache (:func:`_cached_folder`): extracted once for
+    every process and run, with the bytecode of its Python modules. Without a writable cache,
+    a temporary folder of this process, removed when its last run ends
+    (:func:`_release_extracted`), not at exit: study workers end without running Python's
+    exit handlers; a package this process has imported already is not extracted there
+    (:func:`_still_read`).
     """
-    from fmpy import extract
     path = comp.fmu.resolve()
-    key = (str(path), path.stat().st_mtime)
-    if not _EXTRACT_ROOT:
-        _EXTRACT_ROOT.append(tempfile.mkdtemp(prefix="flexfusion_fmus_"))
-    if key not in _EXTRACTED:
-        _EXTRACTED[key] = str(Path(_EXTRACT_ROOT[0]) / str(len(_EXTRACTED)))
-    folder = _EXTRACTED[key]
+    st = path.stat()
+    key = (str(path), st.st_mtime_ns, st.st_size)
+    folder = _EXTRACTED.get(key)
+    if folder is None:
+        folder = _cached_folder(path)
+        if folder is not None:
+            _CACHED.add(folder)
+        else:
+            folder = str(Path(_temporary_root()) / str(len(_EXTRACTED)))
+        _EXTRACTED[key] = folder
     if not Path(folder, "modelDescription.xml").is_file():
+        from fmpy import extract
         extract(str(path), unzipdir=folder, include=_still_read)
     return folder
+
+
+def _temporary_root() -> str:
+    if not _EXTRACT_ROOT:
+        _EXTRACT_ROOT.append(tempfile.mkdtemp(prefix="flexfusion_fmus_"))
+    return _EXTRACT_ROOT[0]
+
+
+_COMPLETE = ".complete"   # written last into a cached folder; its time: the folder's last use
+
+
+def _cached_folder(fmu: Path) -> str | None:
+    """The FMU's folder in the cache (``<cache root>/fmus/<hash>``, :mod:`fmus.common.disk_cache`),
+    extracted now if it is not there yet; None if the cache cannot be written.
+
+    The hash covers every member's name, size and CRC-32 (the zip's own directory: no need to
+    read the members) and the platform, whose binaries are the only ones extracted. A folder
+    is extracted under a temporary name and renamed when complete, so processes extracting
+    the same FMU at once each use a whole folder (the first rename wins). Extracting a new
+    folder removes all but the :data:`_CACHE_KEEP` last used ones (a removed folder that a
+    process still uses is extracted again by it when it next needs it).
+    """
+    import hashlib
+    import zipfile
+
+    from fmpy import extract, platform
+
+    from fmus.common.disk_cache import cache_root
+    try:
+        with zipfile.ZipFile(fmu) as z:
+            members = sorted((i.filename, i.file_size, i.CRC) for i in z.infolist())
+    except (OSError, zipfile.BadZipFile):
+        return None      # not an FMU: the temporary extraction reports it
+    root = cache_root() / "fmus"
+    folder = root / hashlib.sha256(repr((platform, members)).encode()).hexdigest()[:32]
+    marker = folder / _COMPLETE
+    try:
+        if marker.is_file():
+            marker.touch()
+            return str(folder)
+        root.mkdir(parents=True, exist_ok=True)
+        _remove_unused(root)
+        staging = Path(tempfile.mkdtemp(prefix=".extracting-", dir=root))
+        try:
+            extract(str(fmu), unzipdir=staging,
+                    include=lambda m: not m.startswith("binaries/") or m.startswith(f"binaries/{platform}/"))
+            (staging / _COMPLETE).touch()
+            try:
+                staging.rename(folder)
+            except OSError:          # another process was first: use its folder
+                if not marker.is_file():
+                    raise
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+    except OSError:
+        return None
+    return str(folder)
+
+
+def _remove_unused(root: Path) -> None:
+    """Remove the cached FMU folders below ``root`` but the :data:`_CACHE_KEEP` last used ones,
+    and extractions that did not finish within an hour."""
+    used, stale = [], time.time() - 3600
+    for entry in root.iterdir():
+        try:
+            if entry.name.startswith("."):
+                if entry.stat().st_mtime < stale:
+                    shutil.rmtree(entry, ignore_errors=True)
+            else:
+                used.append(((entry / _COMPLETE).stat().st_mtime, entry))
+        except OSError:
+            used.append((0.0, entry))
+    for _, entry in sorted(used, reverse=True)[_CACHE_KEEP - 1:]:    # room for the new one
+        shutil.rmtree(entry, ignore_errors=True)
 
 
 def _still_read(member: str) -> bool:
@@ -635,10 +718,26 @@ def _still_read(member: str) -> bool:
                 and origin.startswith(os.path.join(_EXTRACT_ROOT[0], "")))
 
 
-def _remove_extracted() -> None:
-    """Remove this process's FMU extraction folders (the paths stay reserved for the next run)."""
+def _release_extracted() -> None:
+    """At the end of the process's last run: remove its temporary FMU folders (the paths stay
+    reserved for the next run), and store the bytecode of the modules it imported from cached
+    folders, so the next process does not compile them again (written even where Python
+    writes none, ``PYTHONDONTWRITEBYTECODE``: the cache is ours, not the user's sources)."""
     if _EXTRACT_ROOT:
         shutil.rmtree(_EXTRACT_ROOT[0], ignore_errors=True)
+    if not _CACHED:
+        return
+    import importlib.util
+    import py_compile
+    prefixes = tuple(os.path.join(folder, "") for folder in _CACHED)
+    for module in list(sys.modules.values()):
+        source = getattr(module, "__file__", None)
+        if source and source.endswith(".py") and source.startswith(prefixes):
+            if not os.path.exists(importlib.util.cache_from_source(source)):
+                try:
+                    py_compile.compile(source, doraise=True)
+                except (OSError, py_compile.PyCompileError):
+                    pass       # a read-only cache: the next process compiles it again
 
 
 def _fail(inst: _Instance, function: str, status: int, t: float) -> None:

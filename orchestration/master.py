@@ -633,7 +633,7 @@ def _temporary_root() -> str:
     return _EXTRACT_ROOT[0]
 
 
-_COMPLETE = ".complete"   # written last into a cached folder; its time: the folder's last use
+_COMPLETE = ".complete"   # written last into a cached folder
 
 
 def _cached_folder(fmu: Path) -> str | None:
@@ -647,26 +647,25 @@ def _cached_folder(fmu: Path) -> str | None:
     folder removes all but the :data:`_CACHE_KEEP` last used ones (a removed folder that a
     process still uses is extracted again by it when it next needs it).
     """
-    import hashlib
     import zipfile
 
     from fmpy import extract, platform
 
-    from fmus.common.disk_cache import cache_root
+    from fmus.common.disk_cache import cache_root, content_key, prune
     try:
         with zipfile.ZipFile(fmu) as z:
             members = sorted((i.filename, i.file_size, i.CRC) for i in z.infolist())
     except (OSError, zipfile.BadZipFile):
         return None      # not an FMU: the temporary extraction reports it
     root = cache_root() / "fmus"
-    folder = root / hashlib.sha256(repr((platform, members)).encode()).hexdigest()[:32]
+    folder = root / content_key(platform, members)
     marker = folder / _COMPLETE
     try:
         if marker.is_file():
-            marker.touch()
+            os.utime(folder)           # its last use
             return str(folder)
         root.mkdir(parents=True, exist_ok=True)
-        _remove_unused(root)
+        prune(root, _CACHE_KEEP - 1)
         staging = Path(tempfile.mkdtemp(prefix=".extracting-", dir=root))
         try:
             extract(str(fmu), unzipdir=staging,
@@ -682,23 +681,6 @@ def _cached_folder(fmu: Path) -> str | None:
     except OSError:
         return None
     return str(folder)
-
-
-def _remove_unused(root: Path) -> None:
-    """Remove the cached FMU folders below ``root`` but the :data:`_CACHE_KEEP` last used ones,
-    and extractions that did not finish within an hour."""
-    used, stale = [], time.time() - 3600
-    for entry in root.iterdir():
-        try:
-            if entry.name.startswith("."):
-                if entry.stat().st_mtime < stale:
-                    shutil.rmtree(entry, ignore_errors=True)
-            else:
-                used.append(((entry / _COMPLETE).stat().st_mtime, entry))
-        except OSError:
-            used.append((0.0, entry))
-    for _, entry in sorted(used, reverse=True)[_CACHE_KEEP - 1:]:    # room for the new one
-        shutil.rmtree(entry, ignore_errors=True)
 
 
 def _still_read(member: str) -> bool:

@@ -365,24 +365,6 @@ def test_fmus_are_extracted_once_into_the_cache_by_content(tmp_path, toy_dir):
     assert Path(moved["g1"]["folder"]) not in folders.values()
 
 
-def test_the_cache_keeps_the_last_used_fmu_folders(tmp_path, monkeypatch):
-    import os
-    from orchestration import master
-    monkeypatch.setattr(master, "_CACHE_KEEP", 4)
-    for i in range(6):                        # used at t = 1000 + i s; 2 and 5 never finished
-        entry = tmp_path / f"{i:032x}"
-        entry.mkdir()
-        if i not in (2, 5):
-            (entry / master._COMPLETE).touch()
-            os.utime(entry / master._COMPLETE, (1000 + i, 1000 + i))
-    (tmp_path / ".extracting-old").mkdir()
-    os.utime(tmp_path / ".extracting-old", (1000, 1000))
-    (tmp_path / ".extracting-now").mkdir()    # another process's extraction, under way
-    master._remove_unused(tmp_path)
-    left = sorted(p.name for p in tmp_path.iterdir())
-    assert left == [".extracting-now"] + [f"{i:032x}" for i in (1, 3, 4)]   # 3 + room for a new one
-
-
 def test_a_resources_folder_is_extracted_unless_an_fmu_provided_that_package():
     from orchestration import master
     assert master._still_read("resources/xml/config.xml") is True       # xml: the stdlib's

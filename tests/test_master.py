@@ -365,6 +365,49 @@ def test_fmus_are_extracted_once_into_the_cache_by_content(tmp_path, toy_dir):
     assert Path(moved["g1"]["folder"]) not in folders.values()
 
 
+LAZY_RUN = """
+import json, sys
+from orchestration import cli, master
+heavy = ("scipy.signal", "scipy.stats", "matplotlib")
+first = []
+simulate = master.simulate
+def recording(sc, sink, *rest):
+    def row(t, values):
+        if not first:
+            first.append(sorted(m for m in sys.modules if m.startswith(heavy)))
+        sink(t, values)
+    return simulate(sc, row, *rest)
+master.simulate = recording
+if sys.argv[1] == "--help":
+    try:
+        cli.main(["--help"])
+    except SystemExit:
+        pass
+    print(json.dumps(sorted(m for m in sys.modules if m.startswith(heavy))))
+else:
+    status = cli.main(["run", sys.argv[1], "--out", sys.argv[2], "--no-progress"])
+    print(json.dumps({"status": status, "at_first_step": first[0], "at_end": "scipy.signal" in sys.modules}))
+"""
+
+
+def test_a_run_imports_what_its_metrics_need_after_the_run(tmp_path):
+    """``flexfusion run`` steps without scipy.signal, scipy.stats or matplotlib loaded (the
+    band-pass metric imports scipy.signal after the run); ``flexfusion --help`` loads none."""
+    import subprocess
+    scenario = write(tmp_path, CHAIN.replace("stop_time = 0.01", "stop_time = 0.1") + """
+[[metrics]]
+kind = "bandpass"
+name = "g2_3_30Hz"
+estimate = "g2.y"
+truth = "g1.y"
+""")
+    done = subprocess.run([sys.executable, "-c", LAZY_RUN, str(scenario), str(tmp_path / "o")],
+                          capture_output=True, text=True, check=True)
+    assert json.loads(done.stdout.splitlines()[-1]) == {"status": 0, "at_first_step": [], "at_end": True}
+    done = subprocess.run([sys.executable, "-c", LAZY_RUN, "--help"], capture_output=True, text=True, check=True)
+    assert json.loads(done.stdout.splitlines()[-1]) == []
+
+
 def test_a_resources_folder_is_extracted_unless_an_fmu_provided_that_package():
     from orchestration import master
     assert master._still_read("resources/xml/config.xml") is True       # xml: the stdlib's

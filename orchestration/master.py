@@ -587,13 +587,12 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
             inst.close()
         _ACTIVE_RUNS[0] -= 1
         if not _ACTIVE_RUNS[0]:
-            _release_extracted()
+            _remove_extracted()
     return notes
 
 
 _EXTRACTED: dict[tuple[str, int, int], str] = {}   # FMU file version -> its folder in this process
 _EXTRACT_ROOT: list[str] = []     # this process's temporary folder (when there is no cache)
-_CACHED: set[str] = set()         # the cached folders this process uses
 _ACTIVE_RUNS = [0]
 _CACHE_KEEP = 32                  # cached FMU folders kept (about 2 MB each), the last used
 
@@ -604,23 +603,17 @@ def _extracted(comp: Component) -> str:
     already loaded library by its path, even after the file was removed and extracted again).
 
     That folder is the FMU's entry in the cache (:func:`_cached_folder`): extracted once for
-    every process and run, with the bytecode of its Python modules. Without a writable cache,
-    a temporary folder of this process, removed when its last run ends
-    (:func:`_release_extracted`), not at exit: study workers end without running Python's
-    exit handlers; a package this process has imported already is not extracted there
-    (:func:`_still_read`).
+    every process and run. Without a writable cache, a temporary folder of this process,
+    removed when its last run ends (:func:`_remove_extracted`), not at exit: study workers end
+    without running Python's exit handlers; a package this process has imported already is
+    not extracted there (:func:`_still_read`).
     """
     path = comp.fmu.resolve()
     st = path.stat()
     key = (str(path), st.st_mtime_ns, st.st_size)
     folder = _EXTRACTED.get(key)
     if folder is None:
-        folder = _cached_folder(path)
-        if folder is not None:
-            _CACHED.add(folder)
-        else:
-            folder = str(Path(_temporary_root()) / str(len(_EXTRACTED)))
-        _EXTRACTED[key] = folder
+        folder = _EXTRACTED[key] = _cached_folder(path) or str(Path(_temporary_root()) / str(len(_EXTRACTED)))
     if not Path(folder, "modelDescription.xml").is_file():
         from fmpy import extract
         extract(str(path), unzipdir=folder, include=_still_read)
@@ -647,18 +640,19 @@ def _cached_folder(fmu: Path) -> str | None:
     folder removes all but the :data:`_CACHE_KEEP` last used ones (a removed folder that a
     process still uses is extracted again by it when it next needs it).
     """
+    import hashlib
     import zipfile
 
     from fmpy import extract, platform
 
-    from fmus.common.disk_cache import cache_root, content_key, prune
+    from fmus.common.disk_cache import cache_root, prune
     try:
         with zipfile.ZipFile(fmu) as z:
             members = sorted((i.filename, i.file_size, i.CRC) for i in z.infolist())
     except (OSError, zipfile.BadZipFile):
         return None      # not an FMU: the temporary extraction reports it
     root = cache_root() / "fmus"
-    folder = root / content_key(platform, members)
+    folder = root / hashlib.sha256(repr((platform, members)).encode()).hexdigest()[:32]
     marker = folder / _COMPLETE
     try:
         if marker.is_file():
@@ -700,26 +694,10 @@ def _still_read(member: str) -> bool:
                 and origin.startswith(os.path.join(_EXTRACT_ROOT[0], "")))
 
 
-def _release_extracted() -> None:
-    """At the end of the process's last run: remove its temporary FMU folders (the paths stay
-    reserved for the next run), and store the bytecode of the modules it imported from cached
-    folders, so the next process does not compile them again (written even where Python
-    writes none, ``PYTHONDONTWRITEBYTECODE``: the cache is ours, not the user's sources)."""
+def _remove_extracted() -> None:
+    """Remove this process's temporary FMU folders (the paths stay reserved for the next run)."""
     if _EXTRACT_ROOT:
         shutil.rmtree(_EXTRACT_ROOT[0], ignore_errors=True)
-    if not _CACHED:
-        return
-    import importlib.util
-    import py_compile
-    prefixes = tuple(os.path.join(folder, "") for folder in _CACHED)
-    for module in list(sys.modules.values()):
-        source = getattr(module, "__file__", None)
-        if source and source.endswith(".py") and source.startswith(prefixes):
-            if not os.path.exists(importlib.util.cache_from_source(source)):
-                try:
-                    py_compile.compile(source, doraise=True)
-                except (OSError, py_compile.PyCompileError):
-                    pass       # a read-only cache: the next process compiles it again
 
 
 def _fail(inst: _Instance, function: str, status: int, t: float) -> None:

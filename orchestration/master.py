@@ -633,26 +633,26 @@ def _cached_folder(fmu: Path) -> str | None:
     """The FMU's folder in the cache (``<cache root>/fmus/<hash>``, :mod:`fmus.common.disk_cache`),
     extracted now if it is not there yet; None if the cache cannot be written.
 
-    The hash covers every member's name, size and CRC-32 (the zip's own directory: no need to
-    read the members) and the platform, whose binaries are the only ones extracted. A folder
+    It is named by the FMU's content (:func:`~orchestration.scenario.fmu_content_key`) and the
+    platform, whose binaries are the only ones extracted. A folder
     is extracted under a temporary name and renamed when complete, so processes extracting
     the same FMU at once each use a whole folder (the first rename wins). Extracting a new
     folder removes all but the :data:`_CACHE_KEEP` last used ones (a removed folder that a
     process still uses is extracted again by it when it next needs it).
     """
-    import hashlib
     import zipfile
 
     from fmpy import extract, platform
 
     from fmus.common.disk_cache import cache_root, prune
+
+    from .scenario import fmu_content_key
     try:
-        with zipfile.ZipFile(fmu) as z:
-            members = sorted((i.filename, i.file_size, i.CRC) for i in z.infolist())
+        key = fmu_content_key(fmu)
     except (OSError, zipfile.BadZipFile):
         return None      # not an FMU: the temporary extraction reports it
     root = cache_root() / "fmus"
-    folder = root / hashlib.sha256(repr((platform, members)).encode()).hexdigest()[:32]
+    folder = root / f"{key}-{platform}"
     marker = folder / _COMPLETE
     try:
         if marker.is_file():

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import os
 import shutil
 import tempfile
@@ -99,15 +100,33 @@ def _remove(entry: Path) -> None:
 
 def cached_array(kind: str, key: str, shape: tuple[int, ...], compute: Callable[[], Any], keep: int) -> Any:
     """The float64 array of ``shape`` stored as ``<cache root>/<kind>/<key>.npy``, or
-    ``compute()`` stored there (the folder keeping its ``keep`` last used arrays). ``key``
+    ``compute()`` stored there (the folder keeping its ``keep`` last used entries). ``key``
     must cover everything ``compute`` depends on (:func:`content_key`)."""
     import numpy as np
 
-    folder = cache_root() / kind
-    path = folder / f"{key}.npy"
-    try:
+    def read(path: Path) -> Any:
         stored = np.load(path, allow_pickle=False)
-        if stored.shape == shape and stored.dtype == np.float64:
+        return stored if stored.shape == shape and stored.dtype == np.float64 else None
+
+    return _cached(kind, f"{key}.npy", read, lambda f, value: np.save(f, value, allow_pickle=False), compute, keep)
+
+
+def cached_json(kind: str, key: str, compute: Callable[[], Any], keep: int) -> Any:
+    """:func:`cached_array` for a value made of JSON types (lists come back for tuples),
+    stored as ``<cache root>/<kind>/<key>.json``."""
+    return _cached(kind, f"{key}.json", lambda path: json.loads(path.read_bytes()),
+                   lambda f, value: f.write(json.dumps(value).encode()), compute, keep)
+
+
+def _cached(kind: str, name: str, read: Callable[[Path], Any], write: Callable[[Any, Any], Any],
+            compute: Callable[[], Any], keep: int) -> Any:
+    """The value ``read`` from ``<cache root>/<kind>/<name>`` (None: not a valid one), or
+    ``compute()``, then ``write`` it into a temporary file renamed to that name."""
+    folder = cache_root() / kind
+    path = folder / name
+    try:
+        stored = read(path)
+        if stored is not None:
             os.utime(path)                     # its last use
             return stored
     except (OSError, ValueError):
@@ -117,9 +136,9 @@ def cached_array(kind: str, key: str, shape: tuple[int, ...], compute: Callable[
     try:
         folder.mkdir(parents=True, exist_ok=True)
         prune(folder, keep - 1)
-        fd, temporary = tempfile.mkstemp(prefix=".", suffix=".npy", dir=folder)
+        fd, temporary = tempfile.mkstemp(prefix=".", suffix=path.suffix, dir=folder)
         with os.fdopen(fd, "wb") as f:
-            np.save(f, value, allow_pickle=False)
+            write(f, value)
         os.replace(temporary, path)
     except OSError:
         if temporary is not None:

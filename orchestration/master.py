@@ -909,15 +909,16 @@ def _progress_bar(sc: Scenario, shown: bool) -> Iterator[Callable[[int], None] |
 class RunFolder:
     """The files of one run in its folder ``out`` (owned by
     :func:`orchestration.results.own_folder`): ``run.json`` says ``running`` first, then the
-    true end; ``results.csv`` gets the rows as they come; ``metrics.json`` the metrics."""
+    true end; ``results.csv`` gets the rows as they come; ``metrics.json`` the metrics.
+    ``run.json`` names the packages' versions from the run's end on (looking them up costs
+    0.03-0.1 s, which the start of a run does not need)."""
 
     def __init__(self, out: Path, sc: Scenario, overrides: tuple[str, ...] = ()) -> None:
-        from .results import versions
         self.out = Path(out)
         self.columns = sc.record_columns()
         self.stop_time = sc.stop_time
         self.info: dict[str, Any] = {"scenario": sc.describe(), "overrides": list(overrides or sc.overrides),
-                                     "versions": versions(), "status": "running", "error": None,
+                                     "versions": None, "status": "running", "error": None,
                                      "rows": 0, "time_reached": None}
         self.writer: Any = None
         self.recorder = _Recorder()
@@ -957,6 +958,11 @@ class RunFolder:
             self._finish("failed", f"{type(exc).__name__}: {exc}")
             raise
 
+    def _ended(self, **info: Any) -> None:
+        """The run's end into ``info``, with the versions."""
+        from .results import versions
+        self.info.update(info, versions=versions())
+
     def _finish(self, status: str, error: str) -> None:
         """Flush what was computed, then write the true status (whatever else fails)."""
         from .results import RUN_NAME, write_json
@@ -966,16 +972,16 @@ class RunFolder:
             except OSError:
                 pass          # the rows of the failed block are cut off; the rest stays
             self.info.update(rows=self.writer.rows, time_reached=self.writer.time_reached)
-        self.info.update(status=status, error=error, wall_time_s=time.perf_counter() - self.t0,
-                         warnings=self.recorder.notes)
+        self._ended(status=status, error=error, wall_time_s=time.perf_counter() - self.t0,
+                    warnings=self.recorder.notes)
         write_json(self.out / RUN_NAME, self.info)
 
     def ok(self, described: dict[str, dict[str, Any]], wall: float) -> None:
         """Write ``metrics.json``, then ``run.json`` with status ``ok``."""
         from .results import METRICS_NAME, RUN_NAME, write_json
         write_json(self.out / METRICS_NAME, described)
-        self.info.update(status="ok", wall_time_s=wall, real_time_factor=self.stop_time / wall if wall > 0 else None,
-                         warnings=self.recorder.notes)
+        self._ended(status="ok", wall_time_s=wall, real_time_factor=self.stop_time / wall if wall > 0 else None,
+                    warnings=self.recorder.notes)
         write_json(self.out / RUN_NAME, self.info)
 
     def failed_after_run(self, exc: BaseException, wall: float) -> None:
@@ -983,8 +989,8 @@ class RunFolder:
         :class:`~orchestration.results.OutputError`. If ``run.json`` cannot be written, it still
         says ``running``: :meth:`Result.load` reports that, never as ok."""
         from .results import RUN_NAME, OutputError, write_json
-        self.info.update(status="failed", error=f"after the run: {exc}", wall_time_s=wall,
-                         warnings=self.recorder.notes)
+        self._ended(status="failed", error=f"after the run: {exc}", wall_time_s=wall,
+                    warnings=self.recorder.notes)
         try:
             write_json(self.out / RUN_NAME, self.info)
         except OSError:

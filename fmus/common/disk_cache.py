@@ -112,8 +112,9 @@ def cached_array(kind: str, key: str, shape: tuple[int, ...], compute: Callable[
 
 
 def cached_json(kind: str, key: str, compute: Callable[[], Any], keep: int) -> Any:
-    """:func:`cached_array` for a value made of JSON types (lists come back for tuples),
-    stored as ``<cache root>/<kind>/<key>.json``."""
+    """The value made of JSON types (lists come back for tuples) stored as
+    ``<cache root>/<kind>/<key>.json``, or ``compute()`` stored there (the folder keeping its
+    ``keep`` last used entries), as :func:`cached_array`."""
     return _cached(kind, f"{key}.json", lambda path: json.loads(path.read_bytes()),
                    lambda f, value: f.write(json.dumps(value).encode()), compute, keep)
 

@@ -630,15 +630,16 @@ _COMPLETE = ".complete"   # written last into a cached folder
 
 
 def _cached_folder(fmu: Path) -> str | None:
-    """The FMU's folder in the cache (``<cache root>/fmus/<hash>``, :mod:`fmus.common.disk_cache`),
-    extracted now if it is not there yet; None if the cache cannot be written.
+    """The FMU's folder in the cache (``<cache root>/fmus/<content>-<platform>``,
+    :mod:`fmus.common.disk_cache`), extracted now if it is not there yet; None if the cache
+    cannot be written.
 
     It is named by the FMU's content (:func:`~orchestration.scenario.fmu_content_key`) and the
-    platform, whose binaries are the only ones extracted. A folder
-    is extracted under a temporary name and renamed when complete, so processes extracting
-    the same FMU at once each use a whole folder (the first rename wins). Extracting a new
-    folder removes all but the :data:`_CACHE_KEEP` last used ones (a removed folder that a
-    process still uses is extracted again by it when it next needs it).
+    platform, whose binaries are the only ones extracted. A folder is extracted under a
+    temporary name and renamed when complete, so processes extracting the same FMU at once
+    each use a whole folder (the first rename wins). Extracting a new folder removes all but
+    the :data:`_CACHE_KEEP` last used ones (a removed folder that a process still uses is
+    extracted again by it when it next needs it).
     """
     import zipfile
 

@@ -50,9 +50,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     from .master import Interrupted, RunError, run, stop_on_signals
     from .results import OutputError
     from .scenario import ScenarioError
-    from .study import StudyError, open_executor
 
+    errors: tuple[type[BaseException], ...] = (ScenarioError, RunError, OutputError, Interrupted)
     if args.forks is not None:
+        from .study import StudyError, open_executor   # (multiprocessing: only for the forks)
+        errors += (StudyError,)
         if args.save_state_at is None or args.state_out is not None or args.from_state is not None:
             return _error("--forks N goes with --save-state-at T (the state is written into the "
                           "output folder), not with --state-out or --from-state")
@@ -81,7 +83,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                         if args.save_state_at is not None else None)
                 result = run(scenario, out_dir=out, progress=not args.no_progress, force=args.force,
                              hook=hook)
-    except (ScenarioError, RunError, OutputError, Interrupted, StudyError) as exc:
+    except errors as exc:
         msg = str(exc)
         out_dir = getattr(exc, "out_dir", None)
         if out_dir is not None:

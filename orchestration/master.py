@@ -582,31 +582,91 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
     return notes
 
 
-_EXTRACTED: dict[tuple[str, float], str] = {}   # FMU file version -> its folder in this process
-_EXTRACT_ROOT: list[str] = []
+_EXTRACTED: dict[tuple[str, int, int], str] = {}   # FMU file version -> its folder in this process
+_EXTRACT_ROOT: list[str] = []     # this process's temporary folder (when there is no cache)
 _ACTIVE_RUNS = [0]
+_CACHE_KEEP = 32                  # cached FMU folders kept (about 2 MB each), the last used
 
 
 def _extracted(comp: Component) -> str:
-    """The folder an FMU is extracted to: one path per process and FMU file version, so its
+    """The folder an FMU is extracted to, one per FMU file version for the process, so its
     shared library is loaded once and reused by every instance (the dynamic loader matches an
     already loaded library by its path, even after the file was removed and extracted again).
 
-    The folders are removed when the last run of the process ends (:func:`_remove_extracted`),
-    not at exit: study workers end without running Python's exit handlers. A package this
-    process has imported already is not extracted (:func:`_still_read`).
+    That folder is the FMU's entry in the cache (:func:`_cached_folder`): extracted once for
+    every process and run. Without a writable cache, a temporary folder of this process,
+    removed when its last run ends (:func:`_remove_extracted`), not at exit: study workers end
+    without running Python's exit handlers; a package this process has imported already is
+    not extracted there (:func:`_still_read`).
     """
-    from fmpy import extract
     path = comp.fmu.resolve()
-    key = (str(path), path.stat().st_mtime)
-    if not _EXTRACT_ROOT:
-        _EXTRACT_ROOT.append(tempfile.mkdtemp(prefix="flexfusion_fmus_"))
-    if key not in _EXTRACTED:
-        _EXTRACTED[key] = str(Path(_EXTRACT_ROOT[0]) / str(len(_EXTRACTED)))
-    folder = _EXTRACTED[key]
+    st = path.stat()
+    key = (str(path), st.st_mtime_ns, st.st_size)
+    folder = _EXTRACTED.get(key)
+    if folder is None:
+        folder = _EXTRACTED[key] = _cached_folder(path) or str(Path(_temporary_root()) / str(len(_EXTRACTED)))
     if not Path(folder, "modelDescription.xml").is_file():
+        from fmpy import extract
         extract(str(path), unzipdir=folder, include=_still_read)
     return folder
+
+
+def _temporary_root() -> str:
+    if not _EXTRACT_ROOT:
+        _EXTRACT_ROOT.append(tempfile.mkdtemp(prefix="flexfusion_fmus_"))
+    return _EXTRACT_ROOT[0]
+
+
+_COMPLETE = ".complete"   # written last into a cached folder
+
+
+def _cached_folder(fmu: Path) -> str | None:
+    """The FMU's folder in the cache (``<cache root>/fmus/<content>-<platform>``,
+    :mod:`fmus.common.disk_cache`), extracted now if it is not there yet; None if the cache
+    cannot be written.
+
+    It is named by the FMU's content (:func:`~orchestration.scenario.fmu_content_key`) and the
+    platform, whose binaries are the only ones extracted. A folder is extracted under a
+    temporary name and renamed when complete, so processes extracting the same FMU at once
+    each use a whole folder (the first rename wins). Extracting a new folder removes all but
+    the :data:`_CACHE_KEEP` last used ones (a removed folder that a process still uses is
+    extracted again by it when it next needs it).
+    """
+    import zipfile
+
+    from fmpy import extract, platform
+
+    from fmus.common.disk_cache import cache_root, prune
+
+    from .scenario import fmu_content_key
+    try:
+        key = fmu_content_key(fmu)
+    except (OSError, zipfile.BadZipFile):
+        return None      # not an FMU: the temporary extraction reports it
+    root = cache_root() / "fmus"
+    folder = root / f"{key}-{platform}"
+    marker = folder / _COMPLETE
+    try:
+        if marker.is_file():
+            os.utime(folder)           # its last use
+            return str(folder)
+        root.mkdir(parents=True, exist_ok=True)
+        prune(root, _CACHE_KEEP - 1)
+        staging = Path(tempfile.mkdtemp(prefix=".extracting-", dir=root))
+        try:
+            extract(str(fmu), unzipdir=staging,
+                    include=lambda m: not m.startswith("binaries/") or m.startswith(f"binaries/{platform}/"))
+            (staging / _COMPLETE).touch()
+            try:
+                staging.rename(folder)
+            except OSError:          # another process was first: use its folder
+                if not marker.is_file():
+                    raise
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+    except OSError:
+        return None
+    return str(folder)
 
 
 def _still_read(member: str) -> bool:
@@ -627,7 +687,7 @@ def _still_read(member: str) -> bool:
 
 
 def _remove_extracted() -> None:
-    """Remove this process's FMU extraction folders (the paths stay reserved for the next run)."""
+    """Remove this process's temporary FMU folders (the paths stay reserved for the next run)."""
     if _EXTRACT_ROOT:
         shutil.rmtree(_EXTRACT_ROOT[0], ignore_errors=True)
 
@@ -911,15 +971,16 @@ def _progress_bar(sc: Scenario, shown: bool) -> Iterator[Callable[[int], None] |
 class RunFolder:
     """The files of one run in its folder ``out`` (owned by
     :func:`orchestration.results.own_folder`): ``run.json`` says ``running`` first, then the
-    true end; ``results.csv`` gets the rows as they come; ``metrics.json`` the metrics."""
+    true end; ``results.csv`` gets the rows as they come; ``metrics.json`` the metrics.
+    ``run.json`` names the packages' versions from the run's end on (looking them up costs
+    0.03-0.1 s, which the start of a run does not need)."""
 
     def __init__(self, out: Path, sc: Scenario, overrides: tuple[str, ...] = ()) -> None:
-        from .results import versions
         self.out = Path(out)
         self.columns = sc.record_columns()
         self.stop_time = sc.stop_time
         self.info: dict[str, Any] = {"scenario": sc.describe(), "overrides": list(overrides or sc.overrides),
-                                     "versions": versions(), "status": "running", "error": None,
+                                     "versions": None, "status": "running", "error": None,
                                      "rows": 0, "time_reached": None}
         self.writer: Any = None
         self.recorder = _Recorder()
@@ -959,6 +1020,11 @@ class RunFolder:
             self._finish("failed", f"{type(exc).__name__}: {exc}")
             raise
 
+    def _ended(self, **info: Any) -> None:
+        """The run's end into ``info``, with the versions."""
+        from .results import versions
+        self.info.update(info, versions=versions())
+
     def _finish(self, status: str, error: str) -> None:
         """Flush what was computed, then write the true status (whatever else fails)."""
         from .results import RUN_NAME, write_json
@@ -968,16 +1034,16 @@ class RunFolder:
             except OSError:
                 pass          # the rows of the failed block are cut off; the rest stays
             self.info.update(rows=self.writer.rows, time_reached=self.writer.time_reached)
-        self.info.update(status=status, error=error, wall_time_s=time.perf_counter() - self.t0,
-                         warnings=self.recorder.notes)
+        self._ended(status=status, error=error, wall_time_s=time.perf_counter() - self.t0,
+                    warnings=self.recorder.notes)
         write_json(self.out / RUN_NAME, self.info)
 
     def ok(self, described: dict[str, dict[str, Any]], wall: float) -> None:
         """Write ``metrics.json``, then ``run.json`` with status ``ok``."""
         from .results import METRICS_NAME, RUN_NAME, write_json
         write_json(self.out / METRICS_NAME, described)
-        self.info.update(status="ok", wall_time_s=wall, real_time_factor=self.stop_time / wall if wall > 0 else None,
-                         warnings=self.recorder.notes)
+        self._ended(status="ok", wall_time_s=wall, real_time_factor=self.stop_time / wall if wall > 0 else None,
+                    warnings=self.recorder.notes)
         write_json(self.out / RUN_NAME, self.info)
 
     def failed_after_run(self, exc: BaseException, wall: float) -> None:
@@ -985,8 +1051,8 @@ class RunFolder:
         :class:`~orchestration.results.OutputError`. If ``run.json`` cannot be written, it still
         says ``running``: :meth:`Result.load` reports that, never as ok."""
         from .results import RUN_NAME, OutputError, write_json
-        self.info.update(status="failed", error=f"after the run: {exc}", wall_time_s=wall,
-                         warnings=self.recorder.notes)
+        self._ended(status="failed", error=f"after the run: {exc}", wall_time_s=wall,
+                    warnings=self.recorder.notes)
         try:
             write_json(self.out / RUN_NAME, self.info)
         except OSError:

@@ -16,9 +16,9 @@ Files in a run's folder:
     metric gives ``name_max`` and ``name_mean``); ``against`` is ``"truth"`` when ``truth`` is
     plant truth, ``"reference"`` when it is a reference system's measurement (the Tracker).
 ``run.json``
-    The resolved scenario, the overrides, package versions, wall time, ``status``, ``error``
-    (the cause), ``rows`` (data rows in ``results.csv``) and ``time_reached`` (s, the last
-    row's time). Written atomically (a temporary file renamed over it): ``"running"`` when the
+    The resolved scenario, the overrides, package versions (from the run's end on), wall
+    time, ``status``, ``error`` (the cause), ``rows`` (data rows in ``results.csv``) and
+    ``time_reached`` (s, the last row's time). Written atomically (a temporary file renamed over it): ``"running"`` when the
     run starts, then ``"ok"``, ``"failed"`` or ``"interrupted"`` (SIGINT, SIGTERM). A folder
     still saying ``"running"`` that no process owns was killed: :meth:`Result.load` reports it
     as ``"interrupted"``.

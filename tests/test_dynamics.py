@@ -206,6 +206,18 @@ def test_spring_deflection_inverts_spring_torque() -> None:
         assert_allclose(dynamics.spring_torque(-D, np.zeros(2), P), tau, rtol=1e-12, atol=1e-9)
 
 
+def test_spring_deflection_keeps_its_guess_and_broadcasts() -> None:
+    tau = np.array([[900.0, -250.0], [30.0, -20.0]])
+    guess = dynamics.spring_deflection(tau, P) * 1.1
+    kept = guess.copy()
+    D = dynamics.spring_deflection(tau, P, guess)
+    np.testing.assert_array_equal(guess, kept)                     # solved in a copy
+    assert_allclose(dynamics.spring_torque(-D, np.zeros((2, 2)), P), tau, rtol=1e-12, atol=1e-9)
+    one = dynamics.spring_deflection(5.0, P, 0.0)                  # both joints' springs
+    assert one.shape == (2,)
+    assert_allclose(dynamics.spring_torque(-one, np.zeros(2), P), [5.0, 5.0], rtol=1e-12)
+
+
 def test_spring_is_softer_near_zero_and_stiffness_is_its_derivative() -> None:
     for D in ([0.0, 0.0], [1e-4, -2e-4], [5e-4, -1e-3], [-3e-3, 4e-3]):
         D = np.asarray(D)

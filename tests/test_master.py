@@ -6,6 +6,7 @@ import json
 import re
 import sys
 import warnings
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -261,10 +262,22 @@ def test_same_seed_gives_byte_identical_results_other_seed_differs(tmp_path):
     assert not np.allclose(ra["src.noise"][1:], ra["other.noise"][1:])
 
 
-def test_fmu_extraction_folders_are_removed_when_a_run_ends(tmp_path):
-    """Study workers end without Python's exit handlers: a run must not leave its FMU folders
-    behind (after a failed run neither), and the next run in the process extracts them again
-    to the same paths (the loaded libraries are reused)."""
+@pytest.fixture
+def no_cache(tmp_path, monkeypatch):
+    """No writable cache (its root is a file), and a process that has extracted nothing yet."""
+    from orchestration import master
+    blocker = tmp_path / "not_a_folder"
+    blocker.write_text("")
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(blocker))
+    for name, empty in (("_EXTRACTED", {}), ("_EXTRACT_ROOT", [])):
+        monkeypatch.setattr(master, name, empty)
+    return {"FLEXFUSION_CACHE_DIR": str(blocker)}
+
+
+def test_fmu_extraction_folders_are_removed_when_a_run_ends(tmp_path, no_cache):
+    """Without a cache, study workers end without Python's exit handlers: a run must not leave
+    its FMU folders behind (after a failed run neither), and the next run in the process
+    extracts them again to the same paths (the loaded libraries are reused)."""
     from orchestration import master
     path = write(tmp_path, NOISE)
     run(path, out_dir=tmp_path / "a")
@@ -285,7 +298,10 @@ from orchestration import master, run
 seen = {}
 close = master._Instance.close
 def recording_close(self):
-    seen[self.name] = sorted(p.name for p in (Path(self.fmu.unzipDirectory) / "resources").iterdir())
+    folder = Path(self.fmu.unzipDirectory)
+    seen[self.name] = {"folder": str(folder),
+                       "resources": sorted(p.name for p in (folder / "resources").iterdir()),
+                       "binaries": sorted(p.name for p in (folder / "binaries").iterdir())}
     close(self)
 master._Instance.close = recording_close
 run(sys.argv[1], out_dir=sys.argv[2])
@@ -293,19 +309,100 @@ print(json.dumps(seen))
 """
 
 
-def test_only_the_first_fmu_of_a_process_gets_the_bundled_packages_extracted(tmp_path):
-    """In a fresh process (a run's) the first FMU loads the bundled ``fmus_<hash>`` and
-    ``pythonfmu`` packages from its folder; the other FMUs' folders need no copy (Python never
-    reads one) and get none, and the run works."""
+def folders_of_a_run(scenario: Path, out: Path, env: dict[str, str]) -> dict[str, dict]:
+    """Each component's FMU folder and what it holds, in a fresh process (closed last first)."""
+    import os
     import subprocess
-    out = subprocess.run([sys.executable, "-c", FOLDERS_OF_A_RUN, str(write(tmp_path, CHAIN)),
-                          str(tmp_path / "o")], capture_output=True, text=True, check=True)
-    seen = json.loads(out.stdout.splitlines()[-1])
+    done = subprocess.run([sys.executable, "-c", FOLDERS_OF_A_RUN, str(scenario), str(out)],
+                          capture_output=True, text=True, check=True, env={**os.environ, **env})
+    return json.loads(done.stdout.splitlines()[-1])
+
+
+def test_only_the_first_fmu_of_a_process_gets_the_bundled_packages_extracted(tmp_path, no_cache):
+    """Without a cache, in a fresh process (a run's) the first FMU loads the bundled
+    ``fmus_<hash>`` and ``pythonfmu`` packages from its folder; the other FMUs' folders need
+    no copy (Python never reads one) and get none, and the run works."""
+    seen = folders_of_a_run(write(tmp_path, CHAIN), tmp_path / "o", no_cache)
+    seen = {name: folder["resources"] for name, folder in seen.items()}
     assert list(seen) == ["g2", "g1", "src"]        # closed in reverse order: src loaded first
     first, gain = seen["src"], seen["g1"]           # Source.fmu, Gain.fmu (g1 and g2 share it)
     assert "pythonfmu" in first and any(re.fullmatch(r"fmus_[0-9a-f]{12}", n) for n in first)
     assert "pythonfmu" not in gain and not any(n.startswith("fmus_") for n in gain)
     assert "slavemodule.txt" in gain and any(n.startswith("gain_fmu_") for n in gain)
+
+
+def test_fmus_are_extracted_once_into_the_cache_by_content(tmp_path, toy_dir):
+    """With a cache every process uses one folder per FMU content (this platform's binaries
+    only), extracted by the first and kept; a copy of an FMU shares its folder, a changed FMU
+    gets its own."""
+    import shutil
+    env = {"FLEXFUSION_CACHE_DIR": str(tmp_path / "cache")}
+    scenario = write(tmp_path, CHAIN)
+    first = folders_of_a_run(scenario, tmp_path / "a", env)
+    folders = {name: Path(f["folder"]) for name, f in first.items()}
+    assert all(f.parent == tmp_path / "cache" / "fmus" for f in folders.values())
+    assert folders["g1"] == folders["g2"] != folders["src"]
+    assert all(f["binaries"] == ["linux64"] for f in first.values())
+    assert all("pythonfmu" in f["resources"] for f in first.values())         # each one whole
+    stamp = {f: f.stat().st_ino for f in folders.values()}
+
+    again = folders_of_a_run(scenario, tmp_path / "b", env)                     # not extracted again
+    assert {name: Path(f["folder"]) for name, f in again.items()} == folders
+    assert {f: f.stat().st_ino for f in folders.values()} == stamp
+    assert (tmp_path / "a" / "results.csv").read_bytes() == (tmp_path / "b" / "results.csv").read_bytes()
+
+    copies = tmp_path / "copies"
+    copies.mkdir()
+    shutil.copy(toy_dir / "Source.fmu", copies / "Source.fmu")
+    shutil.copy(toy_dir / "Gain.fmu", copies / "Gain.fmu")
+    with zipfile.ZipFile(copies / "Gain.fmu", "a") as z:                        # one more file
+        z.writestr("documentation/notes.txt", "changed")
+    moved = folders_of_a_run(scenario, tmp_path / "c", {**env, "FLEXFUSION_FMU_DIR": str(copies)})
+    assert Path(moved["src"]["folder"]) == folders["src"]
+    assert Path(moved["g1"]["folder"]) not in folders.values()
+
+
+LAZY_RUN = """
+import json, sys
+from orchestration import cli, master
+heavy = ("scipy.signal", "scipy.stats", "matplotlib")
+first = []
+simulate = master.simulate
+def recording(sc, sink, *rest):
+    def row(t, values):
+        if not first:
+            first.append(sorted(m for m in sys.modules if m.startswith(heavy)))
+        sink(t, values)
+    return simulate(sc, row, *rest)
+master.simulate = recording
+if sys.argv[1] == "--help":
+    try:
+        cli.main(["--help"])
+    except SystemExit:
+        pass
+    print(json.dumps(sorted(m for m in sys.modules if m.startswith(heavy))))
+else:
+    status = cli.main(["run", sys.argv[1], "--out", sys.argv[2], "--no-progress"])
+    print(json.dumps({"status": status, "at_first_step": first[0], "at_end": "scipy.signal" in sys.modules}))
+"""
+
+
+def test_a_run_imports_what_its_metrics_need_after_the_run(tmp_path):
+    """``flexfusion run`` steps without scipy.signal, scipy.stats or matplotlib loaded (the
+    band-pass metric imports scipy.signal after the run); ``flexfusion --help`` loads none."""
+    import subprocess
+    scenario = write(tmp_path, CHAIN.replace("stop_time = 0.01", "stop_time = 0.1") + """
+[[metrics]]
+kind = "bandpass"
+name = "g2_3_30Hz"
+estimate = "g2.y"
+truth = "g1.y"
+""")
+    done = subprocess.run([sys.executable, "-c", LAZY_RUN, str(scenario), str(tmp_path / "o")],
+                          capture_output=True, text=True, check=True)
+    assert json.loads(done.stdout.splitlines()[-1]) == {"status": 0, "at_first_step": [], "at_end": True}
+    done = subprocess.run([sys.executable, "-c", LAZY_RUN, "--help"], capture_output=True, text=True, check=True)
+    assert json.loads(done.stdout.splitlines()[-1]) == []
 
 
 def test_a_resources_folder_is_extracted_unless_an_fmu_provided_that_package():
@@ -407,7 +504,7 @@ def test_a_run_frees_its_instances_and_unloads_their_libraries(tmp_path, monkeyp
     close = master._Instance.close
 
     def recording_close(self):
-        loaded_at_close.append(loaded_from(master._EXTRACT_ROOT[0]))
+        loaded_at_close.append(loaded_from(self.fmu.unzipDirectory))
         close(self)
 
     monkeypatch.setattr(master._Instance, "close", recording_close)
@@ -417,5 +514,5 @@ def test_a_run_frees_its_instances_and_unloads_their_libraries(tmp_path, monkeyp
             run(scenario, out_dir=tmp_path / "o")
     else:
         run(scenario, out_dir=tmp_path / "o")
-    assert {Path(p).name for p in loaded_at_close[0]} == {"Failing.so", "Gain.so"}   # were loaded
-    assert loaded_from(master._EXTRACT_ROOT[0]) == set()
+    assert {Path(p).name for p in set().union(*loaded_at_close)} == {"Failing.so", "Gain.so"}   # were loaded
+    assert set().union(*map(loaded_from, master._EXTRACTED.values())) == set()

@@ -146,6 +146,34 @@ def test_model_error_changes_the_feed_forward(params) -> None:
     assert np.abs(db).max() > 1.5 * np.abs(da).max()
 
 
+def test_the_table_is_cached_by_everything_it_is_built_from(params, tmp_path, monkeypatch) -> None:
+    """The disk cache gives back the table bit for bit, for the same path, robot model and grid
+    only: a changed robot parameter, path start or speed, or grid is built anew; the gains,
+    which the table does not depend on, share it."""
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path))
+    builds = []
+    build = mcm.MotionControlModel._build_table
+    monkeypatch.setattr(mcm.MotionControlModel, "_build_table", lambda self, t: builds.append(1) or build(self, t))
+
+    def model(path=make_path("square"), robot=params.robot(), gains=_gains(params), **kw):
+        return mcm.MotionControlModel(path, robot, gains, **kw)
+
+    first = model()
+    assert len(builds) == 1 and len(list((tmp_path / "tables").glob("*.npy"))) == 1
+    again = model(gains=mcm.PidGains.from_values((1.0, 1.0), (0.1, 0.1), (0.0, 0.0), (50.0, 50.0)))
+    assert len(builds) == 1
+    assert again.table.tobytes() == first.table.tobytes() == build(first, first.t_grid).tobytes()
+    k_hi = np.asarray(params.k_hi)
+    for other in (dict(robot=replace(params, k_hi=(k_hi[0], np.nextafter(k_hi[1], 0.0))).robot()),
+                  dict(path=make_path("square").scaled(1.01)),
+                  dict(path=make_path("square", start=(1.0, 0.61))),
+                  dict(dt_grid=4e-4)):
+        n = len(builds)
+        changed = model(**other)
+        assert len(builds) == n + 1
+        assert changed.table.shape != first.table.shape or not np.array_equal(changed.table, first.table)
+
+
 def test_cartesian_offset_moves_the_arm_reference(square_model) -> None:
     m = square_model
     ctrl = mcm.MotionController(m)

@@ -213,3 +213,28 @@ def test_copy_document_shares_no_table_or_array():
     copy["components"]["g"]["parameters"]["v"][1].append(3.0)
     copy["connections"].clear()
     assert doc == {"components": {"g": {"parameters": {"v": [1.0, [2.0]]}}}, "connections": ["a.x -> b.y"]}
+
+
+def test_model_descriptions_are_parsed_once_per_fmu_content(tmp_path, toy_dir, monkeypatch):
+    """The variables of an FMU come back from the disk cache in a new process (here: the
+    in-memory one emptied) without parsing, as parsed; a changed FMU is parsed anew."""
+    import shutil
+    import zipfile
+
+    from orchestration import scenario
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(scenario, "_MD_CACHE", {})
+    parsed = []
+    parse = scenario._parse_variables
+    monkeypatch.setattr(scenario, "_parse_variables", lambda fmu: parsed.append(fmu.name) or parse(fmu))
+    gain = tmp_path / "Gain.fmu"
+    shutil.copy(toy_dir / "Gain.fmu", gain)
+    first = scenario.read_variables(gain)
+    monkeypatch.setattr(scenario, "_MD_CACHE", {})
+    again = scenario.read_variables(toy_dir / "Gain.fmu")          # the same content elsewhere
+    assert parsed == ["Gain.fmu"] and again == first
+    assert first[0] == "Gain" and first[2]["y"].depends_on == ("u",) and first[2]["u"].depends_on is None
+    assert len(list((tmp_path / "cache" / "model_descriptions").glob("*.json"))) == 1
+    with zipfile.ZipFile(gain, "a") as z:
+        z.writestr("documentation/notes.txt", "changed")
+    assert scenario.read_variables(gain) == first and parsed == ["Gain.fmu", "Gain.fmu"]

@@ -63,6 +63,17 @@ def test_scalar_evaluation_equals_vectorised(traj: tj.Trajectory) -> None:
             assert_allclose(one[k], many[k][i], rtol=0, atol=1e-15)
 
 
+def test_a_sorted_grid_evaluates_bit_for_bit_as_any_order(traj: tj.Trajectory) -> None:
+    """Sorted times take the slices of each move, other orders the masks: the same numbers,
+    also at the moves' own start and end times (each move counts on t0 < t < t_end only)."""
+    tb = _boundaries(traj) * traj.time_scale
+    t = np.sort(np.concatenate([np.linspace(-0.1, traj.duration + 0.2, 2001), tb, tb, np.nextafter(tb, 0)]))
+    shuffled = np.random.default_rng(1).permutation(t.size)
+    grid, scattered = traj.evaluate_many(t), traj.evaluate_many(t[shuffled])
+    for k in range(4):
+        np.testing.assert_array_equal(grid[k][shuffled], scattered[k])
+
+
 def test_rest_at_start_and_end(traj: tj.Trajectory) -> None:
     p, v, a, j = traj.evaluate_many(np.array([0.0, traj.duration, traj.duration + 5.0]))
     assert_allclose(p[0], traj.start, atol=1e-15)

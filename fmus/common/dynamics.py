@@ -282,10 +282,21 @@ def spring_deflection(tau, p: RobotParameters, D0=None) -> np.ndarray:
     else:
         # start on the high-stiffness asymptote, shifted by the soft zone: a few Newton steps
         D = (tau + np.sign(tau) * k_soft * delta * np.tanh(np.abs(tau) / (k_hi * delta))) / k_hi
+    # f = k_hi D - k_soft delta tanh(D / delta) - tau,  D -= f / (k_hi - k_soft / cosh(D / delta)^2),
+    # in place (a setup solves it on tables of 20 000 rows: no temporaries, each term once)
+    D = np.broadcast_to(D, np.broadcast_shapes(D.shape, tau.shape, k_hi.shape)).astype(float)  # a copy
+    tol = 1e-12 * np.maximum(1.0, np.abs(tau))
+    soft = k_soft * delta
+    x, f, g = np.empty_like(D), np.empty_like(D), np.empty_like(D)
     for _ in range(50):
-        f = k_hi * D - k_soft * delta * np.tanh(D / delta) - tau
-        D = D - f / (k_hi - k_soft / np.cosh(D / delta) ** 2)
-        if np.all(np.abs(f) <= 1e-12 * np.maximum(1.0, np.abs(tau))):
+        np.divide(D, delta, out=x)
+        np.multiply(soft, np.tanh(x, out=g), out=g)
+        np.subtract(np.multiply(k_hi, D, out=f), g, out=f)
+        f -= tau
+        np.square(np.cosh(x, out=x), out=x)
+        np.subtract(k_hi, np.divide(k_soft, x, out=x), out=x)
+        D -= np.divide(f, x, out=x)
+        if np.all(np.abs(f, out=g) <= tol):
             break
     return D
 

@@ -49,8 +49,8 @@ from typing import Sequence
 
 import numpy as np
 
-from fmus.common import dynamics, kinematics
-from fmus.common.jit import kernel
+from fmus.common import disk_cache, dynamics, kinematics
+from fmus.common.jit import bundle_id, kernel
 from fmus.common.parameters import ParameterError, as_array, param
 from fmus.common.robot_params import RobotParameters
 from fmus.robot_plant.trajectory import PATHS, Trajectory, make_path
@@ -59,6 +59,7 @@ from fmus.robot_plant.trajectory import PATHS, Trajectory, make_path
 DT_GRID = 5e-4          #: reference table resolution [s]
 T_MARGIN = 1.0          #: table length after the path has ended [s]
 SIN_Q2_MAX = 0.98       #: |sin q2| limit: keeps 11 deg away from the stretched/folded arm
+TABLES_KEPT = 16        #: reference tables kept in the disk cache (about 5 MB for 11 s of path)
 
 # Default PID gains (motor side), see MotionControllerParameters.
 DEFAULT_KP = (5.3, 3.9)
@@ -240,9 +241,20 @@ class MotionControlModel:
         self._check_waypoints()
         n = int(math.ceil((trajectory.duration + T_MARGIN) / self.dt)) + 2
         self.t_grid = np.arange(n) * self.dt
-        self.table = self._build_table(self.t_grid)
+        self.table = disk_cache.cached_array("tables", self.table_key(), (n, _NCOL),
+                                             lambda: self._build_table(self.t_grid), TABLES_KEPT)
 
     # ---- setup ---------------------------------------------------------------------------------
+    def table_key(self) -> str:
+        """The reference table's key in the disk cache (:mod:`fmus.common.disk_cache`): all it
+        is computed from (the path, the robot model, the grid; the gains play no part), the
+        code (the package's bundle id: a hash of its sources) and numpy's version and machine,
+        whose elementary functions it calls. Building a table takes 0.05-0.1 s of a run's
+        start-up; reading it back a few milliseconds."""
+        import platform
+        return disk_cache.content_key(bundle_id(), np.__version__, platform.machine(), self.trajectory,
+                                      self.robot, self.dt, self.t_grid.shape[0])
+
     def _reach_problem(self, p: np.ndarray) -> np.ndarray:
         """Boolean mask of points out of reach (with the singularity margin)."""
         _, s2 = kinematics.inverse_kinematics_many(np.atleast_2d(p), self.l1, self.l2)

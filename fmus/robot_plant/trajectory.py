@@ -280,17 +280,23 @@ class Trajectory:
         v = np.zeros_like(p)
         a = np.zeros_like(p)
         j = np.zeros_like(p)
+        ordered = bool(np.all(tt[1:] >= tt[:-1]))
         for m in self.moves:
-            mask = (tt > m.t0) & (tt < m.t_end)
-            if not mask.any():
-                continue
-            s, ds, dds, ddds = m.time_law(tt[mask])
+            if ordered:     # (a table's grid) t0 < t < t_end is a slice: views, no masks
+                at = slice(tt.searchsorted(m.t0, "right"), tt.searchsorted(m.t_end, "left"))
+                if at.stop <= at.start:
+                    continue
+            else:
+                at = (tt > m.t0) & (tt < m.t_end)
+                if not at.any():
+                    continue
+            s, ds, dds, ddds = m.time_law(tt[at])
             g0, g1, g2, g3 = m.geometry.derivatives(s)  # type: ignore[attr-defined]
             ds_, dds_, ddds_ = ds[:, None], dds[:, None], ddds[:, None]
-            p[mask] += g0
-            v[mask] += g1 * ds_
-            a[mask] += g2 * ds_ ** 2 + g1 * dds_
-            j[mask] += g3 * ds_ ** 3 + 3.0 * g2 * ds_ * dds_ + g1 * ddds_
+            p[at] += g0
+            v[at] += g1 * ds_
+            a[at] += g2 * ds_ ** 2 + g1 * dds_
+            j[at] += g3 * ds_ ** 3 + 3.0 * g2 * ds_ * dds_ + g1 * ddds_
         return p, v * sig, a * sig ** 2, j * sig ** 3
 
     def evaluate(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

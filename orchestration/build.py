@@ -116,7 +116,9 @@ def compile_kernels(package: Path, cache: Path = AOT_CACHE, quiet: bool = False)
             with tempfile.TemporaryDirectory(dir=target.parent) as out:
                 code = (f"from pathlib import Path; from {package.name}.common import jit; "
                         f"jit.compile_package(Path({out!r}))")
-                env = {**os.environ, "PYTHONPATH": str(package.parent)}
+                # a numba cache of its own: callees are linked in from their LLVM IR, never
+                # from a JIT run's cached machine code
+                env = {**os.environ, "PYTHONPATH": str(package.parent), "FLEXFUSION_CACHE_DIR": out}
                 env.pop("NUMBA_DISABLE_JIT", None)
                 done = subprocess.run([sys.executable, "-c", code], cwd=package.parent, env=env,
                                       capture_output=True, text=True)

@@ -1,9 +1,26 @@
-"""Compiled hot kernels: numba with an on-disk cache that also works inside extracted FMUs.
+"""Compiled hot kernels: ahead of time inside a built FMU, else numba with an on-disk cache that
+also works inside extracted FMUs.
 
-Decorate a kernel with :func:`kernel` (``numba.njit`` with caching) in any module of the
-``fmus`` package. numba's own cache keys a function by the folder of its source file, so a
-kernel inside an FMU, which every host extracts to a fresh folder, would be compiled again in
-every process (about a second per kernel). Here the cache folder is keyed by the *content* of
+Decorate a kernel with :func:`kernel` in any module of the ``fmus`` package; one that Python code
+calls carries its numba signature, ``@kernel(aot="float64(float64[:], float64)")`` (arrays any
+layout, ``float64[:]``, unless the kernel needs C order; a kernel only other kernels call needs
+none: it is compiled into its callers).
+
+Ahead of time (in an FMU): ``flexfusion build`` compiles every kernel with a signature into one
+extension module of the FMU's package, ``_compiled.<EXT_SUFFIX>`` (:func:`compile_package`,
+numba.pycc; export names :func:`export_name`). Where it imports (:func:`compiled_module`),
+:func:`kernel` returns its functions and numba is never imported: a process that runs our FMUs
+saves numba's import and CPU-target initialisation (about 0.5 s, it imports scipy.linalg) and
+any compilation or cache loading. The compiled kernels round as the JIT ones (no fastmath either;
+tests/test_aot.py compares them bit for bit). Called with arguments of other types than its
+signature, a compiled kernel raises TypeError (the JIT would compile another version): callers
+pass one type (e.g. ``np.ascontiguousarray(x, float)``, ``float(v)``, ``tuple(s)``).
+
+Just in time (the working tree, studies, an FMU built with ``FLEXFUSION_NO_AOT=1`` or without the
+module for this Python, which then says so once): ``numba.njit`` with caching. numba's own
+cache keys a function by the folder of its source file, so a kernel inside an FMU, which every
+host extracts to a fresh folder, would be compiled again in every process (about a second per
+kernel). Here the cache folder is keyed by the *content* of
 the package instead: the bundle id that ``orchestration/build.py`` writes into every FMU
 (``BUNDLE_ID``: the hash of all of the package's sources), or the same hash computed over the
 working tree's ``fmus``. So every FMU of one build, every process, and the working tree with the
@@ -139,14 +156,15 @@ def export_name(function: Callable) -> str:
 def compiled_module() -> Any:
     """The package's ahead-of-time compiled kernels (``<package>/_compiled.<EXT_SUFFIX>``, made by
     :func:`compile_package` at ``flexfusion build``), or None: then the kernels are compiled
-    just in time. An FMU whose module does not import here (no compiled module for this
-    Python, or another ABI) says so once in the log."""
+    just in time. A package whose module is there but does not import here (built for another
+    Python or platform) says so once (a logging warning); one built without it (the build said
+    why) and the working tree stay silent."""
     try:
         return importlib.import_module(f"{PACKAGE.name}.{COMPILED_MODULE}")
     except ImportError as exc:
-        if (PACKAGE / BUNDLE_ID_FILE).is_file():       # an FMU's package, not the working tree
-            logging.getLogger(__name__).info(
-                "%s: no ahead-of-time kernels for this Python (%s): compiling them with numba",
+        if any(PACKAGE.glob(COMPILED_MODULE + ".*")):
+            logging.getLogger(__name__).warning(
+                "%s: its ahead-of-time kernels do not load in this Python (%s): numba compiles them",
                 PACKAGE.name, exc)
         return None
 

@@ -25,8 +25,8 @@ Compiled kernels: the package's numba kernels that Python calls (``@kernel(aot=.
 of the vendored package (``fmus_<hash>/_compiled.<EXT_SUFFIX>``, the same file in every FMU), so
 an FMU's process never imports numba nor compiles (:func:`compile_kernels`). It is kept in
 ``build/aot`` under a key of the sources and the toolchain and reused by the next build of the
-same sources. With no C compiler (or ``FLEXFUSION_NO_AOT=1``) the build says so and the FMUs
-compile their kernels with numba at run time, as the working tree does.
+same sources. If that compilation fails (or with ``FLEXFUSION_NO_AOT=1``) the build says why
+and goes on: its FMUs compile their kernels with numba at run time, as the working tree does.
 """
 from __future__ import annotations
 
@@ -48,8 +48,7 @@ from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
-from fmus.common import jit
-from fmus.common.jit import BUNDLE_ID_FILE, package_digest, package_sources
+from fmus.common.jit import BUNDLE_ID_FILE, COMPILED_MODULE, package_digest, package_sources
 
 REPO = Path(__file__).resolve().parent.parent
 FMU_SOURCES = REPO / "fmus"
@@ -102,7 +101,7 @@ def compile_kernels(package: Path, cache: Path = AOT_CACHE, quiet: bool = False)
     :func:`fmus.common.jit.compile_package`); the cache key is the package's bundle id, the
     numba and llvmlite versions, the Python ABI and the C compiler (``CC``).
     """
-    module = jit.COMPILED_MODULE + sysconfig.get_config_var("EXT_SUFFIX")
+    module = COMPILED_MODULE + sysconfig.get_config_var("EXT_SUFFIX")
     if os.environ.get("FLEXFUSION_NO_AOT"):
         reason = "FLEXFUSION_NO_AOT is set"
     else:

@@ -67,7 +67,8 @@ def gravity_torques(g1: float, g2: float, q1: float, q2: float) -> tuple[float, 
     return -g1 * math.sin(q1) - g2 * cp, -g2 * cp
 
 
-@kernel(aot="UniTuple(float64, 8)(UniTuple(float64, 8), float64, float64, float64, float64, float64[:])")
+@kernel(aot="UniTuple(float64, 8)(UniTuple(float64, 8), float64, float64, float64, float64, "
+            "float64[:])")
 def flex_rates(s, tau1: float, tau2: float, fx: float, fz: float, K: np.ndarray) -> tuple:
     """``x_dot`` of the flexible-joint model (eqs. 10-11) as a tuple of 8 floats at the state
     ``s`` (8 floats: ``q_a``, ``q_m``, ``dq_a``, ``dq_m``), with the motor torques ``tau1``,
@@ -113,7 +114,8 @@ def rk4_update(x: np.ndarray, h6: float, k1: tuple, k2: tuple, k3: tuple, k4: tu
         x[i] = x[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
 
 
-@kernel(aot="UniTuple(float64, 8)(UniTuple(float64, 8), float64, float64, float64, float64, float64, int64, float64[:])")
+@kernel(aot="UniTuple(float64, 8)(UniTuple(float64, 8), float64, float64, float64, float64, "
+            "float64, int64, float64[:])")
 def flex_step(s: tuple, tau1: float, tau2: float, fx: float, fz: float, dt: float, substeps: int,
               K: np.ndarray) -> tuple:
     """``substeps`` RK4 steps over ``dt`` [s] of :func:`flex_rates` from the state ``s`` (8-tuple)

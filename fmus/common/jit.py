@@ -145,9 +145,9 @@ def _register_locator() -> None:
 
 
 def export_name(function: Callable) -> str:
-    """The name of a kernel in the compiled module: its module's path inside the package and its
-    own name, joined by ``__`` (``common.kalman.time_update_kernel`` ->
-    ``common__kalman__time_update_kernel``)."""
+    """The name of the kernel ``function`` (its Python function) in the compiled module: its
+    module's path inside the package and its own name, joined by ``__``
+    (``common.kalman.time_update_kernel`` -> ``common__kalman__time_update_kernel``)."""
     module = function.__module__.split(".")[1:]
     return "__".join([*module, function.__name__])
 
@@ -170,9 +170,10 @@ def compiled_module() -> Any:
 
 
 class PythonKernel:
-    """A kernel with no ``aot`` signature in a package that runs its ahead-of-time compiled
-    module: only compiled kernels call it, and they have it compiled in. Called from Python (a
-    missing ``aot=``), it runs as plain Python, with one warning, so that numba stays unimported."""
+    """A kernel with no ``aot`` signature (its Python function ``py_func``) in a package that runs
+    its ahead-of-time compiled module: only compiled kernels call it, and they have it compiled
+    in. Called from Python (a missing ``aot=``), it runs as plain Python, with one warning, so
+    that numba stays unimported."""
 
     def __init__(self, py_func: Callable):
         self.py_func = py_func

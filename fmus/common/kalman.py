@@ -113,7 +113,8 @@ def _sandwich(A: np.ndarray, P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     return _symmetrised(_product(_product(A, P), A.T) + Q)
 
 
-@kernel(aot="Tuple((float64[:], float64[:, :], float64, int64))(float64[:], float64[:, :], float64[:], float64[:, :], float64[:, :])")
+@kernel(aot="Tuple((float64[:], float64[:, :], float64, int64))(float64[:], float64[:, :], "
+            "float64[:], float64[:, :], float64[:, :])")
 def measurement_update_kernel(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
                               R: np.ndarray) -> tuple:
     """The update of the module docstring (arguments as :func:`measurement_update`: prior ``x``,
@@ -175,7 +176,8 @@ def time_update_kernel(F: np.ndarray, P: np.ndarray, Q: np.ndarray, definite: bo
     return Pp, estimate_status_kernel(np.zeros(1), Pp, definite)
 
 
-@kernel(aot="Tuple((float64[:], float64[:, :], int64))(float64[:], float64[:, :], float64[:, :], float64[:, :], float64[:], float64[:, :], boolean)")
+@kernel(aot="Tuple((float64[:], float64[:, :], int64))(float64[:], float64[:, :], float64[:, :], "
+            "float64[:, :], float64[:], float64[:, :], boolean)")
 def linear_time_update_kernel(x: np.ndarray, P: np.ndarray, F: np.ndarray, B: np.ndarray,
                               u: np.ndarray, Q: np.ndarray, definite: bool) -> tuple:
     """``(F x + B u, F P F^T + Q symmetrised, status)``; positive definiteness tested only

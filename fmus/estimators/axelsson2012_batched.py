@@ -60,7 +60,8 @@ def _rows(X, S, D, k, use_accelerometer, use_bias, Y, H):
             jacobian_into(S[i], k, use_accelerometer, use_bias, D[i, 0], D[i, 1], H[i])
 
 
-@kernel(aot="none(float64[:, :], float64[:], boolean, boolean, boolean, float64[:, :], float64[:, :], float64[:, :, :], float64[:, :])")
+@kernel(aot="none(float64[:, :], float64[:], boolean, boolean, boolean, float64[:, :], "
+            "float64[:, :], float64[:, :, :], float64[:, :])")
 def measure_many(X, k, use_accelerometer, use_bias, bound_stop, D0, Y, H, D):
     """``h(x)`` (eq. 15) into ``Y`` (N, m) and, unless ``H`` is None, ``H = dh/dx`` (eq. 4c)
     into ``H`` (N, m, n) (zero outside the entries written here: the caller's), for the rows of

@@ -266,7 +266,8 @@ def kernel_move(X: np.ndarray, x: np.ndarray, P: np.ndarray, h: float, Z: np.nda
     return out
 
 
-@kernel(aot="none(float64[:, :], int64[:], float64[:], float64[:, :], float64, float64, float64[:, :], float64[:, :])")
+@kernel(aot="none(float64[:, :], int64[:], float64[:], float64[:, :], float64, float64, "
+            "float64[:, :], float64[:, :])")
 def _move(X, idx, x, S, a, c, Z, out):
     """``out_j = a X_idx_j + (1 - a) x + c S z_j`` (:func:`kernel_move`), row by row."""
     n = X.shape[1]
@@ -279,7 +280,8 @@ def _move(X, idx, x, S, a, c, Z, out):
             out[j, p] = a * X[i, p] + (1.0 - a) * x[p] + c * s
 
 
-@kernel(aot="none(float64[:, :], float64[:, :], float64[:], float64[:], float64[:], float64[:, :], boolean, float64[:], boolean, boolean, float64[:, :], float64[:, :], float64[:])")
+@kernel(aot="none(float64[:, :], float64[:, :], float64[:], float64[:], float64[:], float64[:, "
+            ":], boolean, float64[:], boolean, boolean, float64[:, :], float64[:, :], float64[:])")
 def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, k_model, use_accelerometer, use_bias, D, X, logw):
     """Algorithm 1, steps 2 and 4, in one compiled call over the particles: sample
     ``x_i = m_i + L e_i`` from the proposal and weight it (the module docstring's formulas).

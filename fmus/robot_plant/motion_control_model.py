@@ -364,7 +364,8 @@ def _offset_arm_angles(row, dp0, dp1, l1, l2):
 
 
 # constants of the law (MotionController._k): kp, kd, kp / ti, tau_max, gear ratios (2 each), l1, l2
-@kernel(aot="boolean(float64[:, :], float64, float64, boolean, float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64[:])")
+@kernel(aot="boolean(float64[:, :], float64, float64, boolean, float64[:], float64[:], "
+            "float64[:], float64[:], float64[:], float64[:], float64[:], float64[:])")
 def _control_law(table, dt, t, resample, row, q_m, dq_m, dp, excitation, integral, k, out):
     """:meth:`MotionController.evaluate` on floats: the ``row`` at ``t`` (when ``resample``),
     the references moved by the offset ``dp``, the error and the limited PID torque, into

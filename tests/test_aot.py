@@ -207,6 +207,7 @@ import json, sys
 sys.path.insert(0, sys.argv[1])
 from {pkg}.common import kern
 print(json.dumps({{"value": kern.damped(0.3, 50).hex(), "type": type(kern.damped).__name__,
+                  "inner": kern._inner(0.3, 7).hex(), "inner_type": type(kern._inner).__name__,
                   "numba": "numba" in sys.modules}}))
 '''
 
@@ -227,20 +228,24 @@ def _probe(folder: Path, cache: Path) -> dict:
     env = {**os.environ, "FLEXFUSION_CACHE_DIR": str(cache)}
     out = subprocess.run([sys.executable, "-c", PROBE.format(pkg="fmus_aot"), str(folder)], env=env,
                          capture_output=True, text=True, check=True)
+    sys.stderr.write(out.stderr)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def test_compile_kernels_makes_a_module_the_package_runs_without_numba(tmp_path, capfd):
     """A staged package's kernel with ``aot=``: compiled into the package (then taken from the
     cache), it returns the JIT's bits in a process that never imports numba; the same package
-    without the module runs on the JIT."""
+    without the module runs on the JIT. The kernel without ``aot=``, called from Python there,
+    runs as plain Python (one warning), still without numba."""
     from orchestration.build import compile_kernels
     package = _package(tmp_path / "a", "float64(float64, int64)")
     jitted = _probe(package.parent, tmp_path / "numba")
     assert jitted["type"] == "CPUDispatcher" and jitted["numba"]
     assert compile_kernels(package, cache=tmp_path / "cache", quiet=True) == package / MODULE
     compiled = _probe(package.parent, tmp_path / "numba")
-    assert compiled == {"value": jitted["value"], "type": "builtin_function_or_method", "numba": False}
+    assert compiled == {**jitted, "type": "builtin_function_or_method", "inner_type": "PythonKernel",
+                        "numba": False}
+    assert "_inner is called from Python but has no aot= signature" in capfd.readouterr().err
     again = _package(tmp_path / "b", "float64(float64, int64)")
     assert compile_kernels(again, cache=tmp_path / "cache") == again / MODULE
     assert "compiled kernels" in capfd.readouterr().out                # from the cache

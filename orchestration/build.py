@@ -19,6 +19,14 @@ Start-up: every FMU carries its Python modules' bytecode for the building interp
 (``__pycache__/<module>.<cache tag>.pyc``), hash-checked (PEP 552) so that it stays valid
 whatever time the host's extraction gives the files: a fresh extraction folder needs no
 compilation (about 0.1 s for the flagship's seven FMUs). Another Python version ignores it.
+
+Compiled kernels: the package's numba kernels that Python calls (``@kernel(aot=...)``,
+:mod:`fmus.common.jit`) are compiled ahead of time, once per build, into one extension module
+of the vendored package (``fmus_<hash>/_compiled.<EXT_SUFFIX>``, the same file in every FMU), so
+an FMU's process never imports numba nor compiles (:func:`compile_kernels`). It is kept in
+``build/aot`` under a key of the sources and the toolchain and reused by the next build of the
+same sources. If that compilation fails (or with ``FLEXFUSION_NO_AOT=1``) the build says why
+and goes on: its FMUs compile their kernels with numba at run time, as the working tree does.
 """
 from __future__ import annotations
 
@@ -30,7 +38,9 @@ import marshal
 import os
 import re
 import shutil
+import subprocess
 import sys
+import sysconfig
 import tempfile
 import time
 import zipfile
@@ -38,11 +48,12 @@ from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
-from fmus.common.jit import BUNDLE_ID_FILE, package_digest, package_sources
+from fmus.common.jit import BUNDLE_ID_FILE, COMPILED_MODULE, package_digest, package_sources
 
 REPO = Path(__file__).resolve().parent.parent
 FMU_SOURCES = REPO / "fmus"
 DEFAULT_DEST = REPO / "dist" / "fmus"
+AOT_CACHE = REPO / "build" / "aot"
 # What the FMUs import besides the standard library and the bundled `fmus` package.
 FMU_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11", "numba>=0.60"]
 # What one feature imports when it is used (pyproject's optional dependencies).
@@ -79,6 +90,49 @@ def _stage_package(stage: Path) -> Path:
     (stage / "requirements.txt").write_text("\n".join(FMU_REQUIREMENTS) + "\n")
     (stage / "optional-requirements.txt").write_text("\n".join(FMU_OPTIONAL_REQUIREMENTS) + "\n")
     return target
+
+
+def compile_kernels(package: Path, cache: Path = AOT_CACHE, quiet: bool = False) -> Path | None:
+    """Compile the staged ``package``'s kernels ahead of time into its folder (see the module
+    docstring), or copy them from ``cache``; None, with the reason on stderr, when they cannot
+    be compiled (then the FMUs compile them just in time).
+
+    The compilation runs in a process of its own (the staged package in just-in-time mode:
+    :func:`fmus.common.jit.compile_package`); the cache key is the package's bundle id, the
+    numba and llvmlite versions, the Python ABI and the C compiler (``CC``).
+    """
+    module = COMPILED_MODULE + sysconfig.get_config_var("EXT_SUFFIX")
+    if os.environ.get("FLEXFUSION_NO_AOT"):
+        reason = "FLEXFUSION_NO_AOT is set"
+    else:
+        key = "\0".join([(package / BUNDLE_ID_FILE).read_text().strip(), package.name,
+                         *(importlib.metadata.version(d) for d in ("numba", "llvmlite")),
+                         sys.version, module, os.environ.get("CC", "")])
+        target = cache / hashlib.sha256(key.encode()).hexdigest()[:16] / module
+        t0 = time.perf_counter()
+        if not target.is_file():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryDirectory(dir=target.parent) as out:
+                code = (f"from pathlib import Path; from {package.name}.common import jit; "
+                        f"jit.compile_package(Path({out!r}))")
+                # a numba cache of its own: callees are linked in from their LLVM IR, never
+                # from a JIT run's cached machine code
+                env = {**os.environ, "PYTHONPATH": str(package.parent), "FLEXFUSION_CACHE_DIR": out}
+                env.pop("NUMBA_DISABLE_JIT", None)
+                done = subprocess.run([sys.executable, "-c", code], cwd=package.parent, env=env,
+                                      capture_output=True, text=True)
+                if done.returncode == 0:
+                    os.replace(Path(out) / module, target)      # atomic: builds in parallel
+        if target.is_file():
+            shutil.copy2(target, package / module)
+            if not quiet:
+                print(f"  compiled kernels ({module}) {time.perf_counter() - t0:5.2f} s")
+            return package / module
+        lines = (done.stderr or done.stdout).strip().splitlines()
+        reason = f"compilation failed: {lines[-1] if lines else f'exit status {done.returncode}'}"
+    print(f"flexfusion build: no ahead-of-time kernels ({reason}); the FMUs compile their kernels "
+          "with numba when they run", file=sys.stderr)
+    return None
 
 
 def _vendored(source: str, package: str) -> str:
@@ -206,6 +260,7 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     with tempfile.TemporaryDirectory(prefix="flexfusion_stage_") as tmp, ExitStack() as stack:
         stage = Path(tmp)
         package = _stage_package(stage)
+        compile_kernels(package, quiet=quiet)
         FmuBuilder = stack.enter_context(_installed_builder(package.name))  # noqa: N806 - a class
         for script in scripts:
             if only and not set(only) & names[script]:

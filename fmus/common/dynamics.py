@@ -41,7 +41,7 @@ def spring_scalar(k_hi: float, k_soft: float, delta: float, D: float) -> float:
 _spring_py = getattr(spring_scalar, "py_func", spring_scalar)    # plain Python: no dispatch cost
 
 
-@kernel
+@kernel(aot="float64(float64, float64, float64, float64, float64, boolean)")
 def spring_inverse(k_hi: float, k_soft: float, delta: float, tau: float, D: float, guess: bool) -> float:
     """The deflection ``D`` [rad] of one gearbox spring (``k_hi``, ``k_soft = k_hi - k_lo``
     [N.m/rad], ``delta`` [rad]) carrying the torque ``tau`` [N.m]: Newton's method on
@@ -59,7 +59,7 @@ def spring_inverse(k_hi: float, k_soft: float, delta: float, tau: float, D: floa
     return D
 
 
-@kernel
+@kernel(aot="UniTuple(float64, 2)(float64, float64, float64, float64)")
 def gravity_torques(g1: float, g2: float, q1: float, q2: float) -> tuple[float, float]:
     """Gravity torques of eq. 11 [N.m] on floats (:func:`gravity_torque`): the constants ``g1``,
     ``g2`` of :class:`ArmConstants` [N.m], the arm angles ``q1``, ``q2`` [rad]."""
@@ -67,7 +67,8 @@ def gravity_torques(g1: float, g2: float, q1: float, q2: float) -> tuple[float, 
     return -g1 * math.sin(q1) - g2 * cp, -g2 * cp
 
 
-@kernel
+@kernel(aot="UniTuple(float64, 8)(UniTuple(float64, 8), float64, float64, float64, float64, "
+            "float64[:])")
 def flex_rates(s, tau1: float, tau2: float, fx: float, fz: float, K: np.ndarray) -> tuple:
     """``x_dot`` of the flexible-joint model (eqs. 10-11) as a tuple of 8 floats at the state
     ``s`` (8 floats: ``q_a``, ``q_m``, ``dq_a``, ``dq_m``), with the motor torques ``tau1``,
@@ -113,7 +114,8 @@ def rk4_update(x: np.ndarray, h6: float, k1: tuple, k2: tuple, k3: tuple, k4: tu
         x[i] = x[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
 
 
-@kernel
+@kernel(aot="UniTuple(float64, 8)(UniTuple(float64, 8), float64, float64, float64, float64, "
+            "float64, int64, float64[:])")
 def flex_step(s: tuple, tau1: float, tau2: float, fx: float, fz: float, dt: float, substeps: int,
               K: np.ndarray) -> tuple:
     """``substeps`` RK4 steps over ``dt`` [s] of :func:`flex_rates` from the state ``s`` (8-tuple)
@@ -194,7 +196,7 @@ class ArmConstants:
         """``x_dot`` as a tuple of 8 floats (eqs. 10-11) at the state ``s`` (8 floats, the
         module's ``x``), with the motor torques ``tau1``, ``tau2`` [N.m, motor side] and the
         external tool force ``fx``, ``fz`` [N, world x, z] (:func:`flex_rates`, compiled)."""
-        return flex_rates(s, tau1, tau2, fx, fz, self.packed)
+        return flex_rates(tuple(s), tau1, tau2, fx, fz, self.packed)   # a tuple: its aot= type
 
 
 _CACHE: dict[int, ArmConstants] = {}

@@ -1,9 +1,26 @@
-"""Compiled hot kernels: numba with an on-disk cache that also works inside extracted FMUs.
+"""Compiled hot kernels: ahead of time inside a built FMU, else numba with an on-disk cache that
+also works inside extracted FMUs.
 
-Decorate a kernel with :func:`kernel` (``numba.njit`` with caching) in any module of the
-``fmus`` package. numba's own cache keys a function by the folder of its source file, so a
-kernel inside an FMU, which every host extracts to a fresh folder, would be compiled again in
-every process (about a second per kernel). Here the cache folder is keyed by the *content* of
+Decorate a kernel with :func:`kernel` in any module of the ``fmus`` package; one that Python code
+calls carries its numba signature, ``@kernel(aot="float64(float64[:], float64)")`` (arrays any
+layout, ``float64[:]``, unless the kernel needs C order; a kernel only other kernels call needs
+none: it is compiled into its callers).
+
+Ahead of time (in an FMU): ``flexfusion build`` compiles every kernel with a signature into one
+extension module of the FMU's package, ``_compiled.<EXT_SUFFIX>`` (:func:`compile_package`,
+numba.pycc; export names :func:`export_name`). Where it imports (:func:`compiled_module`),
+:func:`kernel` returns its functions and numba is never imported: a process that runs our FMUs
+saves numba's import and CPU-target initialisation (about 0.5 s, it imports scipy.linalg) and
+any compilation or cache loading. The compiled kernels round as the JIT ones (no fastmath either;
+tests/test_aot.py compares them bit for bit). Called with arguments of other types than its
+signature, a compiled kernel raises TypeError (the JIT would compile another version): callers
+pass one type (e.g. ``np.ascontiguousarray(x, float)``, ``float(v)``, ``tuple(s)``).
+
+Just in time (the working tree, studies, an FMU built with ``FLEXFUSION_NO_AOT=1`` or without the
+module for this Python, which then says so once): ``numba.njit`` with caching. numba's own
+cache keys a function by the folder of its source file, so a kernel inside an FMU, which every
+host extracts to a fresh folder, would be compiled again in every process (about a second per
+kernel). Here the cache folder is keyed by the *content* of
 the package instead: the bundle id that ``orchestration/build.py`` writes into every FMU
 (``BUNDLE_ID``: the hash of all of the package's sources), or the same hash computed over the
 working tree's ``fmus``. So every FMU of one build, every process, and the working tree with the
@@ -22,6 +39,8 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib
+import logging
 import os
 import tempfile
 from pathlib import Path
@@ -29,6 +48,7 @@ from typing import Any, Callable
 
 PACKAGE = Path(__file__).resolve().parent.parent      # ``fmus``, or ``fmus_<hash>`` in an FMU
 BUNDLE_ID_FILE = "BUNDLE_ID"
+COMPILED_MODULE = "_compiled"         # the ahead-of-time kernels' extension module
 
 
 def package_sources(root: Path) -> list[Path]:
@@ -124,6 +144,51 @@ def _register_locator() -> None:
     impl._locator_classes.insert(0, BundleLocator)
 
 
+def export_name(function: Callable) -> str:
+    """The name of the kernel ``function`` (its Python function) in the compiled module: its
+    module's path inside the package and its own name, joined by ``__``
+    (``common.kalman.time_update_kernel`` -> ``common__kalman__time_update_kernel``)."""
+    module = function.__module__.split(".")[1:]
+    return "__".join([*module, function.__name__])
+
+
+@functools.lru_cache(maxsize=None)
+def compiled_module() -> Any:
+    """The package's ahead-of-time compiled kernels (``<package>/_compiled.<EXT_SUFFIX>``, made by
+    :func:`compile_package` at ``flexfusion build``), or None: then the kernels are compiled
+    just in time. A package whose module is there but does not import here (built for another
+    Python or platform) says so once (a logging warning); one built without it (the build said
+    why) and the working tree stay silent."""
+    try:
+        return importlib.import_module(f"{PACKAGE.name}.{COMPILED_MODULE}")
+    except ImportError as exc:
+        if any(PACKAGE.glob(COMPILED_MODULE + ".*")):
+            logging.getLogger(__name__).warning(
+                "%s: its ahead-of-time kernels do not load in this Python (%s): numba compiles them",
+                PACKAGE.name, exc)
+        return None
+
+
+class PythonKernel:
+    """A kernel with no ``aot`` signature (its Python function ``py_func``) in a package that runs
+    its ahead-of-time compiled module: only compiled kernels call it, and they have it compiled
+    in. Called from Python (a missing ``aot=``), it runs as plain Python, with one warning, so
+    that numba stays unimported."""
+
+    def __init__(self, py_func: Callable):
+        self.py_func = py_func
+        functools.update_wrapper(self, py_func)
+        self._warned = False
+
+    def __call__(self, *args: Any) -> Any:
+        if not self._warned:
+            self._warned = True
+            logging.getLogger(__name__).warning(
+                "kernel %s.%s is called from Python but has no aot= signature: it runs as plain "
+                "Python (slow); give it @kernel(aot=...)", self.py_func.__module__, self.py_func.__name__)
+        return self.py_func(*args)
+
+
 def kernel(function: Callable | None = None, *, aot: str | None = None, **options: Any) -> Any:
     """``numba.njit`` with the on-disk cache of this module; ``@kernel`` or ``@kernel(...)``.
 
@@ -133,15 +198,55 @@ def kernel(function: Callable | None = None, *, aot: str | None = None, **option
     compiled without the cache: there is nothing to key it by.
 
     ``aot``: the numba signature of a kernel that Python code calls (e.g.
-    ``"float64(float64[:], float64)"``), for compiling it ahead of time; a kernel that only
-    other kernels call needs none. The just-in-time path compiles lazily and ignores it.
+    ``"float64(float64[:], float64)"``; arrays any layout, ``float64[:]``, unless the kernel
+    needs C order); a kernel that only other kernels call needs none. In a package with a
+    compiled module (:func:`compiled_module`: an FMU built with a C compiler) the decorator
+    returns the ahead-of-time function (numba is never imported) and a kernel without ``aot``
+    a :class:`PythonKernel`; elsewhere the just-in-time dispatcher, with the signature kept as
+    ``aot_signature`` for :func:`compile_package`.
     """
-    import numba
-    _register_locator()
-
     def decorate(fn: Callable) -> Any:
+        compiled = compiled_module()
+        if compiled is not None:
+            return getattr(compiled, export_name(fn)) if aot else PythonKernel(fn)
+        import numba
+        _register_locator()
         cache = os.path.isfile(fn.__code__.co_filename)
         dispatcher = numba.njit(cache=cache, **options)(fn)
         dispatcher.aot_signature = aot
         return dispatcher
     return decorate if function is None else decorate(function)
+
+
+def compile_package(output_dir: Path | None = None) -> list[str]:
+    """Compile every kernel of this package that has an ``aot`` signature into one extension
+    module, ``<output_dir>/_compiled.<EXT_SUFFIX>`` (default: the package's folder), with
+    numba.pycc; needs a C compiler and linker. Run by ``flexfusion build`` in a process of its
+    own (orchestration/build.py); the package must not have a compiled module yet.
+
+    pycc compiles for the generic CPU of the architecture (no host-specific instructions: the
+    FMU runs on any machine of the platform) with numba's defaults, as the JIT does (no
+    ``fastmath``: no contraction into fused multiply-adds), so the compiled kernels round as
+    the JIT ones (the tests compare them bit for bit).
+
+    Returns
+    -------
+    list of str
+        The export names, sorted.
+    """
+    from numba.core.registry import CPUDispatcher
+    from numba.pycc import CC
+    assert compiled_module() is None, "compile_package needs the just-in-time kernels"
+    cc = CC(COMPILED_MODULE, source_module=__name__)
+    cc.output_dir = str(output_dir or PACKAGE)
+    for source in package_sources(PACKAGE):
+        if "@kernel" not in source.read_text():
+            continue
+        module = importlib.import_module(
+            ".".join((PACKAGE.name, *source.relative_to(PACKAGE).with_suffix("").parts)))
+        for value in vars(module).values():
+            if (isinstance(value, CPUDispatcher) and getattr(value, "aot_signature", None)
+                    and value.py_func.__module__ == module.__name__):
+                cc.export(export_name(value.py_func), value.aot_signature)(value.py_func)
+    cc.compile()
+    return sorted(entry.symbol for entry in cc._export_entries)

@@ -47,7 +47,7 @@ class FilterDivergence(FloatingPointError):
 
 
 # ---- kernels (loops: the rounding of the source order, no BLAS) -------------------------------
-@kernel
+@kernel(aot="boolean(float64[:, :], float64[:, :])")
 def cholesky_kernel(S: np.ndarray, L: np.ndarray) -> bool:
     """Write the lower Cholesky factor of the symmetric ``S`` into ``L`` (zero above the
     diagonal on entry); False if a pivot is not positive (``S`` not positive definite, or NaN)."""
@@ -68,7 +68,7 @@ def cholesky_kernel(S: np.ndarray, L: np.ndarray) -> bool:
     return True
 
 
-@kernel
+@kernel(aot="int64(float64[:], float64[:, :], boolean)")
 def estimate_status_kernel(x: np.ndarray, P: np.ndarray, definite: bool) -> int:
     """:data:`OK`, or :data:`NOT_FINITE` / :data:`NOT_PD` for the state ``x`` and covariance ``P``
     (positive definiteness tested only with ``definite``)."""
@@ -116,7 +116,8 @@ def _sandwich(A: np.ndarray, P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     return out
 
 
-@kernel
+@kernel(aot="Tuple((float64[:], float64[:, :], float64, int64))(float64[:], float64[:, :], "
+            "float64[:], float64[:, :], float64[:, :])")
 def measurement_update_kernel(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
                               R: np.ndarray) -> tuple:
     """The update of the module docstring (arguments as :func:`measurement_update`: prior ``x``,
@@ -174,7 +175,7 @@ def measurement_update_kernel(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: n
     return xf, Pf, nis, estimate_status_kernel(xf, Pf, True)
 
 
-@kernel
+@kernel(aot="Tuple((float64[:, :], int64))(float64[:, :], float64[:, :], float64[:, :], boolean)")
 def time_update_kernel(F: np.ndarray, P: np.ndarray, Q: np.ndarray, definite: bool) -> tuple:
     """``(F P F^T + Q symmetrised, status)`` (the module docstring); positive definiteness
     tested only with ``definite``."""
@@ -182,7 +183,8 @@ def time_update_kernel(F: np.ndarray, P: np.ndarray, Q: np.ndarray, definite: bo
     return Pp, estimate_status_kernel(np.zeros(1), Pp, definite)
 
 
-@kernel
+@kernel(aot="Tuple((float64[:], float64[:, :], int64))(float64[:], float64[:, :], float64[:, :], "
+            "float64[:, :], float64[:], float64[:, :], boolean)")
 def linear_time_update_kernel(x: np.ndarray, P: np.ndarray, F: np.ndarray, B: np.ndarray,
                               u: np.ndarray, Q: np.ndarray, definite: bool) -> tuple:
     """``(F x + B u, F P F^T + Q symmetrised, status)``; positive definiteness tested only

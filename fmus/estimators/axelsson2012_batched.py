@@ -60,7 +60,8 @@ def _rows(X, S, D, k, use_accelerometer, use_bias, Y, H):
             jacobian_into(S[i], k, use_accelerometer, use_bias, D[i, 0], D[i, 1], H[i])
 
 
-@kernel
+@kernel(aot="none(float64[:, :], float64[:], boolean, boolean, boolean, float64[:, :], "
+            "float64[:, :], float64[:, :, :], float64[:, :])")
 def measure_many(X, k, use_accelerometer, use_bias, bound_stop, D0, Y, H, D):
     """``h(x)`` (eq. 15) into ``Y`` (N, m) and, unless ``H`` is None, ``H = dh/dx`` (eq. 4c)
     into ``H`` (N, m, n) (zero outside the entries written here: the caller's), for the rows of
@@ -117,9 +118,9 @@ class BatchedMeasurement:
         X = np.ascontiguousarray(X, dtype=float)
         N, L = X.shape[0], self.layout
         Y, D = np.empty((N, L.m)), np.full((N, 2), np.nan)      # D: Newton starts cold
-        H = np.zeros((N, L.m, L.n)) if jacobian else None
+        H = np.zeros((N, L.m, L.n))        # also without ``jacobian``: one type, measure_many's aot=
         measure_many(X, self.meas.constants, *self.meas.switches, False, D, Y, H, D)
-        return Y, H, D
+        return Y, H if jacobian else None, D
 
     def h(self, X: np.ndarray) -> np.ndarray:
         """``h(x)`` (N, m) for the rows of ``X`` (N, n)."""

@@ -297,7 +297,7 @@ def arm_torque_jacobian_into(s: tuple, k: np.ndarray, w0: float, w1: float, J: n
     J[1, 5] = w1 * k[K_C]
 
 
-@kernel
+@kernel(aot="float64[:, :](float64[:], float64[:])")
 def arm_torque_jacobian_kernel(x: np.ndarray, k: np.ndarray) -> np.ndarray:
     """``d tau_a / d(q, dq, ddq)`` (2, 6) of eq. 11 at the state ``x``
     (:func:`arm_torque_jacobian_into`); ``k`` the model's constants."""
@@ -343,7 +343,7 @@ def specific_force_jacobian_into(s: tuple, k: np.ndarray, J: np.ndarray, row: in
     J[x_, 5], J[z_, 5] = Sv0, Sv1
 
 
-@kernel
+@kernel(aot="Tuple((float64[:], float64[:, :]))(float64[:], float64[:])")
 def specific_force_kernel(x: np.ndarray, k: np.ndarray) -> tuple:
     """The accelerometer reading (sensor x, z) of eqs. 17-19 and its Jacobian
     ``d f / d(q, dq, ddq)`` (2, 6) at the state ``x`` (:func:`specific_force_into`,
@@ -474,7 +474,7 @@ def jacobian_into(s: tuple, k: np.ndarray, use_accelerometer: bool, use_bias: bo
             H[3, 9] = 1.0
 
 
-@kernel
+@kernel(aot="Tuple((float64[:], float64[:, :]))(float64[:], float64[:], boolean, boolean)")
 def measurement_kernel(x: np.ndarray, k: np.ndarray, use_accelerometer: bool, use_bias: bool) -> tuple:
     """``h(x)`` of eq. 15 and its Jacobian ``H`` (eq. 4c) for the layout of the two switches
     ``use_accelerometer`` and ``use_bias`` (:class:`Layout`), ``k`` the constants

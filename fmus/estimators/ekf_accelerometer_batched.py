@@ -40,7 +40,8 @@ class Estimate(NamedTuple):
     u: np.ndarray                # (runs, 2)
 
 
-@kernel
+@kernel(aot="Tuple((float64[:, :], float64[:, :, :], float64[:], int64[:]))(float64[:, :], "
+            "float64[:, :, :], float64[:, :], float64[:, :], float64[:], boolean, boolean)")
 def _filtered_runs(x: np.ndarray, P: np.ndarray, y: np.ndarray, R: np.ndarray, k: np.ndarray,
                    use_accelerometer: bool, use_bias: bool) -> tuple:
     """:func:`~fmus.estimators.ekf_accelerometer_model.filtered_kernel` for each run."""
@@ -52,7 +53,8 @@ def _filtered_runs(x: np.ndarray, P: np.ndarray, y: np.ndarray, R: np.ndarray, k
     return xf, Pf, nis, status
 
 
-@kernel
+@kernel(aot="Tuple((float64[:, :], float64[:, :, :], int64[:]))(float64[:, :], float64[:, :, :], "
+            "float64[:, :], float64[:, :], float64[:, :], float64[:, :, :])")
 def _predicted_runs(x: np.ndarray, P: np.ndarray, F: np.ndarray, Gu: np.ndarray, u: np.ndarray,
                     GQG: np.ndarray) -> tuple:
     """:func:`fmus.common.kalman.linear_time_update_kernel` for each run (``GQG`` per run)."""

@@ -20,7 +20,8 @@ from fmus.estimators.axelsson2012_model import (Q_, EkfAccelerometerParameters, 
 
 
 # ---- the filter (eq. 3), compiled ---------------------------------------------------------
-@kernel
+@kernel(aot="Tuple((float64[:], float64[:, :], float64, int64))(float64[:], float64[:, :], "
+            "float64[:], float64[:, :], float64[:], boolean, boolean)")
 def filtered_kernel(x: np.ndarray, P: np.ndarray, y: np.ndarray, R: np.ndarray, k: np.ndarray,
                     use_accelerometer: bool, use_bias: bool) -> tuple:
     """Eq. 3b at the prior ``x, P`` for the measurement ``y`` with the noise ``R``: the model's

@@ -170,7 +170,7 @@ def effective_sample_size(w: np.ndarray) -> float:
     return float(1.0 / np.dot(w, w))
 
 
-@kernel
+@kernel(aot="int64[:](float64[:], float64)")
 def systematic_resample(w: np.ndarray, u: float) -> np.ndarray:
     """Indices (N,) of systematic resampling (Algorithm 1, step 3) of the particles with the
     weights ``w`` (N,), non-negative and normalised here by their sum, with one uniform ``u`` in
@@ -194,7 +194,7 @@ def systematic_resample(w: np.ndarray, u: float) -> np.ndarray:
     return idx
 
 
-@kernel
+@kernel(aot="Tuple((float64[:], float64[:, :]))(float64[:, :], float64[:])")
 def weighted_mean_cov(X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The MMSE estimate ``sum g_i x_i`` (eq. 6) and the weighted covariance
     ``sum g_i (x_i - x_hat)(x_i - x_hat)^T`` of the particles ``X`` (N, n) with the normalised
@@ -266,7 +266,8 @@ def kernel_move(X: np.ndarray, x: np.ndarray, P: np.ndarray, h: float, Z: np.nda
     return out
 
 
-@kernel
+@kernel(aot="none(float64[:, :], int64[:], float64[:], float64[:, :], float64, float64, "
+            "float64[:, :], float64[:, :])")
 def _move(X, idx, x, S, a, c, Z, out):
     """``out_j = a X_idx_j + (1 - a) x + c S z_j`` (:func:`kernel_move`), row by row."""
     n = X.shape[1]
@@ -279,7 +280,8 @@ def _move(X, idx, x, S, a, c, Z, out):
             out[j, p] = a * X[i, p] + (1.0 - a) * x[p] + c * s
 
 
-@kernel
+@kernel(aot="none(float64[:, :], float64[:, :], float64[:], float64[:], float64[:], float64[:, "
+            ":], boolean, float64[:], boolean, boolean, float64[:, :], float64[:, :], float64[:])")
 def propose_and_weigh(M, L, logw_prev, y, r_inv, Z, ekf, k_model, use_accelerometer, use_bias, D, X, logw):
     """Algorithm 1, steps 2 and 4, in one compiled call over the particles: sample
     ``x_i = m_i + L e_i`` from the proposal and weight it (the module docstring's formulas).

@@ -51,7 +51,7 @@ def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = False) 
     return _compensated(m1, m2, k.static)
 
 
-@kernel
+@kernel(aot="UniTuple(float64, 2)(float64, float64, float64[:])")
 def _compensated(m1: float, m2: float, K: np.ndarray) -> tuple[float, float]:
     """The fixed point of :func:`arm_angles` from ``q_m / r = (m1, m2)``, with the constants
     ``K`` of :attr:`fmus.common.dynamics.ArmConstants.static`."""

@@ -340,7 +340,7 @@ class MotionControlModel:
 
 
 # ---- the run-time law, compiled ----------------------------------------------------------------
-@kernel
+@kernel(aot="none(float64[:, :], float64, float64, float64[:])")
 def _table_row(table, dt, t, row):
     """Row of the reference ``table`` (resolution ``dt``) at time ``t`` into ``row``: linear
     interpolation, held before 0 and after the end (:meth:`MotionControlModel.sample`)."""
@@ -356,7 +356,7 @@ def _table_row(table, dt, t, row):
             row[c] = r0 + (x - i) * (table[i + 1, c] - r0)
 
 
-@kernel
+@kernel(aot="UniTuple(float64, 2)(float64[:], float64, float64, float64, float64)")
 def _offset_arm_angles(row, dp0, dp1, l1, l2):
     """Change of the arm reference of the table ``row`` that moves the tool by ``(dp0, dp1)``
     (m): the tabulated inverse Jacobian, then one exact Newton step of the forward kinematics
@@ -376,7 +376,8 @@ def _offset_arm_angles(row, dp0, dp1, l1, l2):
 
 
 # constants of the law (MotionController._k): kp, kd, kp / ti, tau_max, gear ratios (2 each), l1, l2
-@kernel
+@kernel(aot="boolean(float64[:, :], float64, float64, boolean, float64[:], float64[:], "
+            "float64[:], float64[:], float64[:], float64[:], float64[:], float64[:])")
 def _control_law(table, dt, t, resample, row, q_m, dq_m, dp, excitation, integral, k, out):
     """:meth:`MotionController.evaluate` on floats: the ``row`` at ``t`` (when ``resample``),
     the references moved by the offset ``dp``, the error and the limited PID torque, into

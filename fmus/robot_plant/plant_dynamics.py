@@ -112,7 +112,8 @@ def _spring4(P, i, D):
     return dynamics.spring_scalar(P[4 + i], P[6 + i], P[8 + i], D)
 
 
-@kernel
+@kernel(aot="UniTuple(UniTuple(float64, 4), 5)(UniTuple(float64, 12), float64, float64, "
+            "float64[:])")
 def _chain4(s, fx, fz, P):
     """:meth:`PlantChain.arm` of the four-body chain, written out (LDL^T solve of the 4x4
     system): the absolute angles' sines, cosines, rates and accelerations, and the joint
@@ -167,7 +168,8 @@ def _chain4(s, fx, fz, P):
     return (s1, s2, s3, s4), (c1, c2, c3, c4), (w1, w2, w3, w4), (a1, a2, a3, a4), (t1, t2, t3, t4)
 
 
-@kernel
+@kernel(aot="UniTuple(float64, 12)(UniTuple(float64, 12), float64, float64, float64, float64, "
+            "float64[:])")
 def _chain4_rates(s, tau1, tau2, fx, fz, P):
     """:meth:`PlantChain.derivatives` of the four-body chain: ``x_dot`` as a 12-tuple."""
     _, _, _, A, T = _chain4(s, fx, fz, P)
@@ -180,7 +182,8 @@ def _chain4_rates(s, tau1, tau2, fx, fz, P):
     return (s[6], s[7], s[8], s[9], s[10], s[11], a1, a2 - a1, a3 - a2, a4 - a3, ddqm1, ddqm2)
 
 
-@kernel
+@kernel(aot="UniTuple(float64, 12)(UniTuple(float64, 12), float64, float64, float64, float64, "
+            "float64, int64, float64[:])")
 def chain4_step(s, tau1, tau2, fx, fz, dt, substeps, P):
     """``substeps`` RK4 steps over ``dt`` [s] of the four-body chain from the state ``s``
     (12-tuple), the motor torques ``tau1``, ``tau2`` [N m] and the tool force ``fx``, ``fz`` [N]
@@ -204,7 +207,7 @@ def chain4_step(s, tau1, tau2, fx, fz, dt, substeps, P):
     return (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
 
 
-@kernel
+@kernel(aot="UniTuple(float64, 24)(UniTuple(float64, 12), float64, float64, float64[:])")
 def chain4_outputs(s, fx, fz, P):
     """:meth:`PlantChain.outputs` of the four-body chain (24 floats, the same operations) at the
     state ``s`` with the tool force ``fx``, ``fz`` [N]; ``P`` the chain's constants."""

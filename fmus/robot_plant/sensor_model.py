@@ -97,7 +97,8 @@ def quantise(x: np.ndarray, resolution: np.ndarray | float) -> np.ndarray:
 _GAIN, _BIAS, _RW, _NOISE, _RES, _LIM = range(6)
 
 
-@kernel
+@kernel(aot="none(float64[:], float64[:, :], float64[:], int64, boolean, boolean, boolean, "
+            "float64[:, :], float64[:], float64[:], float64[:], float64[:], boolean[:])")
 def _channels_kernel(x, z, coef, order, reset, sample, noisy, table, walk, rw_draw, noise_draw, out,
                      saturated):
     """One step of :class:`SensorChannels` (its steps 1 and 3-7) on flat arrays, the numbers of

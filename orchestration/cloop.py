@@ -3,7 +3,7 @@ compiler and loaded with ctypes (:func:`library`), and its arguments built from 
 slots (:class:`CLoop`).
 
 The library is compiled on first use, once per content of the source and the flags, into
-``<cache root>/loop/<hash>/`` (:func:`cache_root`; about 0.1 s of gcc): not at
+``<cache root>/loop/<hash>/`` (:func:`fmus.common.disk_cache.cache_root`; about 0.1 s of gcc): not at
 ``flexfusion build``, so a run with FMUs built elsewhere, or a fresh cache, still gets it, and
 the FMU build stays the FMUs'. A new library is compiled to a temporary name and renamed, so
 parallel processes never load half a file.
@@ -25,6 +25,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+
+from fmus.common import disk_cache
 
 SOURCE = Path(__file__).with_name("cosim_loop.c")
 # no -ffast-math: the loop's NaN test (x != x) must stay
@@ -85,23 +87,12 @@ def library() -> Any:
     return lib
 
 
-def cache_root() -> Path:
-    """FlexFusion's cache folder, the one of the kernels' cache (:func:`fmus.common.jit.cache_dir`
-    is ``<root>/numba/<bundle>``; tests/test_cosim_loop.py holds them equal), found here again:
-    a run imports nothing of the working tree's ``fmus``, only the FMUs' own copies
-    (tests/test_fmi_run.py)."""
-    base = os.environ.get("FLEXFUSION_CACHE_DIR")
-    if not base:
-        base = os.path.join(os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache"), "flexfusion")
-    return Path(base)
-
-
 def _compiled() -> Path:
     """The library compiled from ``cosim_loop.c``: the cached one, or compiled now."""
     digest = hashlib.sha256(SOURCE.read_bytes())
     digest.update("\0".join([*CFLAGS, sys.platform, os.uname().machine]).encode())
     key = Path("loop") / digest.hexdigest()[:16] / LIBRARY_NAME
-    for root in (cache_root(), Path(tempfile.gettempdir()) / f"flexfusion-{os.getuid()}"):
+    for root in (disk_cache.cache_root(), Path(tempfile.gettempdir()) / f"flexfusion-{os.getuid()}"):
         target = root / key
         if target.is_file():
             return target
@@ -118,7 +109,7 @@ def _compiled() -> Path:
             if os.path.exists(tmp):
                 os.unlink(tmp)
         return target
-    raise OSError(f"no writable cache folder for the C loop ({cache_root()})")
+    raise OSError(f"no writable cache folder for the C loop ({disk_cache.cache_root()})")
 
 
 def _compile(out: str) -> None:

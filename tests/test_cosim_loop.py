@@ -196,15 +196,3 @@ def test_without_a_compiler_or_when_asked_the_python_loop_runs(tmp_path, monkeyp
         assert cloop.library() is None and "FLEXFUSION_PYTHON_LOOP" in cloop.unavailable()
     finally:
         cloop.library.cache_clear()
-
-
-@pytest.mark.parametrize("env", [{}, {"XDG_CACHE_HOME": "/x/cache"}, {"FLEXFUSION_CACHE_DIR": "/y/ff"},
-                                 {"XDG_CACHE_HOME": "/x/cache", "FLEXFUSION_CACHE_DIR": "/y/ff"}])
-def test_the_loop_is_cached_in_the_kernels_cache_folder(monkeypatch, env):
-    """cloop keeps its own copy of the cache root (a run imports nothing of the tree's fmus)."""
-    from fmus.common.jit import cache_dir
-    for name in ("XDG_CACHE_HOME", "FLEXFUSION_CACHE_DIR"):
-        monkeypatch.delenv(name, raising=False)
-    for name, value in env.items():
-        monkeypatch.setenv(name, value)
-    assert cloop.cache_root() == cache_dir().parent.parent      # <root>/numba/<bundle>

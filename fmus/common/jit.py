@@ -46,6 +46,8 @@ import tempfile
 from pathlib import Path
 from typing import Any, Callable
 
+from fmus.common.disk_cache import cache_root
+
 PACKAGE = Path(__file__).resolve().parent.parent      # ``fmus``, or ``fmus_<hash>`` in an FMU
 BUNDLE_ID_FILE = "BUNDLE_ID"
 COMPILED_MODULE = "_compiled"         # the ahead-of-time kernels' extension module
@@ -81,13 +83,9 @@ def bundle_id() -> str:
 
 def cache_dir() -> Path:
     """The folder holding the compiled kernels of this package's sources (see the module doc)."""
-    base = os.environ.get("FLEXFUSION_CACHE_DIR")
-    if not base:
-        xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-        base = os.path.join(xdg, "flexfusion")
     # the package's name too: an FMU's copy (``fmus_<hash>``, imports rewritten) and the working
     # tree (``fmus``) have one bundle id but different source files
-    return Path(base) / "numba" / f"{bundle_id()[:16]}-{PACKAGE.name}"
+    return cache_root() / "numba" / f"{bundle_id()[:16]}-{PACKAGE.name}"
 
 
 def _writable(path: Path) -> bool:

@@ -400,6 +400,42 @@ def _control_law(table, dt, t, resample, row, q_m, dq_m, dp, excitation, integra
     return saturated
 
 
+@kernel(aot="void(float64[:], float64[:], boolean, float64)")
+def _integrate(integral, out, saturated, dt):
+    """:meth:`MotionController.advance`: the integral of the error ``out[6:8]`` over ``dt``, not
+    in the wind-up direction ``out[10:12]`` of a limit that acted (the same numbers)."""
+    for i in range(2):
+        e = out[6 + i]
+        if not saturated:
+            integral[i] += e * dt
+        elif out[10 + i] * e > 0:
+            integral[i] += 0.0
+        else:
+            integral[i] += e * dt
+
+
+@kernel(aot="boolean(float64[:, :], float64, float64, float64, boolean, float64[:], float64[:], "
+            "float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], float64[:], "
+            "float64[:], int64[:], int64[:])")
+def _control_step(table, dt, t, h, resample, row, q_m, dq_m, dp, excitation, excitation_next, integral, k,
+                  out, dest, law_at, row_at):
+    """:meth:`MotionController.step` in one call: the law at ``t`` (``resample``: a new row),
+    the integral over ``h``, the law at ``t + h`` (with ``excitation_next``); then the results
+    ``out[i]`` (``i < law_at.size``) into ``dest[law_at[i]]`` and the row's column ``c`` into
+    ``dest[row_at[c]]`` where that is not negative. Returns whether the limit acted at ``t + h``."""
+    saturated = _control_law(table, dt, t, resample, row, q_m, dq_m, dp, excitation, integral, k, out)
+    _integrate(integral, out, saturated, h)
+    t_next = t + h
+    saturated = _control_law(table, dt, t_next, t_next != t, row, q_m, dq_m, dp, excitation_next, integral,
+                             k, out)
+    for i in range(law_at.size):
+        dest[law_at[i]] = out[i]
+    for c in range(row.size):
+        if row_at[c] >= 0:
+            dest[row_at[c]] = row[c]
+    return saturated
+
+
 class MotionController:
     """The motion controller's run-time state: references, PID law, integral of the error.
 
@@ -488,12 +524,27 @@ class MotionController:
 
     def advance(self, dt: float) -> None:
         """Integrate the error of the last :meth:`evaluate` over ``dt`` (not while it would wind up)."""
-        error = self.error
-        if not self._saturated:
-            self.integral += error * dt
-        else:
-            grow = self._out[10:12] * error > 0          # the wind-up direction of the last limit
-            self.integral += np.where(grow, 0.0, error * dt)
+        _integrate(self.integral, self._out, self._saturated, dt)
+
+    def step(self, t: float, dt: float, q_m: np.ndarray, dq_m: np.ndarray, dp_ref: np.ndarray,
+             dest: np.ndarray, law_at: np.ndarray, row_at: np.ndarray) -> None:
+        """One communication step of a sampled controller in one compiled call, the numbers of
+        ``evaluate(t, ...)``, ``advance(dt)``, ``evaluate(t + dt, ...)``: the torque and the
+        integral for the measurement ``(q_m, dq_m)`` (float arrays) set at ``t``, then the
+        references at ``t + dt`` with it. The results are also written into ``dest``: result
+        ``i`` of :attr:`q_a_ref`, :attr:`q_m_ref`, :attr:`p_ref`, :attr:`error`, :attr:`tau`
+        (in this order, 2 each) at ``law_at[i]``, the row's column ``c`` at ``row_at[c]``
+        unless negative (int64 arrays; an adapter's output buffer)."""
+        m = self.model
+        resample = t != self._row_t
+        excitation = excitation_next = self._excitation
+        if self.excitation is not None:
+            excitation, excitation_next = self.excitation(t), self.excitation(t + dt)
+        self._saturated = _control_step(m.table, m.dt, t, dt, resample, self.row, q_m, dq_m, dp_ref,
+                                        excitation, excitation_next, self.integral, self._k, self._out,
+                                        dest, law_at, row_at)
+        self._row_t = t + dt
+        self._excitation = excitation_next
 
 
 class Multisine:

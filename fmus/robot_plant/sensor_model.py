@@ -20,7 +20,7 @@ import numpy as np
 
 from fmus.common.frames import G, rot_rpy, sensor_rotation
 from fmus.common.jit import kernel
-from fmus.common.noise import BlockNormals, make_rng, reseed_param, reseeded_rng
+from fmus.common.noise import make_rng, reseed_param, reseeded_rng
 from fmus.common.parameters import ParameterError, param
 from fmus.common.sample_time import UNSTAMPED, measurement_time
 
@@ -97,7 +97,8 @@ def quantise(x: np.ndarray, resolution: np.ndarray | float) -> np.ndarray:
 _GAIN, _BIAS, _RW, _NOISE, _RES, _LIM = range(6)
 
 
-@kernel
+@kernel(aot="void(float64[:], float64[:, :], float64[:], int64, boolean, boolean, boolean, float64[:, :], "
+            "float64[:], float64[:], float64[:], float64[:], boolean[:])")
 def _channels_kernel(x, z, coef, order, reset, sample, noisy, table, walk, rw_draw, noise_draw, out,
                      saturated):
     """One step of :class:`SensorChannels` (its steps 1 and 3-7) on flat arrays, the numbers of
@@ -145,10 +146,37 @@ def _channels_kernel(x, z, coef, order, reset, sample, noisy, table, walk, rw_dr
             out[k] = y
 
 
+# SensorChannels' step counters (an int array the kernel keeps): steps since the last sample,
+# steps per sample, the next row of the drawn random numbers, whether the low-pass has started
+_COUNT, _PERIOD, _ROW, _STARTED = range(4)
+
+
+@kernel(aot="boolean(float64[:], float64[:, :], float64[:], int64, float64[:, :], float64[:], float64[:], "
+            "boolean[:], float64[:, :], float64[:, :], int64[:])")
+def _channels_step(x, z, coef, order, table, walk, out, saturated, rw_rows, noise_rows, state):
+    """:meth:`SensorChannels.step` after its checks, in one call: the low-pass (started in
+    steady state at its first step), and at a sample (``state[_COUNT]`` 0) a reading into ``out``
+    with the next row of the drawn standard normal numbers ``rw_rows`` and ``noise_rows``
+    (:func:`_channels_kernel`); then the counters move on. Returns whether it sampled."""
+    sample = state[_COUNT] == 0
+    reset = order > 0 and state[_STARTED] == 0
+    if order > 0:
+        state[_STARTED] = 1
+    if sample:
+        row = state[_ROW]
+        state[_ROW] = row + 1
+        _channels_kernel(x, z, coef, order, reset, True, True, table, walk, rw_rows[row], noise_rows[row],
+                         out, saturated)
+    else:
+        _channels_kernel(x, z, coef, order, reset, False, False, table, walk, walk, walk, out, saturated)
+    state[_COUNT] = (state[_COUNT] + 1) % state[_PERIOD]
+    return sample
+
+
 class SensorChannels:
     """``n`` sensor channels with the usual imperfections.
 
-    One compiled kernel (:func:`_channels_kernel`) steps every channel; the state is held in
+    One compiled call (:func:`_channels_step`) steps every channel; the state is held in
     arrays of shape :attr:`shape` (``(n,)``; the batched study engine's subclass
     :class:`~fmus.robot_plant.sensor_batched.RunSensorChannels`: ``(runs, n)``), so one
     definition serves both paths.
@@ -167,11 +195,14 @@ class SensorChannels:
 
     :attr:`t_meas` is the time stamp of the held reading: the ``time`` given with the input
     that was sampled (:func:`input_time` in the FMUs). Each sample is a new :attr:`output`
-    array (a caller may keep it).
+    array (a caller may keep it), unless ``out`` is given: then every reading is written into
+    that array (an FMU's output), which :attr:`output` is.
 
     Every parameter is a scalar or a length-``n`` array. The white noise and the random walk use
-    independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``;
-    :meth:`reseed` restarts both from another seed (:mod:`fmus.common.noise`).
+    independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``, drawn
+    ahead in blocks of :attr:`BLOCK` samples (one draw of ``k n`` numbers is ``k`` draws of
+    ``n``: :class:`fmus.common.noise.BlockNormals`); :meth:`reseed` restarts both from another
+    seed (:mod:`fmus.common.noise`).
 
     Parameters
     ----------
@@ -179,13 +210,18 @@ class SensorChannels:
         Order of the anti-aliasing Butterworth low-pass, 1 or 2.
     names
         FMU parameter names used in error messages, keys ``"sample_rate"`` and ``"cutoff"``.
+    out
+        Float array of ``n`` the readings are written into, or None (a new array per sample).
     """
+
+    BLOCK = 256       # samples per draw of the random numbers
 
     def __init__(self, n: int, *, seed: int = 0, stream: str = "", noise: float | Sequence[float] = 0.0,
                  bias: float | Sequence[float] = 0.0, bias_rw: float | Sequence[float] = 0.0,
                  scale: float | Sequence[float] = 0.0, resolution: float | Sequence[float] = 0.0,
                  range: float | Sequence[float] = math.inf, sample_rate: float = 0.0,  # noqa: A002
-                 cutoff: float = 0.0, filter_order: int = 2, names: dict[str, str] | None = None) -> None:
+                 cutoff: float = 0.0, filter_order: int = 2, names: dict[str, str] | None = None,
+                 out: np.ndarray | None = None) -> None:
         def vec(v: float | Sequence[float]) -> np.ndarray:
             return np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy()
 
@@ -197,21 +233,24 @@ class SensorChannels:
         if self.filter_order not in (1, 2):
             raise ValueError(f"filter order must be 1 or 2, got {filter_order}")
         self.stream = stream
-        self._rng_noise = BlockNormals(make_rng(seed, f"{stream}/noise"), n)
-        self._rng_rw = BlockNormals(make_rng(seed, f"{stream}/bias_rw"), n)
-        # the kernel's per-channel constants; the walk's row is set with the step (_check_period)
+        self._rng_noise = make_rng(seed, f"{stream}/noise")
+        self._rng_rw = make_rng(seed, f"{stream}/bias_rw")
+        # the kernel's per-channel constants; the walk's row is set with the step (_prepare)
         self._table = np.array([1.0 + self.scale, self.bias, np.zeros(n), self.noise, self.resolution,
                                 self._limit()])
         self._coef = np.zeros(5)                 # b0, b1, b2, a1, a2 of the low-pass
         self._order = 0                          # of the designed low-pass; 0: none
         self._dt_filter = None
-        self._filter_ready = False
         self._dt_sample = None
-        self._dt_walk = None
-        self._period_steps = 1
-        self._count = 0                          # steps since the last sample
+        self._dt = None                          # the step the checks, design and walk scale are for
+        self._state = np.zeros(4, dtype=np.int64)
+        self._state[_PERIOD] = 1
         self.t_meas = math.nan                   # the held reading's time stamp
+        self._bound = out is not None
         self._allocate((n,))
+        if out is not None:
+            self.output = out
+        self._rw_rows = self._noise_rows = np.empty((0, n))     # drawn at the first step
 
     def _allocate(self, shape: tuple[int, ...]) -> None:
         """The state arrays for readings of ``shape``: :attr:`walk` (the bias random walk),
@@ -222,11 +261,22 @@ class SensorChannels:
         self._z = np.zeros((2, self.walk.size))  # filter state (direct form II transposed)
 
     # -- pieces ------------------------------------------------------------------------------
+    def _rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """The next :attr:`BLOCK` samples' standard normal numbers of the walk and the noise
+        streams, one row (of every channel's number) per sample."""
+        return (self._rng_rw.standard_normal((self.BLOCK, self.n)),
+                self._rng_noise.standard_normal((self.BLOCK, self.n)))
+
+    def _draw(self) -> None:
+        self._rw_rows, self._noise_rows = self._rows()
+        self._state[_ROW] = 0
+
     def reseed(self, seed: int) -> None:
         """Draw the noise and the bias walk from now on from ``seed``'s reseeded streams
         (:func:`fmus.common.noise.reseeded_rng`); every other state carries on."""
-        self._rng_noise = BlockNormals(reseeded_rng(seed, f"{self.stream}/noise"), self.n)
-        self._rng_rw = BlockNormals(reseeded_rng(seed, f"{self.stream}/bias_rw"), self.n)
+        self._rng_noise = reseeded_rng(seed, f"{self.stream}/noise")
+        self._rng_rw = reseeded_rng(seed, f"{self.stream}/bias_rw")
+        self._draw()
 
     def _limit(self) -> np.ndarray:
         """The largest representable magnitude (range rounded down to the resolution)."""
@@ -260,35 +310,27 @@ class SensorChannels:
                     f"period {1.0 / self.sample_rate:g} s is not an integer multiple of the "
                     f"communication step {dt:g} s")
         if self._dt_sample is not None:
-            self._count %= n_steps
-        self._period_steps = n_steps
+            self._state[_COUNT] %= n_steps
+        self._state[_PERIOD] = n_steps
         self._dt_sample = dt
 
-    def _run(self, x: np.ndarray, dt: float, sample: bool, noisy: bool) -> None:
-        """Call the kernel: the filter (when ``dt`` is given and a cut-off set) and, with
-        ``sample``, a new :attr:`output` (``noisy``: with a step of the walk and the noise)."""
-        x = np.asarray(x, dtype=float)
-        flat = len(self.shape) == 1                 # one sensor: no views to make
-        if x.ndim != 1:
-            x = np.ascontiguousarray(x).reshape(-1)
-        order, reset = 0, False
-        if dt and self.cutoff > 0.0:
-            if self._dt_filter is None or abs(dt - self._dt_filter) > 1e-12 * dt:
-                self._design(dt)
-            order, reset = self._order, not self._filter_ready
-            self._filter_ready = True
-        walk, saturated = self.walk, self.saturated
-        if not flat:                             # views made per call: a copied state keeps no stale view
-            walk, saturated = walk.reshape(-1), saturated.reshape(-1)
-        rw = noise = out = walk                  # placeholders where nothing is drawn or formed
-        if sample:
-            out = self.output = np.empty(self.shape)
-            if noisy:
-                rw, noise = self._rng_rw.standard_normal(self.n), self._rng_noise.standard_normal(self.n)
-            if not flat:
-                out, rw, noise = out.reshape(-1), rw.reshape(-1), noise.reshape(-1)
-        _channels_kernel(x, self._z, self._coef, order, reset, sample, noisy, self._table, walk, rw,
-                         noise, out, saturated)
+    def _prepare(self, dt: float) -> None:
+        """For steps of ``dt`` (one not seen at the last step): the sample period's check, the
+        low-pass designed (within 1e-12 of the step it has, it stays) and the walk's scale
+        over one sample period."""
+        self._check_period(dt)
+        if self.cutoff > 0.0 and (self._dt_filter is None or abs(dt - self._dt_filter) > 1e-12 * dt):
+            self._design(dt)
+        self._table[_RW] = self.bias_rw * np.sqrt(self._state[_PERIOD] * dt)
+        self._dt = dt
+        if self._state[_ROW] == len(self._rw_rows):
+            self._draw()
+
+    def _flat(self, x: np.ndarray) -> np.ndarray:
+        """``x`` as the kernels take it: a 1-D float array (a view where it can be)."""
+        if type(x) is not np.ndarray or x.ndim != 1 or x.dtype != np.float64:
+            x = np.ascontiguousarray(x, dtype=float).reshape(-1)
+        return x
 
     # -- use ---------------------------------------------------------------------------------
     def initial(self, x: np.ndarray, time: float = 0.0) -> np.ndarray:
@@ -296,7 +338,11 @@ class SensorChannels:
         saturation of ``x`` (no noise); the filter will start in steady state at the first
         step's input."""
         self.t_meas = float(time)
-        self._run(x, 0.0, True, False)
+        if not self._bound:
+            self.output = np.empty(self.shape)
+        walk = self.walk.reshape(-1)
+        _channels_kernel(self._flat(x), self._z, self._coef, 0, False, True, False, self._table, walk, walk,
+                         walk, self.output.reshape(-1), self.saturated.reshape(-1))
         return self.output
 
     def step(self, x: np.ndarray, dt: float, time: float = math.nan) -> np.ndarray:
@@ -309,16 +355,22 @@ class SensorChannels:
             Naming ``sample_rate`` if the sample period is not an integer multiple of ``dt``, or
             ``cutoff`` if the cut-off is not below the Nyquist frequency of ``dt``.
         """
-        if dt != self._dt_sample:
-            self._check_period(dt)
-        sample = self._count == 0
-        if sample and dt != self._dt_walk:       # the walk's scale over one sample period
-            self._table[_RW] = self.bias_rw * np.sqrt(self._period_steps * dt)
-            self._dt_walk = dt
-        self._run(x, dt, sample, True)
-        if sample:
+        if dt != self._dt:
+            self._prepare(dt)
+        state = self._state
+        if not self._bound and state[_COUNT] == 0:
+            self.output = np.empty(self.shape)       # a new array per sample (a caller may keep it)
+        if len(self.shape) == 1:                     # one sensor: the arrays are flat
+            sampled = _channels_step(self._flat(x), self._z, self._coef, self._order, self._table, self.walk,
+                                     self.output, self.saturated, self._rw_rows, self._noise_rows, state)
+        else:                                        # views made per call: a copied state keeps no stale view
+            sampled = _channels_step(self._flat(x), self._z, self._coef, self._order, self._table,
+                                     self.walk.reshape(-1), self.output.reshape(-1),
+                                     self.saturated.reshape(-1), self._rw_rows, self._noise_rows, state)
+        if sampled:
             self.t_meas = float(time)
-        self._count = (self._count + 1) % self._period_steps
+            if state[_ROW] == len(self._rw_rows):
+                self._draw()
         return self.output
 
 
@@ -330,9 +382,25 @@ def _xz(v: Sequence[float]) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
-def _mount_matrix(mount_rpy: tuple) -> tuple:
-    """:func:`~fmus.common.frames.rot_rpy` of ``mount_rpy`` as a row-major tuple of 9 floats."""
-    return tuple(float(v) for v in rot_rpy(mount_rpy).reshape(-1))
+def mount_matrix(mount_rpy: tuple) -> np.ndarray:
+    """:func:`~fmus.common.frames.rot_rpy` of ``mount_rpy`` as a flat row-major array of 9
+    (shared by every caller: not to be written)."""
+    return np.ascontiguousarray(rot_rpy(mount_rpy), dtype=float).reshape(-1)
+
+
+@kernel(aot="void(float64[:], float64, float64, float64[:], float64, float64[:], float64[:])")
+def imu_reading_into(a_world_xz, phi, omega, mount, g, acc, gyro):
+    """:func:`imu_reading` into the arrays ``acc`` and ``gyro`` (3 each), with the mount
+    matrix ``mount`` of :func:`mount_matrix`: the same operations."""
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = (mount[0], mount[1], mount[2], mount[3], mount[4], mount[5],
+                                                   mount[6], mount[7], mount[8])
+    c, s = math.cos(phi), math.sin(phi)
+    ax, vz = a_world_xz[0], a_world_xz[1] + g          # a - g_vec, y = 0
+    # rows 0 and 2 of R_s (row 1 is R_mount's): acc = R_s^T (ax, 0, vz), gyro = R_s^T (0, omega, 0)
+    r00, r01, r02 = c * m00 + s * m20, c * m01 + s * m21, c * m02 + s * m22
+    r20, r21, r22 = c * m20 - s * m00, c * m21 - s * m01, c * m22 - s * m02
+    acc[0], acc[1], acc[2] = r00 * ax + r20 * vz, r01 * ax + r21 * vz, r02 * ax + r22 * vz
+    gyro[0], gyro[1], gyro[2] = m10 * omega, m11 * omega, m12 * omega
 
 
 def imu_reading(a_world_xz: Sequence[float], phi: float, omega: float, mount_rpy: Sequence[float],
@@ -342,8 +410,9 @@ def imu_reading(a_world_xz: Sequence[float], phi: float, omega: float, mount_rpy
     Specific force ``acc_s = R_s^T (a - g_vec)`` (the 2012 paper's accelerometer model,
     eqs. 17-19, in 3-D; at rest +g on a vertical sensor z) and angular rate
     ``gyro_s = R_s^T (0, omega, 0)``, ``R_s = Ry(phi) R_mount``
-    (:func:`~fmus.common.frames.sensor_rotation`) written out on plain floats: this runs every
-    step of the Imu (the same numbers as the matrix products to a few units of the last place).
+    (:func:`~fmus.common.frames.sensor_rotation`) written out on plain floats
+    (:func:`imu_reading_into`: this runs every step of the Imu; the same numbers as the matrix
+    products to a few units of the last place).
 
     Parameters
     ----------
@@ -354,14 +423,10 @@ def imu_reading(a_world_xz: Sequence[float], phi: float, omega: float, mount_rpy
     mount_rpy
         Mounting roll, pitch, yaw of the sensor on the tool (rad).
     """
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = _mount_matrix(tuple(mount_rpy))
-    c, s = math.cos(phi), math.sin(phi)
-    ax, vz = float(a_world_xz[0]), float(a_world_xz[1]) + g          # a - g_vec, y = 0
-    # rows 0 and 2 of R_s (row 1 is R_mount's): acc = R_s^T (ax, 0, vz), gyro = R_s^T (0, omega, 0)
-    r00, r01, r02 = c * m00 + s * m20, c * m01 + s * m21, c * m02 + s * m22
-    r20, r21, r22 = c * m20 - s * m00, c * m21 - s * m01, c * m22 - s * m02
-    return (np.array([r00 * ax + r20 * vz, r01 * ax + r21 * vz, r02 * ax + r22 * vz]),
-            np.array([m10 * omega, m11 * omega, m12 * omega]))
+    acc, gyro = np.empty(3), np.empty(3)
+    imu_reading_into(np.asarray(a_world_xz, dtype=float).reshape(-1), float(phi), float(omega),
+                     mount_matrix(tuple(mount_rpy)), float(g), acc, gyro)
+    return acc, gyro
 
 
 def force_sensor_reading(f_ext_xz: Sequence[float], a_tool_xz: Sequence[float], phi: float,

@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fmus.common.noise import make_rng
+from fmus.common.noise import make_rng, normal_rows
 from fmus.common.sample_time import UNSTAMPED
 from fmus.robot_plant.sensor_model import SensorChannels, imu_reading, input_time
 
@@ -38,7 +38,7 @@ class RunStreams:
     def rows(self, n: int) -> np.ndarray:
         """The numbers of the next ``block`` calls of ``n`` at once, ``(block, runs * n)``: one
         row per call, run after run."""
-        return np.stack([g.standard_normal((self._block, n)) for g in self._rngs], axis=1).reshape(self._block, -1)
+        return np.stack([normal_rows(g, n, self._block) for g in self._rngs], axis=1).reshape(self._block, -1)
 
     def standard_normal(self, n: int) -> np.ndarray:
         buf = self._buf

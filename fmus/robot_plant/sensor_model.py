@@ -20,7 +20,7 @@ import numpy as np
 
 from fmus.common.frames import G, rot_rpy, sensor_rotation
 from fmus.common.jit import kernel
-from fmus.common.noise import make_rng, reseed_param, reseeded_rng
+from fmus.common.noise import make_rng, normal_rows, reseed_param, reseeded_rng
 from fmus.common.parameters import ParameterError, param
 from fmus.common.sample_time import UNSTAMPED, measurement_time
 
@@ -200,8 +200,7 @@ class SensorChannels:
 
     Every parameter is a scalar or a length-``n`` array. The white noise and the random walk use
     independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``, drawn
-    ahead in blocks of :attr:`BLOCK` samples (one draw of ``k n`` numbers is ``k`` draws of
-    ``n``: :class:`fmus.common.noise.BlockNormals`); :meth:`reseed` restarts both from another
+    ahead in blocks of :attr:`BLOCK` samples (:func:`fmus.common.noise.normal_rows`); :meth:`reseed` restarts both from another
     seed (:mod:`fmus.common.noise`).
 
     Parameters
@@ -264,8 +263,7 @@ class SensorChannels:
     def _rows(self) -> tuple[np.ndarray, np.ndarray]:
         """The next :attr:`BLOCK` samples' standard normal numbers of the walk and the noise
         streams, one row (of every channel's number) per sample."""
-        return (self._rng_rw.standard_normal((self.BLOCK, self.n)),
-                self._rng_noise.standard_normal((self.BLOCK, self.n)))
+        return normal_rows(self._rng_rw, self.n, self.BLOCK), normal_rows(self._rng_noise, self.n, self.BLOCK)
 
     def _draw(self) -> None:
         self._rw_rows, self._noise_rows = self._rows()

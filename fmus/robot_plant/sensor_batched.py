@@ -74,7 +74,7 @@ class RunSensorChannels(SensorChannels):
                         else _Zeros(runs, self.BLOCK))
         self._allocate((runs, n))
 
-    def _rows(self) -> tuple[np.ndarray, np.ndarray]:
+    def _draws(self) -> tuple[np.ndarray, np.ndarray]:
         return self._rng_rw.rows(self.n), self._rng_noise.rows(self.n)
 
 

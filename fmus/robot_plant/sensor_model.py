@@ -93,52 +93,62 @@ def quantise(x: np.ndarray, resolution: np.ndarray | float) -> np.ndarray:
     return out
 
 
-# rows of SensorChannels' parameter table, the kernel's per-channel constants
+# SensorChannels' state is one float array, ``work`` (a kernel call costs about 0.1 us per array
+# it takes): a header (steps since the last sample, steps per sample, the next row of the drawn
+# random numbers, whether the low-pass has started, its order (0: none), the number of channels
+# n), the low-pass coefficients b0, b1, b2, a1, a2, the parameter table (rows _GAIN ... _LIM, n
+# each), then per element (runs * n) the low-pass state (2 rows), the bias walk and the
+# saturation flags (1.0: saturated)
+_COUNT, _PERIOD, _ROW, _STARTED, _ORDER, _N = range(6)
+_COEF = 6
+_TABLE = _COEF + 5
 _GAIN, _BIAS, _RW, _NOISE, _RES, _LIM = range(6)
 
 
-@kernel(aot="void(float64[:], float64[:, :], float64[:], int64, boolean, boolean, boolean, float64[:, :], "
-            "float64[:], float64[:], float64[:], float64[:], boolean[:])")
-def _channels_kernel(x, z, coef, order, reset, sample, noisy, table, walk, rw_draw, noise_draw, out,
-                     saturated):
-    """One step of :class:`SensorChannels` (its steps 1 and 3-7) on flat arrays, the numbers of
-    the former elementwise numpy code operation by operation (no fastmath: same rounding).
+@kernel(aot="void(float64[:], float64[:], float64[:], float64[:, :], int64, int64, boolean, boolean, boolean)")
+def _channels_kernel(x, work, out, rows, row, order, reset, sample, noisy):
+    """One step of :class:`SensorChannels` (its steps 1 and 3-7) on its ``work`` array, the
+    numbers of the former elementwise numpy code operation by operation (no fastmath: same
+    rounding).
 
-    ``walk``, ``z[0]``, ``z[1]``, ``out`` and ``saturated`` hold ``runs * n`` values (one sensor:
-    ``runs = 1``), element ``k`` of channel ``k % n``; the input ``x`` holds ``runs * n`` or
-    ``n`` values (one input for every run). ``order`` 0: no filter; ``reset``: start the filter
-    in steady state at ``x``; ``sample``: form the reading into ``out`` and ``saturated``;
-    ``noisy``: with the bias-walk step ``rw_draw`` and the white noise ``noise_draw``
-    (standard normal numbers) scaled by the ``table`` rows.
+    ``out`` holds ``runs * n`` values (one sensor: ``runs = 1``), element ``k`` of channel
+    ``k % n``; the input ``x`` holds ``runs * n`` or ``n`` values (one input for every run).
+    ``order`` 0: no filter; ``reset``: start the filter in steady state at ``x``; ``sample``:
+    form the reading into ``out`` and the saturation flags; ``noisy``: with the bias-walk step
+    ``rows[row, k]`` and the white noise ``rows[row, runs * n + k]`` (standard normal numbers)
+    scaled by the table's rows.
     """
-    n = table.shape[1]
-    b0, b1, b2, a1, a2 = coef[0], coef[1], coef[2], coef[3], coef[4]
-    for k in range(walk.size):
-        j = k % n
+    n, size = int(work[_N]), out.size
+    z0 = _TABLE + 6 * n
+    z1, walk, saturated = z0 + size, z0 + 2 * size, z0 + 3 * size
+    b0, b1, b2, a1, a2 = work[_COEF], work[_COEF + 1], work[_COEF + 2], work[_COEF + 3], work[_COEF + 4]
+    for k in range(size):
+        j = _TABLE + k % n
         y = x[k % x.size]
         if order > 0:
             u = y
             if reset:                            # steady state for a constant input
                 if order == 2:
-                    z[1, k] = (b2 - a2) * u
-                z[0, k] = (1.0 - b0) * u
-            y = b0 * u + z[0, k]                 # direct form II transposed
+                    work[z1 + k] = (b2 - a2) * u
+                work[z0 + k] = (1.0 - b0) * u
+            y = b0 * u + work[z0 + k]            # direct form II transposed
             if order == 1:
-                z[0, k] = b1 * u - a1 * y
+                work[z0 + k] = b1 * u - a1 * y
             else:
-                z[0, k] = b1 * u - a1 * y + z[1, k]
-                z[1, k] = b2 * u - a2 * y
+                work[z0 + k] = b1 * u - a1 * y + work[z1 + k]
+                work[z1 + k] = b2 * u - a2 * y
         if sample:
             if noisy:
-                walk[k] = walk[k] + table[_RW, j] * rw_draw[k]
-                y = table[_GAIN, j] * y + table[_BIAS, j] + walk[k] + table[_NOISE, j] * noise_draw[k]
+                work[walk + k] = work[walk + k] + work[j + _RW * n] * rows[row, k]
+                y = (work[j + _GAIN * n] * y + work[j + _BIAS * n] + work[walk + k]
+                     + work[j + _NOISE * n] * rows[row, size + k])
             else:
-                y = table[_GAIN, j] * y + table[_BIAS, j] + walk[k]
-            res = table[_RES, j]
+                y = work[j + _GAIN * n] * y + work[j + _BIAS * n] + work[walk + k]
+            res = work[j + _RES * n]
             if res > 0.0:
                 y = np.rint(y / res) * res       # numpy's round half to even
-            lim = table[_LIM, j]
-            saturated[k] = abs(y) >= lim
+            lim = work[j + _LIM * n]
+            work[saturated + k] = 1.0 if abs(y) >= lim else 0.0
             if y > lim:
                 y = lim
             elif y < -lim:
@@ -146,38 +156,30 @@ def _channels_kernel(x, z, coef, order, reset, sample, noisy, table, walk, rw_dr
             out[k] = y
 
 
-# SensorChannels' step counters (an int array the kernel keeps): steps since the last sample,
-# steps per sample, the next row of the drawn random numbers, whether the low-pass has started
-_COUNT, _PERIOD, _ROW, _STARTED = range(4)
-
-
-@kernel(aot="boolean(float64[:], float64[:, :], float64[:], int64, float64[:, :], float64[:], float64[:], "
-            "boolean[:], float64[:, :], float64[:, :], int64[:])")
-def _channels_step(x, z, coef, order, table, walk, out, saturated, rw_rows, noise_rows, state):
+@kernel(aot="boolean(float64[:], float64[:], float64[:], float64[:, :])")
+def _channels_step(x, work, out, rows):
     """:meth:`SensorChannels.step` after its checks, in one call: the low-pass (started in
-    steady state at its first step), and at a sample (``state[_COUNT]`` 0) a reading into ``out``
-    with the next row of the drawn standard normal numbers ``rw_rows`` and ``noise_rows``
+    steady state at its first step), and at a sample (no step since the last) a reading into
+    ``out`` with the next row of the drawn standard normal numbers ``rows``
     (:func:`_channels_kernel`); then the counters move on. Returns whether it sampled."""
-    sample = state[_COUNT] == 0
-    reset = order > 0 and state[_STARTED] == 0
+    sample = work[_COUNT] == 0.0
+    order = int(work[_ORDER])
+    reset = order > 0 and work[_STARTED] == 0.0
     if order > 0:
-        state[_STARTED] = 1
+        work[_STARTED] = 1.0
+    row = int(work[_ROW])
     if sample:
-        row = state[_ROW]
-        state[_ROW] = row + 1
-        _channels_kernel(x, z, coef, order, reset, True, True, table, walk, rw_rows[row], noise_rows[row],
-                         out, saturated)
-    else:
-        _channels_kernel(x, z, coef, order, reset, False, False, table, walk, walk, walk, out, saturated)
-    state[_COUNT] = (state[_COUNT] + 1) % state[_PERIOD]
+        work[_ROW] = row + 1
+    _channels_kernel(x, work, out, rows, row, order, reset, sample, sample)
+    work[_COUNT] = (work[_COUNT] + 1.0) % work[_PERIOD]
     return sample
 
 
 class SensorChannels:
     """``n`` sensor channels with the usual imperfections.
 
-    One compiled call (:func:`_channels_step`) steps every channel; the state is held in
-    arrays of shape :attr:`shape` (``(n,)``; the batched study engine's subclass
+    One compiled call (:func:`_channels_step`) steps every channel; the state is held in one
+    array, for readings of shape :attr:`shape` (``(n,)``; the batched study engine's subclass
     :class:`~fmus.robot_plant.sensor_batched.RunSensorChannels`: ``(runs, n)``), so one
     definition serves both paths.
 
@@ -200,8 +202,8 @@ class SensorChannels:
 
     Every parameter is a scalar or a length-``n`` array. The white noise and the random walk use
     independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``, drawn
-    ahead in blocks of :attr:`BLOCK` samples (:func:`fmus.common.noise.normal_rows`); :meth:`reseed` restarts both from another
-    seed (:mod:`fmus.common.noise`).
+    ahead in blocks of :attr:`BLOCK` samples (:func:`fmus.common.noise.normal_rows`); :meth:`reseed`
+    restarts both from another seed (:mod:`fmus.common.noise`).
 
     Parameters
     ----------
@@ -234,40 +236,59 @@ class SensorChannels:
         self.stream = stream
         self._rng_noise = make_rng(seed, f"{stream}/noise")
         self._rng_rw = make_rng(seed, f"{stream}/bias_rw")
+        self._work = np.zeros(_TABLE + 6 * n)
+        self._work[_PERIOD], self._work[_N] = 1.0, n
         # the kernel's per-channel constants; the walk's row is set with the step (_prepare)
-        self._table = np.array([1.0 + self.scale, self.bias, np.zeros(n), self.noise, self.resolution,
-                                self._limit()])
-        self._coef = np.zeros(5)                 # b0, b1, b2, a1, a2 of the low-pass
-        self._order = 0                          # of the designed low-pass; 0: none
+        self._table()[:] = [1.0 + self.scale, self.bias, np.zeros(n), self.noise, self.resolution, self._limit()]
         self._dt_filter = None
         self._dt_sample = None
         self._dt = None                          # the step the checks, design and walk scale are for
-        self._state = np.zeros(4, dtype=np.int64)
-        self._state[_PERIOD] = 1
         self.t_meas = math.nan                   # the held reading's time stamp
         self._bound = out is not None
         self._allocate((n,))
         if out is not None:
             self.output = out
-        self._rw_rows = self._noise_rows = np.empty((0, n))     # drawn at the first step
+        self._rows = np.empty((0, 2 * n))        # drawn at the first step
 
     def _allocate(self, shape: tuple[int, ...]) -> None:
-        """The state arrays for readings of ``shape``: :attr:`walk` (the bias random walk),
-        :attr:`output` (the held reading), :attr:`saturated` and the filter's (flat)."""
+        """The state for readings of ``shape``: :attr:`output` (the held reading), and in the
+        work array the filter's, the bias walk's and the saturation flags (zero)."""
         self.shape = shape
-        self.walk, self.output = np.zeros(shape), np.zeros(shape)
-        self.saturated = np.zeros(shape, dtype=bool)
-        self._z = np.zeros((2, self.walk.size))  # filter state (direct form II transposed)
+        size = int(np.prod(shape))
+        head = _TABLE + 6 * self.n
+        self._work = np.concatenate([self._work[:head], np.zeros(4 * size)])
+        self.output = np.zeros(shape)
+
+    def _table(self) -> np.ndarray:
+        """The parameter table in the work array, (6, n) (a view)."""
+        return self._work[_TABLE:_TABLE + 6 * self.n].reshape(6, self.n)
+
+    def _elements(self, part: int) -> np.ndarray:
+        """Part ``part`` (0, 1: the filter state, 2: the bias walk, 3: the saturation flags) of
+        the per-element state in the work array, of :attr:`shape` (a view)."""
+        size = self.output.size
+        first = _TABLE + 6 * self.n + part * size
+        return self._work[first:first + size].reshape(self.shape)
+
+    @property
+    def walk(self) -> np.ndarray:
+        """The bias random walk, of :attr:`shape` (a view of the state)."""
+        return self._elements(2)
+
+    @property
+    def saturated(self) -> np.ndarray:
+        """Whether each channel's held reading is at or beyond its range, of :attr:`shape`."""
+        return self._elements(3) != 0.0
 
     # -- pieces ------------------------------------------------------------------------------
-    def _rows(self) -> tuple[np.ndarray, np.ndarray]:
+    def _draws(self) -> tuple[np.ndarray, np.ndarray]:
         """The next :attr:`BLOCK` samples' standard normal numbers of the walk and the noise
         streams, one row (of every channel's number) per sample."""
         return normal_rows(self._rng_rw, self.n, self.BLOCK), normal_rows(self._rng_noise, self.n, self.BLOCK)
 
     def _draw(self) -> None:
-        self._rw_rows, self._noise_rows = self._rows()
-        self._state[_ROW] = 0
+        self._rows = np.concatenate(self._draws(), axis=1)
+        self._work[_ROW] = 0.0
 
     def reseed(self, seed: int) -> None:
         """Draw the noise and the bias walk from now on from ``seed``'s reseeded streams
@@ -288,9 +309,10 @@ class SensorChannels:
             raise ValueError(f"parameter '{self.names['cutoff']}' = {self.cutoff:g} Hz must be below "
                              f"the Nyquist frequency {0.5 / dt:g} Hz of the communication step {dt:g} s")
         b, a = butterworth_coefficients(self.cutoff, dt, self.filter_order)
-        self._coef[:] = 0.0
-        self._coef[:len(b)], self._coef[3:3 + len(a) - 1] = b, a[1:]
-        self._order = self.filter_order
+        coef = np.zeros(5)
+        coef[:len(b)], coef[3:3 + len(a) - 1] = b, a[1:]
+        self._work[_COEF:_COEF + 5] = coef
+        self._work[_ORDER] = self.filter_order
         self._dt_filter = dt
 
     def _check_period(self, dt: float) -> None:
@@ -308,23 +330,24 @@ class SensorChannels:
                     f"period {1.0 / self.sample_rate:g} s is not an integer multiple of the "
                     f"communication step {dt:g} s")
         if self._dt_sample is not None:
-            self._state[_COUNT] %= n_steps
-        self._state[_PERIOD] = n_steps
+            self._work[_COUNT] %= n_steps
+        self._work[_PERIOD] = n_steps
         self._dt_sample = dt
 
     def _prepare(self, dt: float) -> None:
         """For steps of ``dt`` (one not seen at the last step): the sample period's check, the
-        low-pass designed (within 1e-12 of the step it has, it stays) and the walk's scale
-        over one sample period."""
+        low-pass designed (within 1e-12 of the step it has, it stays), the walk's scale over
+        one sample period, and random numbers if the last are used up."""
         self._check_period(dt)
         if self.cutoff > 0.0 and (self._dt_filter is None or abs(dt - self._dt_filter) > 1e-12 * dt):
             self._design(dt)
-        self._table[_RW] = self.bias_rw * np.sqrt(self._state[_PERIOD] * dt)
+        self._table()[_RW] = self.bias_rw * np.sqrt(int(self._work[_PERIOD]) * dt)
         self._dt = dt
-        if self._state[_ROW] == len(self._rw_rows):
+        if self._work[_ROW] == len(self._rows):
             self._draw()
 
-    def _flat(self, x: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _flat(x: np.ndarray) -> np.ndarray:
         """``x`` as the kernels take it: a 1-D float array (a view where it can be)."""
         if type(x) is not np.ndarray or x.ndim != 1 or x.dtype != np.float64:
             x = np.ascontiguousarray(x, dtype=float).reshape(-1)
@@ -338,9 +361,7 @@ class SensorChannels:
         self.t_meas = float(time)
         if not self._bound:
             self.output = np.empty(self.shape)
-        walk = self.walk.reshape(-1)
-        _channels_kernel(self._flat(x), self._z, self._coef, 0, False, True, False, self._table, walk, walk,
-                         walk, self.output.reshape(-1), self.saturated.reshape(-1))
+        _channels_kernel(self._flat(x), self._work, self.output.reshape(-1), self._rows, 0, 0, False, True, False)
         return self.output
 
     def step(self, x: np.ndarray, dt: float, time: float = math.nan) -> np.ndarray:
@@ -355,19 +376,13 @@ class SensorChannels:
         """
         if dt != self._dt:
             self._prepare(dt)
-        state = self._state
-        if not self._bound and state[_COUNT] == 0:
+        work = self._work
+        if not self._bound and work[_COUNT] == 0.0:
             self.output = np.empty(self.shape)       # a new array per sample (a caller may keep it)
-        if len(self.shape) == 1:                     # one sensor: the arrays are flat
-            sampled = _channels_step(self._flat(x), self._z, self._coef, self._order, self._table, self.walk,
-                                     self.output, self.saturated, self._rw_rows, self._noise_rows, state)
-        else:                                        # views made per call: a copied state keeps no stale view
-            sampled = _channels_step(self._flat(x), self._z, self._coef, self._order, self._table,
-                                     self.walk.reshape(-1), self.output.reshape(-1),
-                                     self.saturated.reshape(-1), self._rw_rows, self._noise_rows, state)
-        if sampled:
+        out = self.output if self._bound else self.output.reshape(-1)
+        if _channels_step(self._flat(x), work, out, self._rows):
             self.t_meas = float(time)
-            if state[_ROW] == len(self._rw_rows):
+            if work[_ROW] == len(self._rows):
                 self._draw()
         return self.output
 

@@ -14,6 +14,7 @@ from fmus.robot_plant.motion_control_model import COLUMNS, MotionControllerParam
 _LAW_OUTPUTS = ("q_a_ref", "q_m_ref", "p_ref", "e_m", "tau_m")
 _ROW_OUTPUTS = ("dq_a_ref", "ddq_a_ref", "dddq_a_ref", "v_ref", "a_ref", "dq_m_ref", "tau_ff")
 
+
 class MotionController(FlexFusionSlave):
     """Motion controller of the flexible two-axis robot.
 

@@ -9,8 +9,8 @@ import numpy as np
 from fmus.common.fmi import FlexFusionSlave
 from fmus.robot_plant.motion_control_model import COLUMNS, MotionControllerParameters, build_controller
 
-# outputs of the controller's results, in their order (MotionController.step's law_at), and
-# outputs copied straight from the reference-table row
+# outputs of the controller's results, in their order (MotionController.step), and outputs
+# copied straight from the reference-table row
 _LAW_OUTPUTS = ("q_a_ref", "q_m_ref", "p_ref", "e_m", "tau_m")
 _ROW_OUTPUTS = ("dq_a_ref", "ddq_a_ref", "dddq_a_ref", "v_ref", "a_ref", "dq_m_ref", "tau_ff")
 
@@ -55,11 +55,12 @@ class MotionController(FlexFusionSlave):
         self.output("tau_ff", 2, unit="N.m", description="feed-forward motor torque, motor side")
         self.output("e_m", 2, unit="rad", description="motor angle error q_m_ref - q_m, motor side",
                     depends_on=meas)
-        # where the step writes its results in the output buffer (MotionController.step)
-        self._law_at = np.r_[tuple(self.output_span(n, n) for n in _LAW_OUTPUTS)]
-        self._row_at = np.full(max(c.stop for c in COLUMNS.values()), -1)
+        # where the step writes its results and the row's columns in the output buffer
+        # (MotionController.step)
+        row_at = np.full(max(c.stop for c in COLUMNS.values()), -1)
         for name in _ROW_OUTPUTS:
-            self._row_at[COLUMNS[name]] = np.r_[self.output_span(name, name)]
+            row_at[COLUMNS[name]] = np.r_[self.output_span(name, name)]
+        self._at = np.concatenate([np.r_[tuple(self.output_span(n, n) for n in _LAW_OUTPUTS)], row_at])
 
     def setup(self, params: MotionControllerParameters) -> None:
         self.ctrl = build_controller(params)
@@ -68,12 +69,11 @@ class MotionController(FlexFusionSlave):
     def update_outputs(self) -> None:
         c = self.ctrl
         c.evaluate(self._time, self.q_m, self.dq_m, self.dp_ref)
-        for name, value in zip(_LAW_OUTPUTS, (c.q_a_ref, c.q_m_ref, c.p_ref, c.error, c.tau)):
-            self._arrays[name][:] = value
-        shown = self._row_at >= 0
-        self._outputs[self._row_at[shown]] = c.row[shown]
+        results = np.concatenate([c.q_a_ref, c.q_m_ref, c.p_ref, c.error, c.tau, c.row])
+        shown = self._at >= 0
+        self._outputs[self._at[shown]] = results[shown]
 
     def step(self, t: float, dt: float) -> None:
         # the torque for the measurement just set, whose error the integrator takes, then the
         # outputs at t + dt (one compiled call)
-        self.ctrl.step(t, dt, self.q_m, self.dq_m, self.dp_ref, self._outputs, self._law_at, self._row_at)
+        self.ctrl.step(t, dt, self.q_m, self.dq_m, self.dp_ref, self._outputs, self._at)

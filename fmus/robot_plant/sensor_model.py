@@ -100,6 +100,7 @@ def quantise(x: np.ndarray, resolution: np.ndarray | float) -> np.ndarray:
 # each), then per element (runs * n) the low-pass state (2 rows), the bias walk and the
 # saturation flags (1.0: saturated)
 _COUNT, _PERIOD, _ROW, _STARTED, _ORDER, _N = range(6)
+_FLOAT = np.dtype(float)
 _COEF = 6
 _TABLE = _COEF + 5
 _GAIN, _BIAS, _RW, _NOISE, _RES, _LIM = range(6)
@@ -156,12 +157,16 @@ def _channels_kernel(x, work, out, rows, row, order, reset, sample, noisy):
             out[k] = y
 
 
-@kernel(aot="boolean(float64[:], float64[:], float64[:], float64[:, :])")
+_HELD, _SAMPLED, _USED_UP = 0, 1, 2       # what _channels_step returns
+
+
+@kernel(aot="int64(float64[:], float64[:], float64[:], float64[:, :])")
 def _channels_step(x, work, out, rows):
     """:meth:`SensorChannels.step` after its checks, in one call: the low-pass (started in
     steady state at its first step), and at a sample (no step since the last) a reading into
     ``out`` with the next row of the drawn standard normal numbers ``rows``
-    (:func:`_channels_kernel`); then the counters move on. Returns whether it sampled."""
+    (:func:`_channels_kernel`); then the counters move on. Returns ``_HELD``, ``_SAMPLED`` or
+    ``_USED_UP`` (sampled with the last row)."""
     sample = work[_COUNT] == 0.0
     order = int(work[_ORDER])
     reset = order > 0 and work[_STARTED] == 0.0
@@ -172,7 +177,9 @@ def _channels_step(x, work, out, rows):
         work[_ROW] = row + 1
     _channels_kernel(x, work, out, rows, row, order, reset, sample, sample)
     work[_COUNT] = (work[_COUNT] + 1.0) % work[_PERIOD]
-    return sample
+    if not sample:
+        return _HELD
+    return _USED_UP if row + 1 == rows.shape[0] else _SAMPLED
 
 
 class SensorChannels:
@@ -349,7 +356,7 @@ class SensorChannels:
     @staticmethod
     def _flat(x: np.ndarray) -> np.ndarray:
         """``x`` as the kernels take it: a 1-D float array (a view where it can be)."""
-        if type(x) is not np.ndarray or x.ndim != 1 or x.dtype != np.float64:
+        if type(x) is not np.ndarray or x.ndim != 1 or x.dtype is not _FLOAT:
             x = np.ascontiguousarray(x, dtype=float).reshape(-1)
         return x
 
@@ -380,9 +387,10 @@ class SensorChannels:
         if not self._bound and work[_COUNT] == 0.0:
             self.output = np.empty(self.shape)       # a new array per sample (a caller may keep it)
         out = self.output if self._bound else self.output.reshape(-1)
-        if _channels_step(self._flat(x), work, out, self._rows):
+        done = _channels_step(self._flat(x), work, out, self._rows)
+        if done:
             self.t_meas = float(time)
-            if work[_ROW] == len(self._rows):
+            if done == _USED_UP:
                 self._draw()
         return self.output
 

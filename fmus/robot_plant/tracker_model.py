@@ -31,6 +31,7 @@ from fmus.common.parameters import param
 # sample instant, the held sample's stamp, the next row of the drawn random numbers
 _ENTRIES, _NEXT, _T_MEAS, _ROW = range(4)
 _DONE, _FULL, _DRAWN = 0, 1, 2           # what tracker_update returns
+_FLOAT = np.dtype(float)
 
 
 @kernel
@@ -151,7 +152,7 @@ class TrackerModel:
     def update(self, t: float, p: Sequence[float]) -> None:
         """The true position is ``p`` (x, z) at ``t`` (non-decreasing); take every sample due by
         ``t``."""
-        if type(p) is not np.ndarray or p.dtype != np.float64:
+        if type(p) is not np.ndarray or p.dtype is not _FLOAT:
             p = np.asarray(p, dtype=float)
         append = True
         while (done := tracker_update(t, p, append, self._hist, self._state, self._consts, self._rows,

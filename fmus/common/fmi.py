@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import copy
 import ctypes
+import keyword
 import math
 import pickle
 import sys
@@ -123,11 +124,16 @@ def nominal_step(h: float) -> float:
     return nominal
 
 
+def _attribute(name: str) -> str:
+    """The expression of the slave's attribute ``name`` in :func:`_generated` code."""
+    return f"slave.{name}" if name.isidentifier() and not keyword.iskeyword(name) else f"slave.__dict__[{name!r}]"
+
+
 def _generated(name: str, arguments: str, body: list[str], env: dict[str, Any]) -> Any:
     """The function ``name(arguments)`` of the source lines ``body``, whose free names are the
     objects of ``env``: a host's list of value references read or written with one call of
     straight assignments (generated once per list, as :func:`collections.namedtuple` builds
-    its methods; the names in ``body`` are variable names, identifiers)."""
+    its methods; ``body`` holds only numbers, names of ``env`` and :func:`_attribute`)."""
     source = f"def {name}({arguments}):\n" + ("\n".join(body) or "    pass") + "\n"
     exec(compile(source, f"<fmi {name}>", "exec"), env)     # noqa: S102 - our own identifiers and numbers
     return env[name]
@@ -559,7 +565,7 @@ class FlexFusionSlave(Fmi2Slave):
         for vr in vrs:
             array, index = self._real_slots[vr]
             if array is None:
-                items.append(f"slave.{index}")
+                items.append(_attribute(index))
                 continue
             a = arrays.setdefault(id(array), [f"a{len(arrays)}", array, index, index])
             a[2], a[3] = min(a[2], index), max(a[3], index)
@@ -650,7 +656,7 @@ class FlexFusionSlave(Fmi2Slave):
         for i, vr in enumerate(vrs):
             array, index = slots[vr]
             if array is None:
-                lines.append(f"    slave.{index} = float(values[{i}])")
+                lines.append(f"    {_attribute(index)} = float(values[{i}])")
             else:
                 name = names.setdefault(id(array), f"a{len(names)}")
                 env[name] = array

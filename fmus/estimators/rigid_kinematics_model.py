@@ -70,9 +70,9 @@ def _compensated(m1: float, m2: float, K: np.ndarray) -> tuple[float, float]:
 
 
 def constants(robot: RobotParameters, gravity_compensation: bool = False) -> np.ndarray:
-    """The constants :func:`estimate` takes: gear ratios, whether to compensate (0 or 1), link
-    lengths, then :attr:`fmus.common.dynamics.ArmConstants.static` (``robot``: the estimator's
-    model of the robot)."""
+    """The constants :func:`estimate` takes: gear ratios, ``gravity_compensation`` (0 or 1),
+    link lengths, then :attr:`fmus.common.dynamics.ArmConstants.static` (``robot``: the
+    estimator's model of the robot)."""
     k = dynamics.arm_constants(robot)
     return np.array([k.r[0], k.r[1], float(bool(gravity_compensation)), float(robot.l1), float(robot.l2),
                      *k.static])

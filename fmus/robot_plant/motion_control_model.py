@@ -545,7 +545,8 @@ class MotionController:
         """One communication step of a sampled controller in one compiled call, the numbers of
         ``evaluate(t, ...)``, ``advance(dt)``, ``evaluate(t + dt, ...)``: the torque and the
         integral for the measurement ``(q_m, dq_m)`` (float arrays) set at ``t``, then the
-        references at ``t + dt`` with it. The results are also written into ``dest``: result
+        references at ``t + dt`` with it, the references moved by ``dp_ref`` (as in
+        :meth:`evaluate`). The results are also written into ``dest``: result
         ``i`` of :attr:`q_a_ref`, :attr:`q_m_ref`, :attr:`p_ref`, :attr:`error`, :attr:`tau`
         (in this order, 2 each) at ``at[i]``, the row's column ``c`` at ``at[10 + c]``, unless
         negative (an int64 array; an adapter's output buffer)."""

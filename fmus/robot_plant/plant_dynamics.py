@@ -245,8 +245,9 @@ ADVANCE_OUTPUTS = 26
 @kernel(aot="Tuple((UniTuple(float64, 12), float64, float64))(UniTuple(float64, 12), float64[:], float64[:], "
             "float64, int64, float64[:], float64[:], int64[:])")
 def chain4_advance(s, tau, f, dt, substeps, P, out, at):
-    """A plant step in one call: :func:`chain4_step` over ``dt`` [s] from the state ``s`` with
-    the motor torques ``tau`` [N m] and the tool force ``f`` [N] (arrays of 2) held, then the
+    """A plant step in one call: :func:`chain4_step` over ``dt`` [s] (``substeps`` RK4 steps)
+    from the state ``s`` with the motor torques ``tau`` [N m] and the tool force ``f`` [N]
+    (arrays of 2) held and the chain's constants ``P`` (:meth:`PlantChain._pack`), then the
     outputs at the new state (:func:`chain4_outputs`, then the applied torques of ``tau``):
     value ``i`` of these :data:`ADVANCE_OUTPUTS` into ``out[at[i]]`` unless ``at[i]`` is
     negative. Returns the new state, the tool angle and its rate (outputs 16 and 17)."""
@@ -684,7 +685,7 @@ class ExtendedRobotModel(_Advancing, dynamics.FlexibleRobotModel):
 
     def advance(self, tau_m: np.ndarray, f_ext: np.ndarray, dt: float, out: np.ndarray, at: np.ndarray
                 ) -> tuple[float, float]:
-        """:meth:`step`, then the outputs at the new state (:meth:`outputs`, then
+        """:meth:`step` over ``dt`` [s], then the outputs at the new state (:meth:`outputs`, then
         :meth:`applied_torques` of ``tau_m``) written as :func:`chain4_advance` writes them into
         ``out`` at ``at``; returns the tool angle and rate (the four-body chain: one compiled
         call, the same operations). ``tau_m``, ``f_ext``: float arrays of 2."""

@@ -411,8 +411,9 @@ def mount_matrix(mount_rpy: tuple) -> np.ndarray:
 
 @kernel(aot="void(float64[:], float64, float64, float64[:], float64, float64[:], float64[:])")
 def imu_reading_into(a_world_xz, phi, omega, mount, g, acc, gyro):
-    """:func:`imu_reading` into the arrays ``acc`` and ``gyro`` (3 each), with the mount
-    matrix ``mount`` of :func:`mount_matrix`: the same operations."""
+    """:func:`imu_reading` of ``a_world_xz``, ``phi``, ``omega`` and ``g`` into the arrays
+    ``acc`` and ``gyro`` (3 each), with the mount matrix ``mount`` of :func:`mount_matrix`:
+    the same operations."""
     m00, m01, m02, m10, m11, m12, m20, m21, m22 = (mount[0], mount[1], mount[2], mount[3], mount[4], mount[5],
                                                    mount[6], mount[7], mount[8])
     c, s = math.cos(phi), math.sin(phi)

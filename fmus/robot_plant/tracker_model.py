@@ -52,7 +52,8 @@ def _position(hist, m, t):
 def tracker_update(t, p, append, hist, state, consts, rows, p_meas):
     """:meth:`TrackerModel.update` on arrays: append ``(t, p)`` to the history ``hist`` (with
     ``append``), take every sample due by ``t`` into ``p_meas`` (``consts``: first instant,
-    period, skew, noise), drop the history no later sample needs. Returns ``_FULL`` (nothing
+    period, skew, noise; ``state``: the layout above), drop the history no later sample needs.
+    Returns ``_FULL`` (nothing
     done: the history needs room), ``_DRAWN`` (the random numbers ``rows`` are used up: call
     again with new ones, without ``append``) or ``_DONE``."""
     m = int(state[_ENTRIES])

@@ -237,20 +237,16 @@ def chain4_outputs(s, fx, fz, P):
             _spring4(P, 0, qm1 / P[2] - s[0]), _spring4(P, 1, qm2 / P[3] - s[2]))
 
 
-#: what :func:`chain4_advance` writes: the 24 values of :func:`chain4_outputs`, then the two
-#: applied torques (:meth:`ExtendedRobotModel.applied_torques`)
-ADVANCE_OUTPUTS = 26
-
-
 @kernel(aot="Tuple((UniTuple(float64, 12), float64, float64))(UniTuple(float64, 12), float64[:], float64[:], "
             "float64, int64, float64[:], float64[:], int64[:])")
 def chain4_advance(s, tau, f, dt, substeps, P, out, at):
     """A plant step in one call: :func:`chain4_step` over ``dt`` [s] (``substeps`` RK4 steps)
     from the state ``s`` with the motor torques ``tau`` [N m] and the tool force ``f`` [N]
     (arrays of 2) held and the chain's constants ``P`` (:meth:`PlantChain._pack`), then the
-    outputs at the new state (:func:`chain4_outputs`, then the applied torques of ``tau``):
-    value ``i`` of these :data:`ADVANCE_OUTPUTS` into ``out[at[i]]`` unless ``at[i]`` is
-    negative. Returns the new state, the tool angle and its rate (outputs 16 and 17)."""
+    outputs at the new state (the 24 of :func:`chain4_outputs`, then the 2 applied torques of
+    ``tau``, :meth:`ExtendedRobotModel.applied_torques`): value ``i`` of these 26 into
+    ``out[at[i]]`` unless ``at[i]`` is negative. Returns the new state, the tool angle and its
+    rate (outputs 16 and 17)."""
     tau1, tau2, fx, fz = tau[0], tau[1], f[0], f[1]
     s = chain4_step(s, tau1, tau2, fx, fz, dt, substeps, P)
     y = chain4_outputs(s, fx, fz, P)

@@ -193,6 +193,7 @@ def old_modules(rev: str, paths: list[str]) -> list[types.ModuleType]:
                              text=True).stdout
         name = f"_old_{path.replace('/', '_')[:-3]}"
         module = types.ModuleType(name)
+        module.__package__ = path[:-3].replace("/", ".").rpartition(".")[0]     # its relative imports
         sys.modules[name] = module           # dataclasses look their module up
         saved = {real: sys.modules.get(real) for real in loaded}
         sys.modules.update(loaded)
@@ -240,7 +241,7 @@ def kernels(rev: str) -> list[tuple[str, float | str, float]]:
                  _us(lambda: rigid.arm_angles(q_m, p, True)))]
 
     def sensors():
-        old = _old_module(rev, "fmus/robot_plant/sensor_model.py")
+        old = old_modules(rev, ["fmus/common/noise.py", "fmus/robot_plant/sensor_model.py"])[-1]
         rows = []
         for label, n, kw, x in (
                 ("encoder channels (2)", 2, dict(seed=1, stream="encoder", noise=2e-5, resolution=9.6e-5),
@@ -275,7 +276,7 @@ def kernels(rev: str) -> list[tuple[str, float | str, float]]:
         return [("controller evaluate", *(_us(lambda: evaluate(c)) for c in controllers))]
 
     def tracker():
-        old = _old_module(rev, "fmus/robot_plant/tracker_model.py")
+        old = old_modules(rev, ["fmus/common/noise.py", "fmus/robot_plant/tracker_model.py"])[-1]
         from fmus.robot_plant import tracker_model
         trackers = [m.TrackerModel(2e-5, 1000.0, 1e-3, seed=4) for m in (old, tracker_model)]
         p_tool = np.array([1.0, 0.6])

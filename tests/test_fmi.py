@@ -203,9 +203,10 @@ def test_fmu_state_restores_bit_exactly_and_survives_serialisation() -> None:
 
 
 def test_get_real_reads_any_list_of_references_live() -> None:
-    """get_real plans each list of references once (runs of one array read with one copy): any
-    order, repeats, scalars, inputs and parameters read what each variable's getter reads, at
-    every call (the plan holds views, not values), and after an FMU state is restored."""
+    """get_real generates the reading of each list of references once (one copy of the span of
+    each array): any order, repeats, scalars, inputs and parameters read what each variable's
+    getter reads, at every call (the reading holds arrays, not values), and after an FMU state
+    is restored."""
     s = started()
     reals = [r for r, v in s.vars.items() if type(v).__name__ == "Real"]
     lists = [reals, reals[::-1], [vr(s, "x[2]"), vr(s, "x[1]"), vr(s, "x[2]")],
@@ -220,6 +221,27 @@ def test_get_real_reads_any_list_of_references_live() -> None:
     for refs in lists:
         assert s.get_real(refs) == [s.vars[r].getter() for r in refs]
     assert s.get_real([vr(s, "x[1]"), vr(s, "x[2]")]) == [0.0, 0.0]
+
+
+def test_set_real_writes_any_list_of_inputs_as_each_setter_does() -> None:
+    """set_real generates the writing of each list of input references once: any order and
+    repeats (the last value wins) set what each variable's setter sets, also after an FMU
+    state is restored; a list with a parameter goes through the setters (a fixed one refuses)."""
+    s = started()
+    u, w1, w2 = vr(s, "u"), vr(s, "w[1]"), vr(s, "w[2]")
+    saved = s._get_fmu_state()
+    for restored in (False, True):
+        for refs, values in (([u, w1, w2], [0.5, 1.0, 2.0]), ([w2, u, w1], [3.0, -0.5, 4.0]),
+                             ([w1, w1, u], [5.0, 6.0, 7.0])):
+            s.set_real(refs, values)
+            expected = dict(zip(refs, values))
+            assert [s.vars[r].getter() for r in expected] == list(expected.values())
+            assert [s.vars[r].getter() for r in (u, w1, w2)] == [s.u, *s.w]    # what the model reads
+            assert isinstance(s.u, float)
+        s._set_fmu_state(saved)
+        assert [s.u, *s.w] == [0.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match="parameter 'gain' is fixed"):
+        s.set_real([u, vr(s, "gain")], [1.0, 3.0])
 
 
 def test_vector_outputs_share_one_buffer_in_declaration_order() -> None:

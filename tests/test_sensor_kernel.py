@@ -57,8 +57,9 @@ def test_readings_are_those_of_the_version_before(name) -> None:
 
 
 def test_block_draws_are_the_per_sample_draws() -> None:
-    """The premise of the blocks: one draw of n k numbers = k draws of n, bit for bit."""
-    from fmus.common.noise import BlockNormals, make_rng
-    normals, rng = BlockNormals(make_rng(3, "s"), 3), make_rng(3, "s")
-    for _ in range(2 * BlockNormals.BLOCK + 5):
-        assert_array_equal(normals.standard_normal(3), rng.standard_normal(3))
+    """The premise of the blocks: one draw of n k numbers = k draws of n, bit for bit, across
+    blocks."""
+    from fmus.common.noise import make_rng, normal_rows
+    blocks, rng = make_rng(3, "s"), make_rng(3, "s")
+    rows = np.concatenate([normal_rows(blocks, 3, 7) for _ in range(3)])
+    assert_array_equal(rows, [rng.standard_normal(3) for _ in range(21)])

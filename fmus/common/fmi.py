@@ -5,8 +5,10 @@ every input. This base class adds what our FMUs all need, once:
 
 * vector variables as 1-based indexed scalars (``q_a[1]``, ``q_a[2]``) backed by numpy arrays;
   the vector outputs are consecutive views of one buffer (``_outputs``, in declaration order),
-  so that ``fmi2GetReal`` of a step's outputs copies runs of it, planned once per list of value
-  references, and an adapter may write several outputs at once (:meth:`FlexFusionSlave.output_span`);
+  so that ``fmi2GetReal`` of a step's outputs copies the span of it they lie in, and an
+  adapter (or its kernel) may write several outputs at once (:meth:`FlexFusionSlave.output_span`);
+  ``fmi2GetReal`` and ``fmi2SetReal`` of a list of value references run a function of plain
+  assignments generated for that list at its first use;
 * a unit and a description on every variable, and the ``<UnitDefinitions>`` they refer to;
 * the real direct-feedthrough dependencies of each output in ``<ModelStructure>``, which the
   master algorithm uses to order the components;
@@ -34,6 +36,7 @@ from __future__ import annotations
 
 import copy
 import ctypes
+import keyword
 import math
 import pickle
 import sys
@@ -98,7 +101,7 @@ def known_units() -> tuple[str, ...]:
 # attributes that are declarations, not state (see FlexFusionSlave._get_fmu_state)
 _NOT_STATE = frozenset({"vars", "log_queue", "instance_name", "resources", "visible", "guid",
                         "_units", "_inputs", "_depends", "_arrays", "_output_vrs", "_host_log",
-                        "_real_setters", "_input_slots", "_real_slots", "_read_plans",
+                        "_real_setters", "_input_slots", "_real_slots", "_read_plans", "_write_plans",
                         "_outputs", "_output_spans"})
 _BOUND = "flexfusion.bound"   # deepcopy memo key: the live objects _Bound names stand for
 _OUTPUT_CAPACITY = 512        # floats of a slave's output buffer (vector outputs beyond it: own arrays)
@@ -119,6 +122,21 @@ def nominal_step(h: float) -> float:
         if h and len(_NOMINAL) < 4096:     # not 0.0 == -0.0 (two results); bounded (NaN never hits)
             _NOMINAL[h] = nominal
     return nominal
+
+
+def _attribute(name: str) -> str:
+    """The expression of the slave's attribute ``name`` in :func:`_generated` code."""
+    return f"slave.{name}" if name.isidentifier() and not keyword.iskeyword(name) else f"slave.__dict__[{name!r}]"
+
+
+def _generated(name: str, arguments: str, body: list[str], env: dict[str, Any]) -> Any:
+    """The function ``name(arguments)`` of the source lines ``body``, whose free names are the
+    objects of ``env``: a host's list of value references read or written with one call of
+    straight assignments (generated once per list, as :func:`collections.namedtuple` builds
+    its methods; ``body`` holds only numbers, names of ``env`` and :func:`_attribute`)."""
+    source = f"def {name}({arguments}):\n" + ("\n".join(body) or "    pass") + "\n"
+    exec(compile(source, f"<fmi {name}>", "exec"), env)     # noqa: S102 - our own identifiers and numbers
+    return env[name]
 
 
 class _Bound:
@@ -224,9 +242,10 @@ class FlexFusionSlave(Fmi2Slave):
         # that holds it, index) or (None, attribute name)
         self._real_slots: dict[int, tuple[np.ndarray | None, int | str]] = {}
         self._input_slots: dict[int, tuple[np.ndarray | None, int | str]] = {}
-        # a host reads the same value references at every step: the reading of each list is
-        # planned once (see _plan), keyed by the tuple of references
-        self._read_plans: dict[tuple[int, ...], tuple] = {}
+        # a host reads and sets the same value references at every step: the reading (and
+        # writing) of each list is generated once (_reader, _writer), keyed by the references
+        self._read_plans: dict[tuple[int, ...], Any] = {}
+        self._write_plans: dict[tuple[int, ...], Any] = {}     # the same for the inputs set
         # the vector outputs are consecutive views of one buffer, in declaration order: a host
         # reads them with one copy, an adapter may write several at once (output_span)
         self._outputs = np.zeros(_OUTPUT_CAPACITY)
@@ -524,42 +543,40 @@ class FlexFusionSlave(Fmi2Slave):
                 self._fail(f"output update at t = {self._time:.6g} s", exc)
                 raise
         key = tuple(vrs)
-        plan = self._read_plans.get(key)
-        if plan is None:
+        read = self._read_plans.get(key)
+        if read is None:
             try:
-                plan = self._plan(key, self._real_slots, self._read_plans)
+                read = self._reader(key)
             except KeyError:
                 return super().get_real(vrs)     # pythonfmu's message for a non-Real reference
-        values: list[float] = []
-        for view, attr in plan:
-            if view is None:
-                values.append(getattr(self, attr))
-            else:
-                values += view.tolist()
+        values = read(self)
         total = sum(values)
         if total - total != 0.0 and self.nan_outputs == "error":   # NaN, inf, or an overflowed sum
             self._check_outputs(vrs, values)
         return values
 
-    @staticmethod
-    def _plan(vrs: tuple[int, ...], slots: dict, plans: dict) -> tuple:
-        """The reading of the value references ``vrs`` (each a key of ``slots``, else KeyError):
-        one ``(view, None)`` per run of consecutive elements of one array (a view of them: read
-        with one ``tolist``), one ``(None, attribute)`` per scalar; kept in ``plans``."""
-        runs: list[list] = []        # [array, first index, count] or [None, attribute, 1]
+    def _reader(self, vrs: tuple[int, ...]) -> Any:
+        """The reading of the value references ``vrs`` (each a key of ``_real_slots``, else
+        KeyError): ``read(slave)`` returns their values as a list of floats, with one ``tolist``
+        of the span each array holds them in (the vector outputs: of the output buffer) and
+        the scalars' attributes. Kept in ``_read_plans``."""
+        arrays: dict[int, list] = {}           # id -> [name, array, lowest, highest index]
+        items = []
         for vr in vrs:
-            array, index = slots[vr]
-            last = runs[-1] if runs else None
-            if array is not None and last is not None and last[0] is array \
-                    and last[1] + last[2] == index:
-                last[2] += 1
-            else:
-                runs.append([array, index, 1])
-        plan = tuple((None, index) if array is None else (array[index:index + n], None)
-                     for array, index, n in runs)
-        if len(plans) < 64:              # a host's few lists (bounded whatever the host does)
-            plans[vrs] = plan
-        return plan
+            array, index = self._real_slots[vr]
+            if array is None:
+                items.append(_attribute(index))
+                continue
+            a = arrays.setdefault(id(array), [f"a{len(arrays)}", array, index, index])
+            a[2], a[3] = min(a[2], index), max(a[3], index)
+            items.append((a, index))
+        lines = [f"    l{name} = {name}[{lo}:{hi + 1}].tolist()" for name, _, lo, hi in arrays.values()]
+        listed = [item if isinstance(item, str) else f"l{item[0][0]}[{item[1] - item[0][2]}]" for item in items]
+        read = _generated("read", "slave", lines + [f"    return [{', '.join(listed)}]"],
+                          {name: array for name, array, _, _ in arrays.values()})
+        if len(self._read_plans) < 64:              # a host's few lists (bounded whatever the host does)
+            self._read_plans[vrs] = read
+        return read
 
     def _check_outputs(self, vrs: list[int], values: list[float]) -> None:
         bad = [(self.vars[vr].name, v) for vr, v in zip(vrs, values)
@@ -614,21 +631,40 @@ class FlexFusionSlave(Fmi2Slave):
         (parameters) goes through its variable's setter."""
         if not vrs:
             return
-        slots = self._input_slots
-        try:
-            for vr, v in zip(vrs, values):
-                array, index = slots[vr]
-                if array is None:
-                    setattr(self, index, float(v))
-                else:
-                    array[index] = v
-        except KeyError:
-            self._set_each(vrs, values)
-            return
+        key = tuple(vrs)
+        write = self._write_plans.get(key)
+        if write is None:
+            write = self._writer(key)
+            if write is None:
+                self._set_each(vrs, values)
+                return
+        write(self, values)
         self._inputs_dirty = self._stale = True
         total = sum(values)
         if total - total != 0.0:        # NaN, inf, or an overflowed sum
             self._inputs_unchecked = True
+
+    def _writer(self, vrs: tuple[int, ...]) -> Any:
+        """The writing of values to the value references ``vrs`` if all are inputs (else None):
+        ``write(slave, values)`` assigns each straight to its array element or (as a float)
+        attribute. Kept in ``_write_plans``."""
+        slots = self._input_slots
+        if not all(vr in slots for vr in vrs):
+            return None
+        names: dict[int, str] = {}
+        env, lines = {}, []
+        for i, vr in enumerate(vrs):
+            array, index = slots[vr]
+            if array is None:
+                lines.append(f"    {_attribute(index)} = float(values[{i}])")
+            else:
+                name = names.setdefault(id(array), f"a{len(names)}")
+                env[name] = array
+                lines.append(f"    {name}[{index}] = values[{i}]")
+        write = _generated("write", "slave, values", lines, env)
+        if len(self._write_plans) < 64:
+            self._write_plans[vrs] = write
+        return write
 
     def _set_each(self, vrs: list[int], values: list[float]) -> None:
         self._inputs_unchecked = True

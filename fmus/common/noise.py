@@ -90,30 +90,14 @@ def random_walk_increment(rng: np.random.Generator, sigma_per_sqrt_s: float | np
     return np.asarray(sigma_per_sqrt_s, dtype=float) * np.sqrt(dt) * rng.standard_normal(n)
 
 
-class BlockNormals:
-    """A generator's standard normal numbers, ``n`` per call, drawn ahead in blocks.
-
-    numpy's Generator keeps no state between draws but the bit generator's, so the rows of one
-    ``standard_normal((k, n))`` are the numbers of ``k`` calls of ``standard_normal(n)``, in
-    order: a block saves the call's overhead (about 1.5 us) per sample. ``rng`` is the stream's
-    generator (:func:`make_rng`), ``n`` the numbers per call.
+def normal_rows(rng: np.random.Generator, n: int, rows: int) -> np.ndarray:
+    """The next ``rows`` draws of ``n`` standard normal numbers of the stream's generator
+    ``rng`` (:func:`make_rng`), one draw per row: numpy's Generator keeps no state between draws
+    but the bit generator's, so the rows of one ``standard_normal((rows, n))`` are the numbers
+    of ``rows`` calls of ``standard_normal(n)``, in order. A compiled sensor takes them row by
+    row (no call, about 1.5 us, per sample), and draws the same stream.
     """
-
-    BLOCK = 256       # calls per draw
-
-    def __init__(self, rng: np.random.Generator, n: int) -> None:
-        self.rng, self.n = rng, n
-        self._block = np.empty((0, n))
-        self._next = 0
-
-    def standard_normal(self, n: int) -> np.ndarray:
-        """The next ``n`` numbers (``n`` as given at construction)."""
-        if n != self.n:
-            raise ValueError(f"this stream serves {self.n} numbers per call, not {n}")
-        if self._next == len(self._block):
-            self._block, self._next = self.rng.standard_normal((self.BLOCK, n)), 0
-        self._next += 1
-        return self._block[self._next - 1]
+    return rng.standard_normal((rows, n))
 
 
-__all__ = ["BlockNormals", "make_rng", "reseeded_rng", "reseed_param", "stream_key", "white_noise", "random_walk_increment"]
+__all__ = ["normal_rows", "make_rng", "reseeded_rng", "reseed_param", "stream_key", "white_noise", "random_walk_increment"]

@@ -1,10 +1,11 @@
 """FMU adapter of the rigid-kinematics baseline (tool position from the motor angles)."""
 from __future__ import annotations
 
-from fmus.common import kinematics
+import numpy as np
+
 from fmus.common.fmi import FlexFusionSlave
-from fmus.estimators.rigid_kinematics_model import RigidKinematicsParameters, arm_angles
-from fmus.common.sample_time import T_MEAS_DESCRIPTION, TIME_TOL, UNSTAMPED, measurement_time
+from fmus.common.sample_time import T_MEAS_DESCRIPTION, UNSTAMPED, measurement_time
+from fmus.estimators.rigid_kinematics_model import RigidKinematicsParameters, constants, estimate
 
 
 class RigidKinematics(FlexFusionSlave):
@@ -32,10 +33,9 @@ class RigidKinematics(FlexFusionSlave):
                     "(q_a_hat[1] + q_a_hat[2])", depends_on=feed)
 
     def setup(self, params: RigidKinematicsParameters) -> None:
-        self.robot = params.robot()
-        self.compensate = bool(params.gravity_compensation)
-        self._links = float(self.robot.l1), float(self.robot.l2)
-        self._samples: list[tuple] = []     # the last two distinct samples (t_meas, q_a)
+        self._consts = constants(params.robot(), params.gravity_compensation)
+        self._samples = np.zeros(7)          # the last two distinct samples (estimate's layout)
+        self._first = self.output_span("q_a_hat", "p_tool_hat").start
         self._refresh(self._time)
 
     def step(self, t: float, dt: float) -> None:
@@ -45,16 +45,5 @@ class RigidKinematics(FlexFusionSlave):
         self._refresh(self._time)
 
     def _refresh(self, now: float) -> None:
-        q = arm_angles(self.q_m_meas, self.robot, self.compensate)
-        t_m = measurement_time(self.t_meas, now)
-        if self._samples and t_m <= self._samples[-1][0] + TIME_TOL:
-            self._samples[-1] = (t_m, q)              # the same sample (or set again)
-        else:
-            self._samples = [*self._samples[-1:], (t_m, q)]
-        if now > t_m + TIME_TOL and len(self._samples) == 2:
-            (t0, (a0, b0)), (t1, (a1, b1)) = self._samples
-            f = (now - t1) / (t1 - t0)
-            q = (a1 + (a1 - a0) * f, b1 + (b1 - b0) * f)
-        self.q_a_hat[:] = q
-        self.p_tool_hat[:] = kinematics.tool_point(q[0], q[1], *self._links)
-        self.phi_tool_hat = q[0] + q[1]
+        self.phi_tool_hat = estimate(self.q_m_meas, measurement_time(self.t_meas, now), now, self._consts,
+                                     self._samples, self._outputs, self._first)

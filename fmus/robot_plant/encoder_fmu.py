@@ -38,8 +38,8 @@ class Encoder(FlexFusionSlave):
         self.channels = SensorChannels(
             2, seed=p.seed, stream="encoder", noise=p.noise, bias=p.bias, bias_rw=p.bias_rw,
             scale=p.scale, resolution=p.resolution, sample_rate=p.sample_rate, cutoff=p.cutoff,
-            filter_order=p.filter_order)
-        self.q_m_meas[:] = self.channels.initial(self.q_m, input_time(self._time, 0.0, self.t_truth))
+            filter_order=p.filter_order, out=self.q_m_meas)
+        self.channels.initial(self.q_m, input_time(self._time, 0.0, self.t_truth))
         self.t_meas = self.channels.t_meas
         self.tuned("reseed")
 
@@ -48,5 +48,5 @@ class Encoder(FlexFusionSlave):
             reseed(self.params.reseed, self.channels)
 
     def step(self, t: float, dt: float) -> None:
-        self.q_m_meas[:] = self.channels.step(self.q_m, dt, input_time(t, dt, self.t_truth))
+        self.channels.step(self.q_m, dt, input_time(t, dt, self.t_truth))     # into q_m_meas
         self.t_meas = self.channels.t_meas

@@ -2,6 +2,8 @@
 realism of :mod:`fmus.robot_plant.plant_dynamics` unless ``ideal``."""
 from __future__ import annotations
 
+import numpy as np
+
 from fmus.common.fmi import FlexFusionSlave
 from fmus.robot_plant import plant_dynamics
 from fmus.robot_plant.plant_model import PlantParameters
@@ -56,28 +58,27 @@ class FlexibleRobot2DOF(FlexFusionSlave):
         self.output("t_state", unit="s", description="time the outputs stand for: the plant's own "
                     "time after its last step (the start time before the first)")
 
+        # where the model's outputs (plant_dynamics.chain4_advance's order) go in the output
+        # buffer; -1: the scalars phi_tool and omega_tool, returned
+        vectors = ("q_a", "dq_a", "ddq_a", "q_m", "dq_m", "p_tool", "v_tool", "a_tool", None, "p_sensor",
+                   "a_sensor", "tau_s", "tau_applied")
+        self._at = np.concatenate([np.r_[self.output_span(n, n)] if n else [-1, -1] for n in vectors])
+
     def setup(self, params: PlantParameters) -> None:
         self.model = plant_dynamics.plant_model(params)
-        self.update_outputs()
-        self.update_applied_torque()
+        self._show(self.model.applied_torques(float(self.tau_m[0]), float(self.tau_m[1])))
         self.t_state = self._time
 
     def step(self, t: float, dt: float) -> None:
         self.model.check_step(dt)
-        self.model.step(self.tau_m, self.f_ext, dt)
-        self.update_outputs()
-        self.update_applied_torque()
+        self.phi_tool, self.omega_tool = self.model.advance(self.tau_m, self.f_ext, dt, self._outputs, self._at)
         self.t_state = t + dt
 
-    def update_applied_torque(self) -> None:
-        """The torque the motors apply at the end of the step, for the command held over it."""
-        self.tau_applied[0], self.tau_applied[1] = self.model.applied_torques(float(self.tau_m[0]),
-                                                                              float(self.tau_m[1]))
-
     def update_outputs(self) -> None:
-        # plain floats throughout: this runs every step
-        (self.q_a[0], self.q_a[1], self.dq_a[0], self.dq_a[1], self.ddq_a[0], self.ddq_a[1],
-         self.q_m[0], self.q_m[1], self.dq_m[0], self.dq_m[1], self.p_tool[0], self.p_tool[1],
-         self.v_tool[0], self.v_tool[1], self.a_tool[0], self.a_tool[1], self.phi_tool, self.omega_tool,
-         self.p_sensor[0], self.p_sensor[1], self.a_sensor[0], self.a_sensor[1], self.tau_s[0],
-         self.tau_s[1]) = self.model.outputs(float(self.f_ext[0]), float(self.f_ext[1]))
+        self._show(())
+
+    def _show(self, applied: tuple) -> None:
+        """The outputs now with the force f_ext set, and the ``applied`` torques (none: kept)."""
+        y = self.model.outputs(float(self.f_ext[0]), float(self.f_ext[1])) + tuple(applied)
+        plant_dynamics.scatter(y, self._outputs, self._at)
+        self.phi_tool, self.omega_tool = y[16], y[17]

@@ -8,7 +8,7 @@ import numpy as np
 from fmus.common.fmi import FlexFusionSlave
 from fmus.common.frames import G
 from fmus.robot_plant.sensor_model import (ImuParameters, SensorChannels, T_TRUTH_DESCRIPTION, UNSTAMPED,
-                                           imu_reading, input_time, reseed)
+                                           imu_reading_into, input_time, mount_matrix, reseed)
 
 
 class Imu(FlexFusionSlave):
@@ -44,22 +44,26 @@ class Imu(FlexFusionSlave):
         self.gyro: SensorChannels | None = None
 
     def _ideal(self) -> tuple[np.ndarray, np.ndarray]:
-        return imu_reading(self.a_sensor, self.phi_tool, self.omega_tool, self.params.mount_rpy, self.params.g)
+        imu_reading_into(self.a_sensor, self.phi_tool, self.omega_tool, self._mount, self.params.g, self._acc,
+                         self._gyro)
+        return self._acc, self._gyro
 
     def setup(self, p: ImuParameters) -> None:
+        self._mount = mount_matrix(tuple(p.mount_rpy))
+        self._acc, self._gyro = np.empty(3), np.empty(3)       # the ideal readings
         self.acc = SensorChannels(
             3, seed=p.seed, stream="imu/acc", noise=p.acc_noise, bias=p.acc_bias, bias_rw=p.acc_bias_rw,
             scale=p.acc_scale, resolution=p.acc_resolution, range=p.acc_range, sample_rate=p.sample_rate,
-            cutoff=p.acc_cutoff, filter_order=p.filter_order, names={"cutoff": "acc_cutoff"})
+            cutoff=p.acc_cutoff, filter_order=p.filter_order, names={"cutoff": "acc_cutoff"}, out=self.acc_s)
         self.gyro = SensorChannels(
             3, seed=p.seed, stream="imu/gyro", noise=p.gyro_noise, bias=p.gyro_bias,
             bias_rw=p.gyro_bias_rw, scale=p.gyro_scale, resolution=p.gyro_resolution,
             range=p.gyro_range, sample_rate=p.sample_rate, cutoff=p.gyro_cutoff,
-            filter_order=p.filter_order, names={"cutoff": "gyro_cutoff"})
+            filter_order=p.filter_order, names={"cutoff": "gyro_cutoff"}, out=self.gyro_s)
         acc, gyro = self._ideal()
         t0 = input_time(self._time, 0.0, self.t_truth)
-        self.acc_s[:] = self.acc.initial(acc, t0)
-        self.gyro_s[:] = self.gyro.initial(gyro, t0)
+        self.acc.initial(acc, t0)
+        self.gyro.initial(gyro, t0)
         self.t_meas = self.acc.t_meas
         self.tuned("reseed")
 
@@ -70,6 +74,6 @@ class Imu(FlexFusionSlave):
     def step(self, t: float, dt: float) -> None:
         acc, gyro = self._ideal()
         t_in = input_time(t, dt, self.t_truth)
-        self.acc_s[:] = self.acc.step(acc, dt, t_in)
-        self.gyro_s[:] = self.gyro.step(gyro, dt, t_in)
+        self.acc.step(acc, dt, t_in)            # the readings into acc_s and gyro_s
+        self.gyro.step(gyro, dt, t_in)
         self.t_meas = self.acc.t_meas

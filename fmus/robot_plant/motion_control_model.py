@@ -375,14 +375,21 @@ def _offset_arm_angles(row, dp0, dp1, l1, l2):
     return dq0, dq1
 
 
-# constants of the law (MotionController._k): kp, kd, kp / ti, tau_max, gear ratios (2 each), l1, l2
-@kernel(aot="boolean(float64[:, :], float64, float64, boolean, float64[:], float64[:], "
-            "float64[:], float64[:], float64[:], float64[:], float64[:], float64[:])")
-def _control_law(table, dt, t, resample, row, q_m, dq_m, dp, excitation, integral, k, out):
-    """:meth:`MotionController.evaluate` on floats: the ``row`` at ``t`` (when ``resample``),
-    the references moved by the offset ``dp``, the error and the limited PID torque, into
-    ``out`` = q_a_ref, q_m_ref, p_ref, error, tau, wind-up direction (2 each); ``excitation``:
-    an added torque or empty. Returns whether the limit acted."""
+# MotionController's state, one float array (a kernel call costs about 0.1 us per array it
+# takes): the table row, the law's results (q_a_ref, q_m_ref, p_ref, error, tau, wind-up
+# direction: 2 each), the integral of the error, the law's constants (kp, kd, kp / ti,
+# tau_max, gear ratios: 2 each, l1, l2)
+_ROW, _OUT, _INTEGRAL, _K, _WORK = 0, _NCOL, _NCOL + 12, _NCOL + 14, _NCOL + 26
+
+
+@kernel(aot="boolean(float64[:, :], float64, float64, boolean, float64[:], float64[:], float64[:], float64[:], "
+            "float64[:])")
+def _control_law(table, dt, t, resample, work, q_m, dq_m, dp, excitation):
+    """:meth:`MotionController.evaluate` on floats: the row at ``t`` (when ``resample``), the
+    references moved by the offset ``dp``, the error and the limited PID torque into the
+    results of ``work`` (the state's layout above); ``excitation``: an added torque or empty.
+    Returns whether the limit acted."""
+    row, out, integral, k = work[_ROW:_OUT], work[_OUT:_INTEGRAL], work[_INTEGRAL:_K], work[_K:_WORK]
     if resample:
         _table_row(table, dt, t, row)
     qa0, qa1, qr0, qr1 = row[6], row[7], row[14], row[15]
@@ -413,6 +420,41 @@ def _control_law(table, dt, t, resample, row, q_m, dq_m, dp, excitation, integra
     return saturated
 
 
+@kernel(aot="void(float64[:], boolean, float64)")
+def _integrate(work, saturated, dt):
+    """:meth:`MotionController.advance`: the integral of the error over ``dt``, not in the
+    wind-up direction of a limit that acted (the same numbers; ``work``: the state)."""
+    for i in range(2):
+        e = work[_OUT + 6 + i]
+        if not saturated:
+            work[_INTEGRAL + i] += e * dt
+        elif work[_OUT + 10 + i] * e > 0:
+            work[_INTEGRAL + i] += 0.0
+        else:
+            work[_INTEGRAL + i] += e * dt
+
+
+@kernel(aot="boolean(float64[:, :], float64, float64, float64, boolean, float64[:], float64[:], float64[:], "
+            "float64[:], float64[:], float64[:], float64[:], int64[:])")
+def _control_step(table, dt, t, h, resample, work, q_m, dq_m, dp, excitation, excitation_next, dest, at):
+    """:meth:`MotionController.step` in one call: the law at ``t`` (``resample``: a new row),
+    the integral over ``h``, the law at ``t + h`` (with ``excitation_next``); then result ``i``
+    (q_a_ref, q_m_ref, p_ref, error, tau: 2 each) into ``dest[at[i]]`` and the row's column
+    ``c`` into ``dest[at[10 + c]]`` where that is not negative. Returns whether the limit acted
+    at ``t + h``."""
+    saturated = _control_law(table, dt, t, resample, work, q_m, dq_m, dp, excitation)
+    _integrate(work, saturated, h)
+    t_next = t + h
+    saturated = _control_law(table, dt, t_next, t_next != t, work, q_m, dq_m, dp, excitation_next)
+    for i in range(10):
+        if at[i] >= 0:
+            dest[at[i]] = work[_OUT + i]
+    for c in range(_NCOL):
+        if at[10 + c] >= 0:
+            dest[at[10 + c]] = work[_ROW + c]
+    return saturated
+
+
 class MotionController:
     """The motion controller's run-time state: references, PID law, integral of the error.
 
@@ -435,43 +477,50 @@ class MotionController:
         g = model.gains
         self.kp, self.kd, self.tau_max = g.kp, g.kd, g.tau_max
         self.kpi = g.kp * np.where(g.ti > 0, 1.0 / np.where(g.ti > 0, g.ti, 1.0), 0.0)  # kp/ti or 0
-        self._k = np.concatenate([g.kp, g.kd, self.kpi, g.tau_max, model.r, [model.l1, model.l2]])
+        # the state (row, results, integral, constants: the layout of _WORK), updated in place
+        # and read through properties (views kept as attributes would not survive a state's copy)
+        self._work = np.zeros(_WORK)
+        self._work[_K:] = np.concatenate([g.kp, g.kd, self.kpi, g.tau_max, model.r, [model.l1, model.l2]])
         self._excitation = np.zeros(0)
         self._saturated = False
-        self.integral = np.zeros(2)
-        # the law's outputs, updated in place: q_a_ref, q_m_ref, p_ref, error, tau, wind-up
-        # (read through properties: views kept as attributes would not survive a state's copy)
-        self._out = np.zeros(12)
-        self.row = model.sample(0.0)
-        self._row_t = 0.0            # the time of row: an FMU evaluates each time twice (its
-        self._out[0:2] = self.row[_Q]         # outputs at t + dt, then the new inputs at t)
-        self._out[2:4] = self.row[_QM]
-        self._out[4:6] = self.row[_P]
+        self._work[_ROW:_OUT] = row = model.sample(0.0)
+        self._row_t = 0.0            # the time of row
+        self._work[_OUT:_OUT + 6] = np.concatenate([row[_Q], row[_QM], row[_P]])
+
+    @property
+    def row(self) -> np.ndarray:
+        """The reference table's row of the last :meth:`evaluate` (:meth:`MotionControlModel.sample`)."""
+        return self._work[_ROW:_OUT]
+
+    @property
+    def integral(self) -> np.ndarray:
+        """The integral of the motor angle error [rad s]."""
+        return self._work[_INTEGRAL:_K]
 
     @property
     def q_a_ref(self) -> np.ndarray:
         """Arm reference of the last :meth:`evaluate` (with the offset) [rad]."""
-        return self._out[0:2]
+        return self._work[_OUT + 0:_OUT + 2]
 
     @property
     def q_m_ref(self) -> np.ndarray:
         """Motor reference of the last :meth:`evaluate` (with the offset) [rad, motor side]."""
-        return self._out[2:4]
+        return self._work[_OUT + 2:_OUT + 4]
 
     @property
     def p_ref(self) -> np.ndarray:
         """Tool reference of the last :meth:`evaluate` (with the offset) [m, world x and z]."""
-        return self._out[4:6]
+        return self._work[_OUT + 4:_OUT + 6]
 
     @property
     def error(self) -> np.ndarray:
         """Motor angle error ``q_m_ref - q_m`` of the last :meth:`evaluate` [rad]."""
-        return self._out[6:8]
+        return self._work[_OUT + 6:_OUT + 8]
 
     @property
     def tau(self) -> np.ndarray:
         """Motor torque of the last :meth:`evaluate` [N m, motor side]."""
-        return self._out[8:10]
+        return self._work[_OUT + 8:_OUT + 10]
 
     @property
     def row_time(self) -> float:
@@ -494,19 +543,34 @@ class MotionController:
         self._row_t = t
         if self.excitation is not None:
             self._excitation = self.excitation(t)
-        self._saturated = _control_law(m.table, m.dt, t, resample, self.row, np.asarray(q_m, dtype=float),
+        self._saturated = _control_law(m.table, m.dt, t, resample, self._work, np.asarray(q_m, dtype=float),
                                        np.asarray(dq_m, dtype=float), np.asarray(dp_ref, dtype=float),
-                                       self._excitation, self.integral, self._k, self._out)
+                                       self._excitation)
         return self.tau
 
     def advance(self, dt: float) -> None:
         """Integrate the error of the last :meth:`evaluate` over ``dt`` (not while it would wind up)."""
-        error = self.error
-        if not self._saturated:
-            self.integral += error * dt
-        else:
-            grow = self._out[10:12] * error > 0          # the wind-up direction of the last limit
-            self.integral += np.where(grow, 0.0, error * dt)
+        _integrate(self._work, self._saturated, dt)
+
+    def step(self, t: float, dt: float, q_m: np.ndarray, dq_m: np.ndarray, dp_ref: np.ndarray,
+             dest: np.ndarray, at: np.ndarray) -> None:
+        """One communication step of a sampled controller in one compiled call, the numbers of
+        ``evaluate(t, ...)``, ``advance(dt)``, ``evaluate(t + dt, ...)``: the torque and the
+        integral for the measurement ``(q_m, dq_m)`` (float arrays) set at ``t``, then the
+        references at ``t + dt`` with it, the references moved by ``dp_ref`` (as in
+        :meth:`evaluate`). The results are also written into ``dest``: result
+        ``i`` of :attr:`q_a_ref`, :attr:`q_m_ref`, :attr:`p_ref`, :attr:`error`, :attr:`tau`
+        (in this order, 2 each) at ``at[i]``, the row's column ``c`` at ``at[10 + c]``, unless
+        negative (an int64 array; an adapter's output buffer)."""
+        m = self.model
+        resample = t != self._row_t
+        excitation = excitation_next = self._excitation
+        if self.excitation is not None:
+            excitation, excitation_next = self.excitation(t), self.excitation(t + dt)
+        self._saturated = _control_step(m.table, m.dt, t, dt, resample, self._work, q_m, dq_m, dp_ref,
+                                        excitation, excitation_next, dest, at)
+        self._row_t = t + dt
+        self._excitation = excitation_next
 
 
 class Multisine:

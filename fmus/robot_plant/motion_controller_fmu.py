@@ -9,9 +9,10 @@ import numpy as np
 from fmus.common.fmi import FlexFusionSlave
 from fmus.robot_plant.motion_control_model import COLUMNS, MotionControllerParameters, build_controller
 
-# outputs copied straight from the reference-table row
+# outputs of the controller's results, in their order (MotionController.step), and outputs
+# copied straight from the reference-table row
+_LAW_OUTPUTS = ("q_a_ref", "q_m_ref", "p_ref", "e_m", "tau_m")
 _ROW_OUTPUTS = ("dq_a_ref", "ddq_a_ref", "dddq_a_ref", "v_ref", "a_ref", "dq_m_ref", "tau_ff")
-_ROW_COLUMNS = np.r_[tuple(COLUMNS[name] for name in _ROW_OUTPUTS)]
 
 
 class MotionController(FlexFusionSlave):
@@ -54,36 +55,25 @@ class MotionController(FlexFusionSlave):
         self.output("tau_ff", 2, unit="N.m", description="feed-forward motor torque, motor side")
         self.output("e_m", 2, unit="rad", description="motor angle error q_m_ref - q_m, motor side",
                     depends_on=meas)
-        self._eval_t = None
-        # the row outputs' positions in the output buffer: copied from a row with one take
-        self._row_positions = np.r_[tuple(self.output_span(n, n) for n in _ROW_OUTPUTS)]
+        # where the step writes its results and the row's columns in the output buffer
+        # (MotionController.step)
+        row_at = np.full(max(c.stop for c in COLUMNS.values()), -1)
+        for name in _ROW_OUTPUTS:
+            row_at[COLUMNS[name]] = np.r_[self.output_span(name, name)]
+        self._at = np.concatenate([np.r_[tuple(self.output_span(n, n) for n in _LAW_OUTPUTS)], row_at])
 
     def setup(self, params: MotionControllerParameters) -> None:
         self.ctrl = build_controller(params)
-        self._shown_t = None
-        self._evaluate(self._time)
-
-    def _evaluate(self, t: float) -> None:
-        c = self.ctrl
-        c.evaluate(t, self.q_m, self.dq_m, self.dp_ref)
-        self._eval_t = t
-        row = c.row
-        if c.row_time != self._shown_t:      # the references of a new time (once per time)
-            self._shown_t = c.row_time
-            self._outputs[self._row_positions] = row.take(_ROW_COLUMNS)
-        self.tau_m[:] = c.tau
-        self.q_a_ref[:] = c.q_a_ref
-        self.q_m_ref[:] = c.q_m_ref
-        self.p_ref[:] = c.p_ref
-        self.e_m[:] = c.error
+        self.update_outputs()
 
     def update_outputs(self) -> None:
-        self._evaluate(self._time)
+        c = self.ctrl
+        c.evaluate(self._time, self.q_m, self.dq_m, self.dp_ref)
+        results = np.concatenate([c.q_a_ref, c.q_m_ref, c.p_ref, c.error, c.tau, c.row])
+        shown = self._at >= 0
+        self._outputs[self._at[shown]] = results[shown]
 
     def step(self, t: float, dt: float) -> None:
-        if self._inputs_dirty or self._eval_t != t:
-            # the torque for the measurement just set, whose error the integrator takes; the
-            # outputs come from the evaluation at t + dt below (not copied twice)
-            self.ctrl.evaluate(t, self.q_m, self.dq_m, self.dp_ref)
-        self.ctrl.advance(dt)
-        self._evaluate(t + dt)
+        # the torque for the measurement just set, whose error the integrator takes, then the
+        # outputs at t + dt (one compiled call)
+        self.ctrl.step(t, dt, self.q_m, self.dq_m, self.dp_ref, self._outputs, self._at)

@@ -56,6 +56,7 @@ links (``link_bending = false``).
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 import numpy as np
 
@@ -110,6 +111,13 @@ def split_link(p, i: int) -> tuple[tuple, tuple]:
 def _spring4(P, i, D):
     """The gearbox spring ``tau_s(D)`` of joint ``i`` (:func:`fmus.common.dynamics.spring_scalar`)."""
     return dynamics.spring_scalar(P[4 + i], P[6 + i], P[8 + i], D)
+
+
+@kernel
+def _applied4(P, i, tau, qm):
+    """The torque motor ``i`` applies for the command ``tau`` at the motor angle ``qm``
+    (:meth:`PlantChain.applied_torque`)."""
+    return P[42 + i] * tau + P[44 + i] * math.sin(P[46 + i] * qm)
 
 
 @kernel(aot="UniTuple(UniTuple(float64, 4), 5)(UniTuple(float64, 12), float64, float64, "
@@ -174,10 +182,8 @@ def _chain4_rates(s, tau1, tau2, fx, fz, P):
     """:meth:`PlantChain.derivatives` of the four-body chain: ``x_dot`` as a 12-tuple."""
     _, _, _, A, T = _chain4(s, fx, fz, P)
     qm1, qm2, dqm1, dqm2 = s[4], s[5], s[10], s[11]
-    ddqm1 = (P[42] * tau1 + P[44] * math.sin(P[46] * qm1) - P[12] * dqm1 - P[14] * math.tanh(dqm1 / P[16])
-             - T[0] / P[2]) / P[18]
-    ddqm2 = (P[43] * tau2 + P[45] * math.sin(P[47] * qm2) - P[13] * dqm2 - P[15] * math.tanh(dqm2 / P[17])
-             - T[2] / P[3]) / P[19]
+    ddqm1 = (_applied4(P, 0, tau1, qm1) - P[12] * dqm1 - P[14] * math.tanh(dqm1 / P[16]) - T[0] / P[2]) / P[18]
+    ddqm2 = (_applied4(P, 1, tau2, qm2) - P[13] * dqm2 - P[15] * math.tanh(dqm2 / P[17]) - T[2] / P[3]) / P[19]
     a1, a2, a3, a4 = A
     return (s[6], s[7], s[8], s[9], s[10], s[11], a1, a2 - a1, a3 - a2, a4 - a3, ddqm1, ddqm2)
 
@@ -232,6 +238,29 @@ def chain4_outputs(s, fx, fz, P):
             px, pz, vx, vz, ax, az, phi, w, px + rx, pz + rz,
             ax + a * ex - w * w * rx, az + a * ez - w * w * rz,
             _spring4(P, 0, qm1 / P[2] - s[0]), _spring4(P, 1, qm2 / P[3] - s[2]))
+
+
+@kernel(aot="Tuple((UniTuple(float64, 12), float64, float64))(UniTuple(float64, 12), float64[:], float64[:], "
+            "float64, int64, float64[:], float64[:], int64[:])")
+def chain4_advance(s, tau, f, dt, substeps, P, out, at):
+    """A plant step in one call: :func:`chain4_step` over ``dt`` [s] (``substeps`` RK4 steps)
+    from the state ``s`` with the motor torques ``tau`` [N m] and the tool force ``f`` [N]
+    (arrays of 2) held and the chain's constants ``P`` (:meth:`PlantChain._pack`), then the
+    outputs at the new state (the 24 of :func:`chain4_outputs`, then the 2 applied torques of
+    ``tau``, :meth:`ExtendedRobotModel.applied_torques`): value ``i`` of these 26 into
+    ``out[at[i]]`` unless ``at[i]`` is negative. Returns the new state, the tool angle and its
+    rate (outputs 16 and 17)."""
+    tau1, tau2, fx, fz = tau[0], tau[1], f[0], f[1]
+    s = chain4_step(s, tau1, tau2, fx, fz, dt, substeps, P)
+    y = chain4_outputs(s, fx, fz, P)
+    for i in range(24):
+        if at[i] >= 0:
+            out[at[i]] = y[i]
+    if at[24] >= 0:
+        out[at[24]] = _applied4(P, 0, tau1, s[4])
+    if at[25] >= 0:
+        out[at[25]] = _applied4(P, 1, tau2, s[5])
+    return s, y[16], y[17]
 
 
 class PlantChain:
@@ -586,7 +615,28 @@ def _solve_spd(M: list, b: list) -> list:
     return x
 
 
-class IdealPlant(dynamics.FlexibleRobotModel):
+class _Advancing:
+    """:meth:`advance` of a plant model in Python (its ``step``, ``outputs`` and
+    ``applied_torques``)."""
+
+    def advance(self, tau_m: np.ndarray, f_ext: np.ndarray, dt: float, out: np.ndarray, at: np.ndarray
+                ) -> tuple[float, float]:
+        """:meth:`ExtendedRobotModel.advance`."""
+        self.step(tau_m, f_ext, dt)
+        y = self.outputs(float(f_ext[0]), float(f_ext[1])) + self.applied_torques(float(tau_m[0]), float(tau_m[1]))
+        scatter(y, out, at)
+        return y[16], y[17]
+
+
+def scatter(values: Sequence[float], out: np.ndarray, at: np.ndarray) -> None:
+    """``out[at[i]] = values[i]`` where ``at[i]`` is not negative (as :func:`chain4_advance`
+    writes its outputs)."""
+    for i, v in zip(at, values):
+        if i >= 0:
+            out[i] = v
+
+
+class IdealPlant(_Advancing, dynamics.FlexibleRobotModel):
     """Today's plant, unchanged: the estimators' 8-state model (``ideal = true``).
 
     Methods take the motor torque commands ``tau1, tau2`` (N m) and the external force on the
@@ -611,7 +661,7 @@ class IdealPlant(dynamics.FlexibleRobotModel):
         """Nothing to check for any ``dt``: today's plant, whose stiffest mode is far below 1 kHz."""
 
 
-class ExtendedRobotModel(dynamics.FlexibleRobotModel):
+class ExtendedRobotModel(_Advancing, dynamics.FlexibleRobotModel):
     """The realistic plant: :class:`PlantChain` integrated by the 8-state model's RK4 with
     ``substeps`` per :meth:`step` (inherited: the integrator works on any state tuple), for the
     plant parameters ``p``, starting at rest in the static equilibrium at arm angles ``q_a0``.
@@ -631,6 +681,19 @@ class ExtendedRobotModel(dynamics.FlexibleRobotModel):
         #: coordinate free): what the integration step must resolve
         self.highest_frequency = highest_frequency(chain, self._s)
         self._checked_dt = None
+
+    def advance(self, tau_m: np.ndarray, f_ext: np.ndarray, dt: float, out: np.ndarray, at: np.ndarray
+                ) -> tuple[float, float]:
+        """:meth:`step` over ``dt`` [s], then the outputs at the new state (:meth:`outputs`, then
+        :meth:`applied_torques` of ``tau_m``) written as :func:`chain4_advance` writes them into
+        ``out`` at ``at``; returns the tool angle and rate (the four-body chain: one compiled
+        call, the same operations). ``tau_m``, ``f_ext``: float arrays of 2."""
+        P = getattr(self._k, "P", None)
+        if P is None:
+            return super().advance(tau_m, f_ext, dt, out, at)
+        self._s, phi, omega = chain4_advance(self._s, tau_m, f_ext, dt, self.substeps, P, out, at)
+        self.t += dt
+        return phi, omega
 
     def step(self, tau_m, f_ext, dt: float) -> None:
         """Advance by ``dt`` [s] with the motor torque ``tau_m`` [N m] and the tool force

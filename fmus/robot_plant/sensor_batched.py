@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fmus.common.noise import make_rng
+from fmus.common.noise import make_rng, normal_rows
 from fmus.common.sample_time import UNSTAMPED
 from fmus.robot_plant.sensor_model import SensorChannels, imu_reading, input_time
 
@@ -35,10 +35,15 @@ class RunStreams:
         self._buf: np.ndarray | None = None
         self._next = 0
 
+    def rows(self, n: int) -> np.ndarray:
+        """The numbers of the next ``block`` calls of ``n`` at once, ``(block, runs * n)``: one
+        row per call, run after run."""
+        return np.stack([normal_rows(g, n, self._block) for g in self._rngs], axis=1).reshape(self._block, -1)
+
     def standard_normal(self, n: int) -> np.ndarray:
         buf = self._buf
         if buf is None or self._next == buf.shape[0]:
-            buf = self._buf = np.stack([g.standard_normal((self._block, n)) for g in self._rngs], axis=1)
+            buf = self._buf = self.rows(n).reshape(self._block, len(self._rngs), n)
             self._next = 0
         if buf.shape[2] != n:
             raise ValueError(f"a run stream serves blocks of {buf.shape[2]} numbers, not {n}")
@@ -47,25 +52,30 @@ class RunStreams:
 
 
 class _Zeros:
-    def __init__(self, runs: int) -> None:
-        self.runs = runs
+    def __init__(self, runs: int, block: int) -> None:
+        self.runs, self.block = runs, block
 
-    def standard_normal(self, n: int) -> np.ndarray:
-        return np.zeros((self.runs, n))
+    def rows(self, n: int) -> np.ndarray:
+        return np.zeros((self.block, self.runs * n))
 
 
 class RunSensorChannels(SensorChannels):
     """:class:`SensorChannels` for ``len(seeds)`` runs: inputs, outputs and states are
     ``(runs, n)`` arrays, and run ``r`` draws from the streams of ``seeds[r]``."""
 
+    BLOCK = 1000      # samples per draw of the run streams
+
     def __init__(self, n: int, seeds: Sequence[int], *, stream: str = "", **kwargs) -> None:
         super().__init__(n, seed=0, stream=stream, **kwargs)
         runs = len(seeds)
-        self._rng_noise = RunStreams(seeds, f"{stream}/noise")
+        self._rng_noise = RunStreams(seeds, f"{stream}/noise", self.BLOCK)
         # without a random walk its increments are zeros whatever is drawn: draw none
-        self._rng_rw = (RunStreams(seeds, f"{stream}/bias_rw") if np.any(self.bias_rw)
-                        else _Zeros(runs))
+        self._rng_rw = (RunStreams(seeds, f"{stream}/bias_rw", self.BLOCK) if np.any(self.bias_rw)
+                        else _Zeros(runs, self.BLOCK))
         self._allocate((runs, n))
+
+    def _draws(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._rng_rw.rows(self.n), self._rng_noise.rows(self.n)
 
 
 class BatchedEncoder:

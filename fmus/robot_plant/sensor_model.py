@@ -20,7 +20,7 @@ import numpy as np
 
 from fmus.common.frames import G, rot_rpy, sensor_rotation
 from fmus.common.jit import kernel
-from fmus.common.noise import BlockNormals, make_rng, reseed_param, reseeded_rng
+from fmus.common.noise import make_rng, normal_rows, reseed_param, reseeded_rng
 from fmus.common.parameters import ParameterError, param
 from fmus.common.sample_time import UNSTAMPED, measurement_time
 
@@ -93,52 +93,63 @@ def quantise(x: np.ndarray, resolution: np.ndarray | float) -> np.ndarray:
     return out
 
 
-# rows of SensorChannels' parameter table, the kernel's per-channel constants
+# SensorChannels' state is one float array, ``work`` (a kernel call costs about 0.1 us per array
+# it takes): a header (steps since the last sample, steps per sample, the next row of the drawn
+# random numbers, whether the low-pass has started, its order (0: none), the number of channels
+# n), the low-pass coefficients b0, b1, b2, a1, a2, the parameter table (rows _GAIN ... _LIM, n
+# each), then per element (runs * n) the low-pass state (2 rows), the bias walk and the
+# saturation flags (1.0: saturated)
+_COUNT, _PERIOD, _ROW, _STARTED, _ORDER, _N = range(6)
+_FLOAT = np.dtype(float)
+_COEF = 6
+_TABLE = _COEF + 5
 _GAIN, _BIAS, _RW, _NOISE, _RES, _LIM = range(6)
 
 
-@kernel(aot="none(float64[:], float64[:, :], float64[:], int64, boolean, boolean, boolean, "
-            "float64[:, :], float64[:], float64[:], float64[:], float64[:], boolean[:])")
-def _channels_kernel(x, z, coef, order, reset, sample, noisy, table, walk, rw_draw, noise_draw, out,
-                     saturated):
-    """One step of :class:`SensorChannels` (its steps 1 and 3-7) on flat arrays, the numbers of
-    the former elementwise numpy code operation by operation (no fastmath: same rounding).
+@kernel(aot="void(float64[:], float64[:], float64[:], float64[:, :], int64, int64, boolean, boolean, boolean)")
+def _channels_kernel(x, work, out, rows, row, order, reset, sample, noisy):
+    """One step of :class:`SensorChannels` (its steps 1 and 3-7) on its ``work`` array, the
+    numbers of the former elementwise numpy code operation by operation (no fastmath: same
+    rounding).
 
-    ``walk``, ``z[0]``, ``z[1]``, ``out`` and ``saturated`` hold ``runs * n`` values (one sensor:
-    ``runs = 1``), element ``k`` of channel ``k % n``; the input ``x`` holds ``runs * n`` or
-    ``n`` values (one input for every run). ``order`` 0: no filter; ``reset``: start the filter
-    in steady state at ``x``; ``sample``: form the reading into ``out`` and ``saturated``;
-    ``noisy``: with the bias-walk step ``rw_draw`` and the white noise ``noise_draw``
-    (standard normal numbers) scaled by the ``table`` rows.
+    ``out`` holds ``runs * n`` values (one sensor: ``runs = 1``), element ``k`` of channel
+    ``k % n``; the input ``x`` holds ``runs * n`` or ``n`` values (one input for every run).
+    ``order`` 0: no filter; ``reset``: start the filter in steady state at ``x``; ``sample``:
+    form the reading into ``out`` and the saturation flags; ``noisy``: with the bias-walk step
+    ``rows[row, k]`` and the white noise ``rows[row, runs * n + k]`` (standard normal numbers)
+    scaled by the table's rows.
     """
-    n = table.shape[1]
-    b0, b1, b2, a1, a2 = coef[0], coef[1], coef[2], coef[3], coef[4]
-    for k in range(walk.size):
-        j = k % n
+    n, size = int(work[_N]), out.size
+    z0 = _TABLE + 6 * n
+    z1, walk, saturated = z0 + size, z0 + 2 * size, z0 + 3 * size
+    b0, b1, b2, a1, a2 = work[_COEF], work[_COEF + 1], work[_COEF + 2], work[_COEF + 3], work[_COEF + 4]
+    for k in range(size):
+        j = _TABLE + k % n
         y = x[k % x.size]
         if order > 0:
             u = y
             if reset:                            # steady state for a constant input
                 if order == 2:
-                    z[1, k] = (b2 - a2) * u
-                z[0, k] = (1.0 - b0) * u
-            y = b0 * u + z[0, k]                 # direct form II transposed
+                    work[z1 + k] = (b2 - a2) * u
+                work[z0 + k] = (1.0 - b0) * u
+            y = b0 * u + work[z0 + k]            # direct form II transposed
             if order == 1:
-                z[0, k] = b1 * u - a1 * y
+                work[z0 + k] = b1 * u - a1 * y
             else:
-                z[0, k] = b1 * u - a1 * y + z[1, k]
-                z[1, k] = b2 * u - a2 * y
+                work[z0 + k] = b1 * u - a1 * y + work[z1 + k]
+                work[z1 + k] = b2 * u - a2 * y
         if sample:
             if noisy:
-                walk[k] = walk[k] + table[_RW, j] * rw_draw[k]
-                y = table[_GAIN, j] * y + table[_BIAS, j] + walk[k] + table[_NOISE, j] * noise_draw[k]
+                work[walk + k] = work[walk + k] + work[j + _RW * n] * rows[row, k]
+                y = (work[j + _GAIN * n] * y + work[j + _BIAS * n] + work[walk + k]
+                     + work[j + _NOISE * n] * rows[row, size + k])
             else:
-                y = table[_GAIN, j] * y + table[_BIAS, j] + walk[k]
-            res = table[_RES, j]
+                y = work[j + _GAIN * n] * y + work[j + _BIAS * n] + work[walk + k]
+            res = work[j + _RES * n]
             if res > 0.0:
                 y = np.rint(y / res) * res       # numpy's round half to even
-            lim = table[_LIM, j]
-            saturated[k] = abs(y) >= lim
+            lim = work[j + _LIM * n]
+            work[saturated + k] = 1.0 if abs(y) >= lim else 0.0
             if y > lim:
                 y = lim
             elif y < -lim:
@@ -146,11 +157,36 @@ def _channels_kernel(x, z, coef, order, reset, sample, noisy, table, walk, rw_dr
             out[k] = y
 
 
+_HELD, _SAMPLED, _USED_UP = 0, 1, 2       # what _channels_step returns
+
+
+@kernel(aot="int64(float64[:], float64[:], float64[:], float64[:, :])")
+def _channels_step(x, work, out, rows):
+    """:meth:`SensorChannels.step` after its checks, in one call: the low-pass (started in
+    steady state at its first step), and at a sample (no step since the last) a reading into
+    ``out`` with the next row of the drawn standard normal numbers ``rows``
+    (:func:`_channels_kernel`); then the counters move on. Returns ``_HELD``, ``_SAMPLED`` or
+    ``_USED_UP`` (sampled with the last row)."""
+    sample = work[_COUNT] == 0.0
+    order = int(work[_ORDER])
+    reset = order > 0 and work[_STARTED] == 0.0
+    if order > 0:
+        work[_STARTED] = 1.0
+    row = int(work[_ROW])
+    if sample:
+        work[_ROW] = row + 1
+    _channels_kernel(x, work, out, rows, row, order, reset, sample, sample)
+    work[_COUNT] = (work[_COUNT] + 1.0) % work[_PERIOD]
+    if not sample:
+        return _HELD
+    return _USED_UP if row + 1 == rows.shape[0] else _SAMPLED
+
+
 class SensorChannels:
     """``n`` sensor channels with the usual imperfections.
 
-    One compiled kernel (:func:`_channels_kernel`) steps every channel; the state is held in
-    arrays of shape :attr:`shape` (``(n,)``; the batched study engine's subclass
+    One compiled call (:func:`_channels_step`) steps every channel; the state is held in one
+    array, for readings of shape :attr:`shape` (``(n,)``; the batched study engine's subclass
     :class:`~fmus.robot_plant.sensor_batched.RunSensorChannels`: ``(runs, n)``), so one
     definition serves both paths.
 
@@ -168,11 +204,13 @@ class SensorChannels:
 
     :attr:`t_meas` is the time stamp of the held reading: the ``time`` given with the input
     that was sampled (:func:`input_time` in the FMUs). Each sample is a new :attr:`output`
-    array (a caller may keep it).
+    array (a caller may keep it), unless ``out`` is given: then every reading is written into
+    that array (an FMU's output), which :attr:`output` is.
 
     Every parameter is a scalar or a length-``n`` array. The white noise and the random walk use
-    independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``;
-    :meth:`reseed` restarts both from another seed (:mod:`fmus.common.noise`).
+    independent streams ``"<stream>/noise"`` and ``"<stream>/bias_rw"`` of ``seed``, drawn
+    ahead in blocks of :attr:`BLOCK` samples (:func:`fmus.common.noise.normal_rows`); :meth:`reseed`
+    restarts both from another seed (:mod:`fmus.common.noise`).
 
     Parameters
     ----------
@@ -180,13 +218,18 @@ class SensorChannels:
         Order of the anti-aliasing Butterworth low-pass, 1 or 2.
     names
         FMU parameter names used in error messages, keys ``"sample_rate"`` and ``"cutoff"``.
+    out
+        Float array of ``n`` the readings are written into, or None (a new array per sample).
     """
+
+    BLOCK = 256       # samples per draw of the random numbers
 
     def __init__(self, n: int, *, seed: int = 0, stream: str = "", noise: float | Sequence[float] = 0.0,
                  bias: float | Sequence[float] = 0.0, bias_rw: float | Sequence[float] = 0.0,
                  scale: float | Sequence[float] = 0.0, resolution: float | Sequence[float] = 0.0,
                  range: float | Sequence[float] = math.inf, sample_rate: float = 0.0,  # noqa: A002
-                 cutoff: float = 0.0, filter_order: int = 2, names: dict[str, str] | None = None) -> None:
+                 cutoff: float = 0.0, filter_order: int = 2, names: dict[str, str] | None = None,
+                 out: np.ndarray | None = None) -> None:
         def vec(v: float | Sequence[float]) -> np.ndarray:
             return np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy()
 
@@ -198,36 +241,68 @@ class SensorChannels:
         if self.filter_order not in (1, 2):
             raise ValueError(f"filter order must be 1 or 2, got {filter_order}")
         self.stream = stream
-        self._rng_noise = BlockNormals(make_rng(seed, f"{stream}/noise"), n)
-        self._rng_rw = BlockNormals(make_rng(seed, f"{stream}/bias_rw"), n)
-        # the kernel's per-channel constants; the walk's row is set with the step (_check_period)
-        self._table = np.array([1.0 + self.scale, self.bias, np.zeros(n), self.noise, self.resolution,
-                                self._limit()])
-        self._coef = np.zeros(5)                 # b0, b1, b2, a1, a2 of the low-pass
-        self._order = 0                          # of the designed low-pass; 0: none
+        self._rng_noise = make_rng(seed, f"{stream}/noise")
+        self._rng_rw = make_rng(seed, f"{stream}/bias_rw")
+        self._work = np.zeros(_TABLE + 6 * n)
+        self._work[_PERIOD], self._work[_N] = 1.0, n
+        # the kernel's per-channel constants; the walk's row is set with the step (_prepare)
+        self._table()[:] = [1.0 + self.scale, self.bias, np.zeros(n), self.noise, self.resolution, self._limit()]
         self._dt_filter = None
-        self._filter_ready = False
         self._dt_sample = None
-        self._dt_walk = None
-        self._period_steps = 1
-        self._count = 0                          # steps since the last sample
+        self._dt = None                          # the step the checks, design and walk scale are for
         self.t_meas = math.nan                   # the held reading's time stamp
+        self._bound = out is not None
         self._allocate((n,))
+        if out is not None:
+            self.output = out
+        self._rows = np.empty((0, 2 * n))        # drawn at the first step
 
     def _allocate(self, shape: tuple[int, ...]) -> None:
-        """The state arrays for readings of ``shape``: :attr:`walk` (the bias random walk),
-        :attr:`output` (the held reading), :attr:`saturated` and the filter's (flat)."""
+        """The state for readings of ``shape``: :attr:`output` (the held reading), and in the
+        work array the filter's, the bias walk's and the saturation flags (zero)."""
         self.shape = shape
-        self.walk, self.output = np.zeros(shape), np.zeros(shape)
-        self.saturated = np.zeros(shape, dtype=bool)
-        self._z = np.zeros((2, self.walk.size))  # filter state (direct form II transposed)
+        size = int(np.prod(shape))
+        head = _TABLE + 6 * self.n
+        self._work = np.concatenate([self._work[:head], np.zeros(4 * size)])
+        self.output = np.zeros(shape)
+
+    def _table(self) -> np.ndarray:
+        """The parameter table in the work array, (6, n) (a view)."""
+        return self._work[_TABLE:_TABLE + 6 * self.n].reshape(6, self.n)
+
+    def _elements(self, part: int) -> np.ndarray:
+        """Part ``part`` (0, 1: the filter state, 2: the bias walk, 3: the saturation flags) of
+        the per-element state in the work array, of :attr:`shape` (a view)."""
+        size = self.output.size
+        first = _TABLE + 6 * self.n + part * size
+        return self._work[first:first + size].reshape(self.shape)
+
+    @property
+    def walk(self) -> np.ndarray:
+        """The bias random walk, of :attr:`shape` (a view of the state)."""
+        return self._elements(2)
+
+    @property
+    def saturated(self) -> np.ndarray:
+        """Whether each channel's held reading is at or beyond its range, of :attr:`shape`."""
+        return self._elements(3) != 0.0
 
     # -- pieces ------------------------------------------------------------------------------
+    def _draws(self) -> tuple[np.ndarray, np.ndarray]:
+        """The next :attr:`BLOCK` samples' standard normal numbers of the walk and the noise
+        streams, one row (of every channel's number) per sample."""
+        return normal_rows(self._rng_rw, self.n, self.BLOCK), normal_rows(self._rng_noise, self.n, self.BLOCK)
+
+    def _draw(self) -> None:
+        self._rows = np.concatenate(self._draws(), axis=1)
+        self._work[_ROW] = 0.0
+
     def reseed(self, seed: int) -> None:
         """Draw the noise and the bias walk from now on from ``seed``'s reseeded streams
         (:func:`fmus.common.noise.reseeded_rng`); every other state carries on."""
-        self._rng_noise = BlockNormals(reseeded_rng(seed, f"{self.stream}/noise"), self.n)
-        self._rng_rw = BlockNormals(reseeded_rng(seed, f"{self.stream}/bias_rw"), self.n)
+        self._rng_noise = reseeded_rng(seed, f"{self.stream}/noise")
+        self._rng_rw = reseeded_rng(seed, f"{self.stream}/bias_rw")
+        self._draw()
 
     def _limit(self) -> np.ndarray:
         """The largest representable magnitude (range rounded down to the resolution)."""
@@ -241,9 +316,10 @@ class SensorChannels:
             raise ValueError(f"parameter '{self.names['cutoff']}' = {self.cutoff:g} Hz must be below "
                              f"the Nyquist frequency {0.5 / dt:g} Hz of the communication step {dt:g} s")
         b, a = butterworth_coefficients(self.cutoff, dt, self.filter_order)
-        self._coef[:] = 0.0
-        self._coef[:len(b)], self._coef[3:3 + len(a) - 1] = b, a[1:]
-        self._order = self.filter_order
+        coef = np.zeros(5)
+        coef[:len(b)], coef[3:3 + len(a) - 1] = b, a[1:]
+        self._work[_COEF:_COEF + 5] = coef
+        self._work[_ORDER] = self.filter_order
         self._dt_filter = dt
 
     def _check_period(self, dt: float) -> None:
@@ -261,35 +337,28 @@ class SensorChannels:
                     f"period {1.0 / self.sample_rate:g} s is not an integer multiple of the "
                     f"communication step {dt:g} s")
         if self._dt_sample is not None:
-            self._count %= n_steps
-        self._period_steps = n_steps
+            self._work[_COUNT] %= n_steps
+        self._work[_PERIOD] = n_steps
         self._dt_sample = dt
 
-    def _run(self, x: np.ndarray, dt: float, sample: bool, noisy: bool) -> None:
-        """Call the kernel: the filter (when ``dt`` is given and a cut-off set) and, with
-        ``sample``, a new :attr:`output` (``noisy``: with a step of the walk and the noise)."""
-        x = np.asarray(x, dtype=float)
-        flat = len(self.shape) == 1                 # one sensor: no views to make
-        if x.ndim != 1:
-            x = np.ascontiguousarray(x).reshape(-1)
-        order, reset = 0, False
-        if dt and self.cutoff > 0.0:
-            if self._dt_filter is None or abs(dt - self._dt_filter) > 1e-12 * dt:
-                self._design(dt)
-            order, reset = self._order, not self._filter_ready
-            self._filter_ready = True
-        walk, saturated = self.walk, self.saturated
-        if not flat:                             # views made per call: a copied state keeps no stale view
-            walk, saturated = walk.reshape(-1), saturated.reshape(-1)
-        rw = noise = out = walk                  # placeholders where nothing is drawn or formed
-        if sample:
-            out = self.output = np.empty(self.shape)
-            if noisy:
-                rw, noise = self._rng_rw.standard_normal(self.n), self._rng_noise.standard_normal(self.n)
-            if not flat:
-                out, rw, noise = out.reshape(-1), rw.reshape(-1), noise.reshape(-1)
-        _channels_kernel(x, self._z, self._coef, order, reset, sample, noisy, self._table, walk, rw,
-                         noise, out, saturated)
+    def _prepare(self, dt: float) -> None:
+        """For steps of ``dt`` (one not seen at the last step): the sample period's check, the
+        low-pass designed (within 1e-12 of the step it has, it stays), the walk's scale over
+        one sample period, and random numbers if the last are used up."""
+        self._check_period(dt)
+        if self.cutoff > 0.0 and (self._dt_filter is None or abs(dt - self._dt_filter) > 1e-12 * dt):
+            self._design(dt)
+        self._table()[_RW] = self.bias_rw * np.sqrt(int(self._work[_PERIOD]) * dt)
+        self._dt = dt
+        if self._work[_ROW] == len(self._rows):
+            self._draw()
+
+    @staticmethod
+    def _flat(x: np.ndarray) -> np.ndarray:
+        """``x`` as the kernels take it: a 1-D float array (a view where it can be)."""
+        if type(x) is not np.ndarray or x.ndim != 1 or x.dtype is not _FLOAT:
+            x = np.ascontiguousarray(x, dtype=float).reshape(-1)
+        return x
 
     # -- use ---------------------------------------------------------------------------------
     def initial(self, x: np.ndarray, time: float = 0.0) -> np.ndarray:
@@ -297,7 +366,9 @@ class SensorChannels:
         saturation of ``x`` (no noise); the filter will start in steady state at the first
         step's input."""
         self.t_meas = float(time)
-        self._run(x, 0.0, True, False)
+        if not self._bound:
+            self.output = np.empty(self.shape)
+        _channels_kernel(self._flat(x), self._work, self.output.reshape(-1), self._rows, 0, 0, False, True, False)
         return self.output
 
     def step(self, x: np.ndarray, dt: float, time: float = math.nan) -> np.ndarray:
@@ -310,16 +381,17 @@ class SensorChannels:
             Naming ``sample_rate`` if the sample period is not an integer multiple of ``dt``, or
             ``cutoff`` if the cut-off is not below the Nyquist frequency of ``dt``.
         """
-        if dt != self._dt_sample:
-            self._check_period(dt)
-        sample = self._count == 0
-        if sample and dt != self._dt_walk:       # the walk's scale over one sample period
-            self._table[_RW] = self.bias_rw * np.sqrt(self._period_steps * dt)
-            self._dt_walk = dt
-        self._run(x, dt, sample, True)
-        if sample:
+        if dt != self._dt:
+            self._prepare(dt)
+        work = self._work
+        if not self._bound and work[_COUNT] == 0.0:
+            self.output = np.empty(self.shape)       # a new array per sample (a caller may keep it)
+        out = self.output if self._bound else self.output.reshape(-1)
+        done = _channels_step(self._flat(x), work, out, self._rows)
+        if done:
             self.t_meas = float(time)
-        self._count = (self._count + 1) % self._period_steps
+            if done == _USED_UP:
+                self._draw()
         return self.output
 
 
@@ -331,9 +403,26 @@ def _xz(v: Sequence[float]) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
-def _mount_matrix(mount_rpy: tuple) -> tuple:
-    """:func:`~fmus.common.frames.rot_rpy` of ``mount_rpy`` as a row-major tuple of 9 floats."""
-    return tuple(float(v) for v in rot_rpy(mount_rpy).reshape(-1))
+def mount_matrix(mount_rpy: tuple) -> np.ndarray:
+    """:func:`~fmus.common.frames.rot_rpy` of ``mount_rpy`` as a flat row-major array of 9
+    (shared by every caller: not to be written)."""
+    return np.ascontiguousarray(rot_rpy(mount_rpy), dtype=float).reshape(-1)
+
+
+@kernel(aot="void(float64[:], float64, float64, float64[:], float64, float64[:], float64[:])")
+def imu_reading_into(a_world_xz, phi, omega, mount, g, acc, gyro):
+    """:func:`imu_reading` of ``a_world_xz``, ``phi``, ``omega`` and ``g`` into the arrays
+    ``acc`` and ``gyro`` (3 each), with the mount matrix ``mount`` of :func:`mount_matrix`:
+    the same operations."""
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = (mount[0], mount[1], mount[2], mount[3], mount[4], mount[5],
+                                                   mount[6], mount[7], mount[8])
+    c, s = math.cos(phi), math.sin(phi)
+    ax, vz = a_world_xz[0], a_world_xz[1] + g          # a - g_vec, y = 0
+    # rows 0 and 2 of R_s (row 1 is R_mount's): acc = R_s^T (ax, 0, vz), gyro = R_s^T (0, omega, 0)
+    r00, r01, r02 = c * m00 + s * m20, c * m01 + s * m21, c * m02 + s * m22
+    r20, r21, r22 = c * m20 - s * m00, c * m21 - s * m01, c * m22 - s * m02
+    acc[0], acc[1], acc[2] = r00 * ax + r20 * vz, r01 * ax + r21 * vz, r02 * ax + r22 * vz
+    gyro[0], gyro[1], gyro[2] = m10 * omega, m11 * omega, m12 * omega
 
 
 def imu_reading(a_world_xz: Sequence[float], phi: float, omega: float, mount_rpy: Sequence[float],
@@ -343,8 +432,9 @@ def imu_reading(a_world_xz: Sequence[float], phi: float, omega: float, mount_rpy
     Specific force ``acc_s = R_s^T (a - g_vec)`` (the 2012 paper's accelerometer model,
     eqs. 17-19, in 3-D; at rest +g on a vertical sensor z) and angular rate
     ``gyro_s = R_s^T (0, omega, 0)``, ``R_s = Ry(phi) R_mount``
-    (:func:`~fmus.common.frames.sensor_rotation`) written out on plain floats: this runs every
-    step of the Imu (the same numbers as the matrix products to a few units of the last place).
+    (:func:`~fmus.common.frames.sensor_rotation`) written out on plain floats
+    (:func:`imu_reading_into`: this runs every step of the Imu; the same numbers as the matrix
+    products to a few units of the last place).
 
     Parameters
     ----------
@@ -355,14 +445,10 @@ def imu_reading(a_world_xz: Sequence[float], phi: float, omega: float, mount_rpy
     mount_rpy
         Mounting roll, pitch, yaw of the sensor on the tool (rad).
     """
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = _mount_matrix(tuple(mount_rpy))
-    c, s = math.cos(phi), math.sin(phi)
-    ax, vz = float(a_world_xz[0]), float(a_world_xz[1]) + g          # a - g_vec, y = 0
-    # rows 0 and 2 of R_s (row 1 is R_mount's): acc = R_s^T (ax, 0, vz), gyro = R_s^T (0, omega, 0)
-    r00, r01, r02 = c * m00 + s * m20, c * m01 + s * m21, c * m02 + s * m22
-    r20, r21, r22 = c * m20 - s * m00, c * m21 - s * m01, c * m22 - s * m02
-    return (np.array([r00 * ax + r20 * vz, r01 * ax + r21 * vz, r02 * ax + r22 * vz]),
-            np.array([m10 * omega, m11 * omega, m12 * omega]))
+    acc, gyro = np.empty(3), np.empty(3)
+    imu_reading_into(np.asarray(a_world_xz, dtype=float).reshape(-1), float(phi), float(omega),
+                     mount_matrix(tuple(mount_rpy)), float(g), acc, gyro)
+    return acc, gyro
 
 
 def force_sensor_reading(f_ext_xz: Sequence[float], a_tool_xz: Sequence[float], phi: float,

@@ -35,14 +35,10 @@ class Tracker(FlexFusionSlave):
                     "(controller clock)")
         self.model: TrackerModel | None = None
 
-    def _publish(self) -> None:
-        self.p_tool_meas[:] = self.model.p_meas
-        self.t_meas = self.model.t_meas
-
     def setup(self, p: TrackerParameters) -> None:
-        self.model = TrackerModel(p.noise, p.sample_rate, p.skew, seed=p.seed)
+        self.model = TrackerModel(p.noise, p.sample_rate, p.skew, seed=p.seed, out=self.p_tool_meas)
         self.model.start(input_time(self._time, 0.0, self.t_truth), self.p_tool)
-        self._publish()
+        self.t_meas = self.model.t_meas
         self.tuned("reseed")
 
     def tuned(self, name: str) -> None:
@@ -50,5 +46,5 @@ class Tracker(FlexFusionSlave):
             reseed(self.params.reseed, self.model)
 
     def step(self, t: float, dt: float) -> None:
-        self.model.update(input_time(t, dt, self.t_truth), self.p_tool)
-        self._publish()
+        self.model.update(input_time(t, dt, self.t_truth), self.p_tool)      # into p_tool_meas
+        self.t_meas = self.model.t_meas

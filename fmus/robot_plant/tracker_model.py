@@ -17,15 +17,75 @@ the true position).
 """
 from __future__ import annotations
 
-from collections import deque
-from itertools import islice
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from fmus.common.noise import BlockNormals, make_rng, reseed_param, reseeded_rng
+from fmus.common.jit import kernel
+from fmus.common.noise import make_rng, normal_rows, reseed_param, reseeded_rng
 from fmus.common.parameters import param
+
+
+# TrackerModel's state (a float array the kernel keeps): history entries, index of the next
+# sample instant, the held sample's stamp, the next row of the drawn random numbers
+_ENTRIES, _NEXT, _T_MEAS, _ROW = range(4)
+_DONE, _FULL, _DRAWN = 0, 1, 2           # what tracker_update returns
+_FLOAT = np.dtype(float)
+
+
+@kernel
+def _position(hist, m, t):
+    """True position at ``t`` by linear interpolation in the ``m`` entries ``(t, x, z)`` of
+    ``hist`` (held before the first and after the last)."""
+    if t <= hist[0, 0]:
+        return hist[0, 1], hist[0, 2]
+    for i in range(m - 1):
+        ta, xa, za, tb, xb, zb = hist[i, 0], hist[i, 1], hist[i, 2], hist[i + 1, 0], hist[i + 1, 1], hist[i + 1, 2]
+        if t <= tb:
+            w = (t - ta) / (tb - ta) if tb > ta else 1.0
+            return xa + w * (xb - xa), za + w * (zb - za)
+    return hist[m - 1, 1], hist[m - 1, 2]
+
+
+@kernel(aot="int64(float64, float64[:], boolean, float64[:, :], float64[:], float64[:], float64[:, :], float64[:])")
+def tracker_update(t, p, append, hist, state, consts, rows, p_meas):
+    """:meth:`TrackerModel.update` on arrays: append ``(t, p)`` to the history ``hist`` (with
+    ``append``), take every sample due by ``t`` into ``p_meas`` (``consts``: first instant,
+    period, skew, noise; ``state``: the layout above), drop the history no later sample needs.
+    Returns ``_FULL`` (nothing
+    done: the history needs room), ``_DRAWN`` (the random numbers ``rows`` are used up: call
+    again with new ones, without ``append``) or ``_DONE``."""
+    m = int(state[_ENTRIES])
+    if append:
+        if m == hist.shape[0]:
+            return _FULL
+        hist[m, 0], hist[m, 1], hist[m, 2] = t, p[0], p[1]
+        m += 1
+        state[_ENTRIES] = m
+    t0, period, skew, noise = consts[0], consts[1], consts[2], consts[3]
+    while True:
+        t_k = t0 + state[_NEXT] * period
+        if t_k > t + 1e-9 * period:
+            break
+        row = int(state[_ROW])
+        if row == rows.shape[0]:
+            return _DRAWN
+        x, z = _position(hist, m, t_k - skew)
+        p_meas[0], p_meas[1] = x + noise * rows[row, 0], z + noise * rows[row, 1]   # drawn even when noise = 0
+        state[_ROW] = row + 1
+        state[_T_MEAS] = t_k
+        state[_NEXT] += 1.0
+    # keep what the next sample can need: back to one entry at or before (next t_k - skew)
+    oldest = t0 + state[_NEXT] * period - skew
+    d = 0
+    while m - d > 1 and hist[d + 1, 0] <= oldest:
+        d += 1
+    if d:
+        for i in range(m - d):
+            hist[i, 0], hist[i, 1], hist[i, 2] = hist[i + d, 0], hist[i + d, 1], hist[i + d, 2]
+        state[_ENTRIES] = m - d
+    return _DONE
 
 
 class TrackerModel:
@@ -36,6 +96,7 @@ class TrackerModel:
     The true position is known at the instants given to :meth:`update` and linearly
     interpolated in between (before the first instant it is the first position: the robot is at
     rest when the measurement starts). Sample instants need not fall on update instants.
+    One compiled call per update (:func:`tracker_update`).
 
     Parameters
     ----------
@@ -47,61 +108,61 @@ class TrackerModel:
         How far the tracker's clock lags the controller's (s), >= 0.
     seed, stream
         Seed and stream name of the noise (:func:`fmus.common.noise.make_rng`).
+    out
+        Float array of 2 the samples :attr:`p_meas` are written into (an FMU's output), or None.
     """
 
+    BLOCK = 256       # samples per draw of the random numbers
+
     def __init__(self, noise: float, sample_rate: float, skew: float, seed: int = 0,
-                 stream: str = "tracker") -> None:
+                 stream: str = "tracker", out: np.ndarray | None = None) -> None:
         if not sample_rate > 0.0:
             raise ValueError(f"sample_rate must be > 0, got {sample_rate!r}")
         if not skew >= 0.0:
             raise ValueError(f"skew must be >= 0, got {skew!r}")
         self.noise, self.period, self.skew = float(noise), 1.0 / float(sample_rate), float(skew)
         self.stream = stream
-        self._rng = BlockNormals(make_rng(seed, stream), 2)
-        self._history: deque[tuple[float, float, float]] = deque()      # (t, x, z)
-        self._t0 = 0.0
-        self._k = 0                          # index of the next sample instant
-        self.p_meas = np.zeros(2)
-        self.t_meas = 0.0
+        self._consts = np.array([0.0, self.period, self.skew, self.noise])
+        self._hist = np.zeros((8, 3))            # (t, x, z) entries, grown when full
+        self._state = np.zeros(4)
+        self.p_meas = np.zeros(2) if out is None else out
+        self._rng = make_rng(seed, stream)
+        self._draw()
+
+    @property
+    def t_meas(self) -> float:
+        """The held sample's stamp (s, controller clock)."""
+        return float(self._state[_T_MEAS])
+
+    def _draw(self) -> None:
+        self._rows = normal_rows(self._rng, 2, self.BLOCK)
+        self._state[_ROW] = 0
 
     def reseed(self, seed: int) -> None:
         """Draw the noise from now on from ``seed``'s reseeded stream
         (:func:`fmus.common.noise.reseeded_rng`)."""
-        self._rng = BlockNormals(reseeded_rng(seed, self.stream), 2)
-
-    def _position(self, t: float) -> tuple[float, float]:
-        """True position at ``t`` by linear interpolation in the history (held before it)."""
-        h = self._history
-        if t <= h[0][0]:
-            return h[0][1], h[0][2]
-        for (ta, xa, za), (tb, xb, zb) in zip(h, islice(h, 1, None)):
-            if t <= tb:
-                w = (t - ta) / (tb - ta) if tb > ta else 1.0
-                return xa + w * (xb - xa), za + w * (zb - za)
-        return h[-1][1], h[-1][2]
+        self._rng = reseeded_rng(seed, self.stream)
+        self._draw()
 
     def start(self, t0: float, p: Sequence[float]) -> None:
         """Begin at ``t0`` with the true position ``p``: the first sample, stamped ``t0``."""
-        self._history.clear()
-        self._t0, self._k = float(t0), 0
+        self._state[_ENTRIES] = self._state[_NEXT] = 0.0
+        self._consts[0] = float(t0)
         self.update(t0, p)
 
     def update(self, t: float, p: Sequence[float]) -> None:
-        """The true position is ``p`` at ``t`` (non-decreasing); take every sample due by ``t``."""
-        self._history.append((float(t), float(p[0]), float(p[1])))
-        while True:
-            t_k = self._t0 + self._k * self.period
-            if t_k > t + 1e-9 * self.period:
-                break
-            x, z = self._position(t_k - self.skew)
-            e = self._rng.standard_normal(2)          # white noise: drawn even when noise = 0
-            self.p_meas = np.array([x + self.noise * e[0], z + self.noise * e[1]])
-            self.t_meas = t_k
-            self._k += 1
-        # keep what the next sample can need: back to one entry at or before (next t_k - skew)
-        oldest = self._t0 + self._k * self.period - self.skew
-        while len(self._history) > 1 and self._history[1][0] <= oldest:
-            self._history.popleft()
+        """The true position is ``p`` (x, z) at ``t`` (non-decreasing); take every sample due by
+        ``t``."""
+        if type(p) is not np.ndarray or p.dtype is not _FLOAT:
+            p = np.asarray(p, dtype=float)
+        append = True
+        while (done := tracker_update(t, p, append, self._hist, self._state, self._consts, self._rows,
+                                      self.p_meas)) != _DONE:
+            if done == _FULL:
+                self._hist = np.concatenate([self._hist, np.zeros_like(self._hist)])
+            else:
+                self._draw()
+                append = False
 
 
 LEICA = ("Axelsson et al. 2012, section 5.1 and Henriksson et al. 2009, section IV: Leica laser "

@@ -98,7 +98,8 @@ def _tour() -> None:
     from fmus.estimators import ekf_accelerometer_model as em
     from fmus.estimators.axelsson2012_batched import BatchedMeasurement
     from fmus.robot_plant.motion_control_model import MotionControllerParameters, build_controller
-    from fmus.robot_plant.plant_dynamics import PlantChain
+    from fmus.estimators import rigid_kinematics_model
+    from fmus.robot_plant.plant_dynamics import PlantChain, plant_model
     from fmus.robot_plant.plant_model import PlantParameters
     from orchestration.batched import run_recorded
     def run(name: str, seeds: tuple[int, ...] = (1,)) -> None:
@@ -119,6 +120,14 @@ def _tour() -> None:
     controller.model.offset_arm_angles(controller.model.sample(0.5), np.array([1e-3, -2e-3]))
     chain = PlantChain(PlantParameters())
     chain.arm(tuple(np.linspace(-0.3, 0.4, 12)), 20.0, -10.0)
+    # Python paths beside the FMUs' one-call steps (studies, identification, the CRLB)
+    plant_model(PlantParameters()).step(np.array([20.0, -10.0]), np.zeros(2), 1e-3)
+    controller.evaluate(0.5, np.zeros(2), np.zeros(2), np.zeros(2))
+    controller.advance(1e-3)
+    rigid_kinematics_model.arm_angles(np.array([30.0, -20.0]), RobotParameters(), True)
+    ekf = em.EkfAccelerometerModel(em.EkfAccelerometerParameters())
+    ekf.predict(np.array([1.0, -1.0]), 1e-3)
+    ekf.update(ekf.meas.h_and_jacobian(ekf.x)[0] + 1e-4)
 
 
 @pytest.fixture(scope="module")

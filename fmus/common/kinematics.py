@@ -64,7 +64,7 @@ def tool_position(q, p) -> np.ndarray:
     return position(q, p, "tool")
 
 
-@kernel(aot="UniTuple(float64, 2)(float64, float64, float64, float64)")
+@kernel
 def tool_point(q1: float, q2: float, l1: float, l2: float) -> tuple[float, float]:
     """:func:`tool_position` on floats (compiled: the rigid baseline's every step): world x, z
     [m] of the tool at the arm angles ``q1``, ``q2`` [rad] of links ``l1``, ``l2`` [m]."""

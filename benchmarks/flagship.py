@@ -49,26 +49,37 @@ BASELINE = "166d721"
 
 
 # ---- measurements inside one tree (run in a subprocess with that tree first on the path) -----
-def _startup() -> tuple[float, float]:
-    """CPU and wall seconds from the first import to the first step, in this (fresh) process
-    (a run long enough for the flagship's metric windows, which start at 0.5 s)."""
-    t0, w0 = time.process_time(), time.perf_counter()
+def run_to_first_row(at_first_row) -> None:
+    """Run the flagship (``master.run``, 0.6 s: long enough for its metric windows, which start
+    at 0.5 s) and call ``at_first_row()`` at its first recorded row: the first step."""
     from orchestration import master
-    first: list[float] = []
     simulate = master.simulate
 
     def timed(sc, sink, *rest):
+        seen: list[bool] = []
+
         def row(t, values):
-            if not first:
-                first.extend((time.process_time(), time.perf_counter()))
+            if not seen:
+                seen.append(True)
+                at_first_row()
             sink(t, values)
         return simulate(sc, row, *rest)
 
     master.simulate = timed
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        master.run(str(Path.cwd() / SCENARIO), ["scenario.stop_time=0.6"],
-                   out_dir=tempfile.mkdtemp(prefix="ff_bench_"))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            master.run(str(Path.cwd() / SCENARIO), ["scenario.stop_time=0.6"],
+                       out_dir=tempfile.mkdtemp(prefix="ff_bench_"))
+    finally:
+        master.simulate = simulate
+
+
+def _startup() -> tuple[float, float]:
+    """CPU and wall seconds from the first import to the first step, in this (fresh) process."""
+    t0, w0 = time.process_time(), time.perf_counter()
+    first: list[float] = []
+    run_to_first_row(lambda: first.extend((time.process_time(), time.perf_counter())))
     return first[0] - t0, first[1] - w0
 
 

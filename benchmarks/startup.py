@@ -28,10 +28,9 @@ import subprocess
 import sys
 import tempfile
 import time
-import warnings
 from pathlib import Path
 
-from flagship import BASELINE, SCENARIO, _baseline_tree
+from flagship import BASELINE, _baseline_tree, run_to_first_row
 
 PHASES = ("import", "scenario", "extract", "instantiate", "setup", "first step")
 
@@ -68,21 +67,11 @@ def measure(numba_outside: bool) -> dict[str, tuple[float, float]]:
     timed(master, "_extracted", "extract")
     timed(master, "_instantiate", "instantiate")
     timed(fmi2.FMU2Slave, "exitInitializationMode", "setup")
-    simulate = master.simulate
 
-    def first_row(sc, sink, *rest):
-        def row(t, values):
-            if not spent["first step"][1]:
-                now = clocks()
-                spent["first step"] = [now[0] - start[0], now[1] - start[1]]
-            sink(t, values)
-        return simulate(sc, row, *rest)
-
-    master.simulate = first_row
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        master.run(str(Path.cwd() / SCENARIO), ["scenario.stop_time=0.6"],
-                   out_dir=tempfile.mkdtemp(prefix="ff_startup_"))
+    def first_step() -> None:
+        now = clocks()
+        spent["first step"] = [now[0] - start[0], now[1] - start[1]]
+    run_to_first_row(first_step)
     spent["instantiate"] = [a - b for a, b in zip(spent["instantiate"], spent["extract"])]
     return {p: tuple(v) for p, v in spent.items()}
 

@@ -585,7 +585,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
 _EXTRACTED: dict[tuple[str, int, int], str] = {}   # FMU file version -> its folder in this process
 _EXTRACT_ROOT: list[str] = []     # this process's temporary folder (when there is no cache)
 _ACTIVE_RUNS = [0]
-_CACHE_KEEP = 32                  # cached FMU folders kept (about 2 MB each), the last used
+_CACHE_KEEP = 32                  # cached FMU folders kept (about 0.15 MB each, packages shared), the last used
 
 
 def _extracted(comp: Component) -> str:
@@ -603,11 +603,12 @@ def _extracted(comp: Component) -> str:
     st = path.stat()
     key = (str(path), st.st_mtime_ns, st.st_size)
     folder = _EXTRACTED.get(key)
-    if folder is None:
-        folder = _EXTRACTED[key] = _cached_folder(path) or str(Path(_temporary_root()) / str(len(_EXTRACTED)))
-    if not Path(folder, "modelDescription.xml").is_file():
-        from fmpy import extract
-        extract(str(path), unzipdir=folder, include=_still_read)
+    if folder is None or not Path(folder, "modelDescription.xml").is_file():
+        cached = _cached_folder(path)        # again where another process pruned it: same path
+        folder = _EXTRACTED[key] = folder or cached or str(Path(_temporary_root()) / str(len(_EXTRACTED)))
+        if folder != cached:
+            from fmpy import extract
+            extract(str(path), unzipdir=folder, include=_still_read)
     return folder
 
 
@@ -629,7 +630,7 @@ def _cached_folder(fmu: Path) -> str | None:
     platform, whose binaries are the only ones extracted. Its Python packages in ``resources/``
     are links to folders shared by every FMU that bundles the same package
     (:func:`_shared_package`): our FMUs all bundle the same ``fmus_<hash>`` and ``pythonfmu``
-    (110 of an FMU's 120 files), so a cold run extracts them once, not once per FMU. A folder
+    (112 of the Encoder FMU's 120 files), so a cold run extracts them once, not once per FMU. A folder
     is extracted under a temporary name and renamed when complete, so processes extracting the
     same FMU at once each use a whole folder (the first rename wins). Extracting a new folder
     removes all but the :data:`_CACHE_KEEP` last used ones (a removed folder that a process

@@ -519,6 +519,23 @@ def test_a_cached_folder_whose_packages_were_removed_gets_them_again(tmp_path, t
     assert files_below(folder) == files
 
 
+def test_a_cached_folder_pruned_under_a_process_comes_back_at_its_path(tmp_path, monkeypatch):
+    """Another process pruned the folders this one used: its next run extracts them again,
+    at the same paths (its imported packages keep their paths), whole and with links."""
+    import shutil
+    from orchestration import master
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(master, "_EXTRACTED", {})
+    scenario = write(tmp_path, CHAIN)
+    run(scenario, out_dir=tmp_path / "a")
+    folders = sorted(master._EXTRACTED.values())
+    shutil.rmtree(tmp_path / "cache" / "fmus")
+    run(scenario, out_dir=tmp_path / "b")
+    assert sorted(master._EXTRACTED.values()) == folders
+    assert all(Path(f, ".complete").is_file() and (Path(f) / "resources" / "pythonfmu").is_symlink() for f in folders)
+    assert (tmp_path / "a" / "results.csv").read_bytes() == (tmp_path / "b" / "results.csv").read_bytes()
+
+
 def test_without_symbolic_links_each_fmu_folder_gets_its_own_packages(tmp_path, toy_dir, monkeypatch):
     import os
     from orchestration import master

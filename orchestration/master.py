@@ -657,23 +657,7 @@ def _cached_folder(fmu: Path) -> str | None:
             root.mkdir(parents=True, exist_ok=True)
             prune(root, _CACHE_KEEP - 1)
             _prune_packages(root)
-            staging = Path(tempfile.mkdtemp(prefix=".extracting-", dir=root))
-            try:
-                with zipfile.ZipFile(fmu) as z:
-                    packages = _packages(z)
-                    for name, members in packages.items():
-                        _link_or_extract(z, name, members, staging)
-                    shared = {m.filename for members in packages.values() for m in members}
-                    z.extractall(staging, [m for m in z.namelist() if m not in shared and (
-                        not m.startswith("binaries/") or m.startswith(f"binaries/{platform}/"))])
-                (staging / _COMPLETE).touch()
-                try:
-                    staging.rename(folder)
-                except OSError:          # another process was first: use its folder
-                    if not marker.is_file():
-                        raise
-            finally:
-                shutil.rmtree(staging, ignore_errors=True)
+            _publish(folder, partial(_extract_linked, fmu, platform), marker.is_file)
         elif _dangling(folder):
             with zipfile.ZipFile(fmu) as z:
                 for name, members in _packages(z).items():
@@ -682,6 +666,20 @@ def _cached_folder(fmu: Path) -> str | None:
     except OSError:
         return None
     return str(folder)
+
+
+def _extract_linked(fmu: Path, platform: str, folder: Path) -> None:
+    """Extract the FMU into ``folder``: its packages linked (:func:`_link_or_extract`), its
+    binaries for ``platform`` only, the marker of a complete folder last."""
+    import zipfile
+    with zipfile.ZipFile(fmu) as z:
+        packages = _packages(z)
+        for name, members in packages.items():
+            _link_or_extract(z, name, members, folder)
+        shared = {m.filename for members in packages.values() for m in members}
+        z.extractall(folder, [m for m in z.namelist() if m not in shared and (
+            not m.startswith("binaries/") or m.startswith(f"binaries/{platform}/"))])
+    (folder / _COMPLETE).touch()
 
 
 def _packages(z: Any) -> dict[str, list[Any]]:
@@ -698,19 +696,19 @@ def _packages(z: Any) -> dict[str, list[Any]]:
     return packages
 
 
-def _link_or_extract(z: Any, name: str, members: list[Any], staging: Path) -> None:
-    """The FMU folder being extracted in ``staging`` gets ``resources/<name>``: a relative
+def _link_or_extract(z: Any, name: str, members: list[Any], folder: Path) -> None:
+    """The FMU folder being extracted, ``folder``, gets ``resources/<name>``: a relative
     symbolic link to the package's shared copy (relative: the cache root may be moved or
     mounted elsewhere whole), or, where the file system has no symbolic links, a copy of its
     own. Symbolic, not hard links: one link per package instead of one per file and folder
     (about 120 of them), and one copy where Python writes the bytecode it compiles, for all."""
-    link = staging / "resources" / name
+    link = folder / "resources" / name
     link.parent.mkdir(exist_ok=True)
     try:
         os.symlink(os.path.relpath(_shared_package(z, name, members), link.parent), link,
                    target_is_directory=True)
     except OSError:
-        z.extractall(staging, members)
+        z.extractall(folder, members)
 
 
 def _shared_package(z: Any, name: str, members: list[Any]) -> Path:
@@ -730,17 +728,24 @@ def _shared_package(z: Any, name: str, members: list[Any]) -> Path:
         os.utime(entry)
     except FileNotFoundError:
         packages.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=".extracting-", dir=packages))
-        try:
-            z.extractall(staging, members)
-            try:
-                staging.rename(entry)
-            except OSError:          # another process was first: use its copy
-                if not entry.is_dir():
-                    raise
-        finally:
-            shutil.rmtree(staging, ignore_errors=True)
+        _publish(entry, lambda staging: z.extractall(staging, members), entry.is_dir)
     return entry / "resources" / name
+
+
+def _publish(final: Path, fill: Callable[[Path], None], published: Callable[[], bool]) -> None:
+    """Make the cache's folder ``final``: ``fill`` a temporary folder beside it, then rename it
+    to ``final``, so that no process ever sees it half made; where another process was first
+    (the rename fails) and its folder is ``published``, that one is used."""
+    staging = Path(tempfile.mkdtemp(prefix=".extracting-", dir=final.parent))
+    try:
+        fill(staging)
+        try:
+            staging.rename(final)
+        except OSError:
+            if not published():
+                raise
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
 
 
 def _dangling(folder: Path) -> bool:

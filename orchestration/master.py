@@ -585,7 +585,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
 _EXTRACTED: dict[tuple[str, int, int], str] = {}   # FMU file version -> its folder in this process
 _EXTRACT_ROOT: list[str] = []     # this process's temporary folder (when there is no cache)
 _ACTIVE_RUNS = [0]
-_CACHE_KEEP = 32                  # cached FMU folders kept (about 2 MB each), the last used
+_CACHE_KEEP = 32                  # cached FMU folders kept (about 0.15 MB each, packages shared), the last used
 
 
 def _extracted(comp: Component) -> str:
@@ -603,11 +603,12 @@ def _extracted(comp: Component) -> str:
     st = path.stat()
     key = (str(path), st.st_mtime_ns, st.st_size)
     folder = _EXTRACTED.get(key)
-    if folder is None:
-        folder = _EXTRACTED[key] = _cached_folder(path) or str(Path(_temporary_root()) / str(len(_EXTRACTED)))
-    if not Path(folder, "modelDescription.xml").is_file():
-        from fmpy import extract
-        extract(str(path), unzipdir=folder, include=_still_read)
+    if folder is None or not Path(folder, "modelDescription.xml").is_file():
+        cached = _cached_folder(path)        # again where another process pruned it: same path
+        folder = _EXTRACTED[key] = folder or cached or str(Path(_temporary_root()) / str(len(_EXTRACTED)))
+        if folder != cached:
+            from fmpy import extract
+            extract(str(path), unzipdir=folder, include=_still_read)
     return folder
 
 
@@ -626,15 +627,20 @@ def _cached_folder(fmu: Path) -> str | None:
     cannot be written.
 
     It is named by the FMU's content (:func:`~orchestration.scenario.fmu_content_key`) and the
-    platform, whose binaries are the only ones extracted. A folder is extracted under a
-    temporary name and renamed when complete, so processes extracting the same FMU at once
-    each use a whole folder (the first rename wins). Extracting a new folder removes all but
-    the :data:`_CACHE_KEEP` last used ones (a removed folder that a process still uses is
-    extracted again by it when it next needs it).
+    platform, whose binaries are the only ones extracted. Its Python packages in ``resources/``
+    are links to folders shared by every FMU that bundles the same package
+    (:func:`_shared_package`): our FMUs all bundle the same ``fmus_<hash>`` and ``pythonfmu``
+    (112 of the Encoder FMU's 120 files), so a cold run extracts them once, not once per FMU. A folder
+    is extracted under a temporary name and renamed when complete, so processes extracting the
+    same FMU at once each use a whole folder (the first rename wins). Extracting a new folder
+    removes all but the :data:`_CACHE_KEEP` last used ones (a removed folder that a process
+    still uses is extracted again by it when it next needs it), then the shared packages no
+    kept folder links to (:func:`_prune_packages`); a link found dangling (its package
+    removed by hand) gets its package extracted again.
     """
     import zipfile
 
-    from fmpy import extract, platform
+    from fmpy import platform
 
     from fmus.common.disk_cache import cache_root, prune
 
@@ -647,26 +653,146 @@ def _cached_folder(fmu: Path) -> str | None:
     folder = root / f"{key}-{platform}"
     marker = folder / _COMPLETE
     try:
-        if marker.is_file():
-            os.utime(folder)           # its last use
-            return str(folder)
-        root.mkdir(parents=True, exist_ok=True)
-        prune(root, _CACHE_KEEP - 1)
-        staging = Path(tempfile.mkdtemp(prefix=".extracting-", dir=root))
-        try:
-            extract(str(fmu), unzipdir=staging,
-                    include=lambda m: not m.startswith("binaries/") or m.startswith(f"binaries/{platform}/"))
-            (staging / _COMPLETE).touch()
-            try:
-                staging.rename(folder)
-            except OSError:          # another process was first: use its folder
-                if not marker.is_file():
-                    raise
-        finally:
-            shutil.rmtree(staging, ignore_errors=True)
+        if not marker.is_file():
+            root.mkdir(parents=True, exist_ok=True)
+            prune(root, _CACHE_KEEP - 1)
+            _prune_packages(root)
+            _publish(folder, partial(_extract_linked, fmu, platform), marker.is_file)
+        elif _dangling(folder):
+            with zipfile.ZipFile(fmu) as z:
+                for name, members in _packages(z).items():
+                    _shared_package(z, name, members)
+        os.utime(folder)                 # its last use
     except OSError:
         return None
     return str(folder)
+
+
+def _extract_linked(fmu: Path, platform: str, folder: Path) -> None:
+    """Extract the FMU into ``folder``: its packages linked (:func:`_link_or_extract`), its
+    binaries for ``platform`` only, the marker of a complete folder last."""
+    import zipfile
+    with zipfile.ZipFile(fmu) as z:
+        packages = _packages(z)
+        for name, members in packages.items():
+            _link_or_extract(z, name, members, folder)
+        shared = {m.filename for members in packages.values() for m in members}
+        z.extractall(folder, [m for m in z.namelist() if m not in shared and (
+            not m.startswith("binaries/") or m.startswith(f"binaries/{platform}/"))])
+    (folder / _COMPLETE).touch()
+
+
+def _packages(z: Any) -> dict[str, list[Any]]:
+    """The zip members of each Python package in an FMU's ``resources/`` (a folder with an
+    ``__init__.py``), by package name."""
+    names = {m.filename.split("/")[1] for m in z.infolist()
+             if m.filename.count("/") == 2 and m.filename.startswith("resources/")
+             and m.filename.endswith("/__init__.py")}
+    packages: dict[str, list[Any]] = {name: [] for name in sorted(names)}
+    for m in z.infolist():
+        parts = m.filename.split("/", 2)
+        if len(parts) == 3 and parts[0] == "resources" and parts[1] in packages:
+            packages[parts[1]].append(m)
+    return packages
+
+
+def _link_or_extract(z: Any, name: str, members: list[Any], folder: Path) -> None:
+    """The FMU folder being extracted, ``folder``, gets ``resources/<name>``: a relative
+    symbolic link to the package's shared copy (relative: the cache root may be moved or
+    mounted elsewhere whole), or, where the file system has no symbolic links, a copy of its
+    own. Symbolic, not hard links: one link per package instead of one per file and folder
+    (about 120 of them), and one copy where Python writes the bytecode it compiles, for all."""
+    link = folder / "resources" / name
+    link.parent.mkdir(exist_ok=True)
+    try:
+        os.symlink(os.path.relpath(_shared_package(z, name, members), link.parent), link,
+                   target_is_directory=True)
+    except OSError:
+        z.extractall(folder, members)
+
+
+def _shared_package(z: Any, name: str, members: list[Any]) -> Path:
+    """The shared copy of the package ``name`` made of the zip ``members``:
+    ``<cache root>/packages/<name>-<key>/resources/<name>``, the key hashing the members'
+    names, sizes and CRC-32s; extracted now if it is not there (under a temporary name,
+    renamed when complete: the first rename wins), its entry's modification time marking its
+    last use (:func:`_prune_packages`). The copy's own folder keeps the package's name: the
+    package finds itself by its resolved path (:mod:`fmus.common.jit`: its compiled module
+    and kernel cache)."""
+    from fmus.common.disk_cache import cache_root, content_key
+
+    key = content_key(name, sorted((m.filename, m.file_size, m.CRC) for m in members))
+    packages = cache_root() / "packages"
+    entry = packages / f"{name}-{key}"
+    try:
+        os.utime(entry)
+    except FileNotFoundError:
+        packages.mkdir(parents=True, exist_ok=True)
+        _publish(entry, lambda staging: z.extractall(staging, members), entry.is_dir)
+    return entry / "resources" / name
+
+
+def _publish(final: Path, fill: Callable[[Path], None], published: Callable[[], bool]) -> None:
+    """Make the cache's folder ``final``: ``fill`` a temporary folder beside it, then rename it
+    to ``final``, so that no process ever sees it half made; where another process was first
+    (the rename fails) and its folder is ``published``, that one is used."""
+    staging = Path(tempfile.mkdtemp(prefix=".extracting-", dir=final.parent))
+    try:
+        fill(staging)
+        try:
+            staging.rename(final)
+        except OSError:
+            if not published():
+                raise
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _dangling(folder: Path) -> bool:
+    """Whether one of a cached FMU folder's links to a shared package leads nowhere."""
+    try:
+        with os.scandir(folder / "resources") as entries:
+            return any(e.is_symlink() and not e.is_dir() for e in entries)
+    except OSError:
+        return False
+
+
+def _prune_packages(fmus: Path) -> None:
+    """Remove the shared packages (and temporary folders) that no folder in ``fmus`` (kept or
+    being extracted) links to and that were not used for
+    :data:`~fmus.common.disk_cache.STALE_TEMPORARY_S`. A package is renamed away before it is
+    removed, then given back if a process took it up again meanwhile (its last use moved:
+    :func:`_shared_package` marks it before it links to it, and extracts a package it finds
+    gone again), so no process links to a package being removed."""
+    from fmus.common.disk_cache import STALE_TEMPORARY_S
+
+    packages = fmus.parent / "packages"
+    if not packages.is_dir():
+        return
+    linked = set()        # the parts of every link's path: the entries' names among them
+    for folder in fmus.iterdir():
+        try:
+            with os.scandir(folder / "resources") as entries:
+                linked.update(part for e in entries if e.is_symlink() for part in Path(os.readlink(e.path)).parts)
+        except OSError:
+            continue
+    stale = time.time() - STALE_TEMPORARY_S
+    for entry in packages.iterdir():
+        try:
+            if entry.name in linked or entry.stat().st_mtime >= stale:
+                continue
+            if entry.name.startswith("."):   # left by a process that died
+                shutil.rmtree(entry, ignore_errors=True)
+                continue
+            trash = Path(tempfile.mkdtemp(prefix=".removing-", dir=packages))
+            try:
+                entry.rename(trash / entry.name)
+                if (trash / entry.name).stat().st_mtime >= stale:    # taken up again meanwhile
+                    (trash / entry.name).rename(entry)
+            finally:
+                shutil.rmtree(trash, ignore_errors=True)
+        except OSError:
+            continue
 
 
 def _still_read(member: str) -> bool:

@@ -362,6 +362,196 @@ def test_fmus_are_extracted_once_into_the_cache_by_content(tmp_path, toy_dir):
     assert Path(moved["g1"]["folder"]) not in folders.values()
 
 
+def bundled(folder: Path) -> dict[str, Path]:
+    """The Python packages in an FMU folder's ``resources/`` (``pythonfmu``, ``fmus_<hash>``),
+    each with the folder it really is."""
+    return {p.name: p.resolve() for p in (folder / "resources").iterdir() if (p / "__init__.py").is_file()}
+
+
+def files_below(folder: Path) -> set[str]:
+    """Every file below ``folder`` (through links), relative, without the bytecode Python wrote."""
+    import os
+    return {Path(d, f).relative_to(folder).as_posix() for d, _, names in os.walk(folder, followlinks=True)
+            for f in names if not f.endswith(".pyc") and f != ".complete"}
+
+
+def test_a_cold_cache_extracts_each_bundled_package_once(tmp_path, toy_dir, no_cache):
+    """Every FMU bundles the same packages: a cold run extracts each once into ``packages/``
+    and links it from each FMU folder (relative links); each folder still holds all of its
+    FMU (this platform's binaries), and the run's results are those of a run without a cache."""
+    import os
+    cache = tmp_path / "cache"
+    scenario = write(tmp_path, CHAIN)
+    seen = folders_of_a_run(scenario, tmp_path / "a", {"FLEXFUSION_CACHE_DIR": str(cache)})
+    folders = {Path(f["folder"]) for f in seen.values()}
+    packages = [bundled(f) for f in folders]
+    assert len(folders) == 2 and packages[0] == packages[1]
+    assert {"pythonfmu"} < set(packages[0]) and any(n.startswith("fmus_") for n in packages[0])
+    assert {p.parent.parent for p in packages[0].values()} == set((cache / "packages").iterdir())
+    for folder in folders:
+        for name in packages[0]:
+            link = folder / "resources" / name
+            assert link.is_symlink() and not Path(os.readlink(link)).is_absolute()
+    copies = sum(names.count("fmi2slave.py") for _, _, names in os.walk(cache))     # links not followed
+    assert copies == 1
+    source = next(Path(f["folder"]) for f in seen.values() if "source_fmu" in str(f["resources"]))
+    with zipfile.ZipFile(toy_dir / "Source.fmu") as z:
+        whole = {m for m in z.namelist() if not m.endswith(("/", ".pyc"))
+                 and (not m.startswith("binaries/") or m.startswith("binaries/linux64/"))}
+    assert files_below(source) == whole
+    folders_of_a_run(scenario, tmp_path / "b", no_cache)
+    assert (tmp_path / "a" / "results.csv").read_bytes() == (tmp_path / "b" / "results.csv").read_bytes()
+
+
+def test_fmus_share_a_bundled_package_only_when_it_is_the_same(tmp_path, toy_dir, monkeypatch):
+    """A second FMU with the same bundle reuses the extracted packages; one whose bundle
+    differs (a file more in ``pythonfmu``) gets its own copy of that package only."""
+    import shutil
+    from orchestration import master
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    fmus = {name: tmp_path / f"{name}.fmu" for name in ("gain", "documented", "changed")}
+    for path in fmus.values():
+        shutil.copy(toy_dir / "Gain.fmu", path)
+    with zipfile.ZipFile(fmus["documented"], "a") as z:
+        z.writestr("documentation/notes.txt", "changed")
+    with zipfile.ZipFile(fmus["changed"], "a") as z:
+        z.writestr("resources/pythonfmu/extra.py", "x = 1\n")
+    gain, documented, changed = (Path(master._cached_folder(p)) for p in fmus.values())
+    assert len({gain, documented, changed}) == 3
+    assert bundled(documented) == bundled(gain)
+    (fmus_hash,) = (n for n in bundled(gain) if n.startswith("fmus_"))
+    assert bundled(changed)[fmus_hash] == bundled(gain)[fmus_hash]
+    assert bundled(changed)["pythonfmu"] != bundled(gain)["pythonfmu"]
+    assert (changed / "resources" / "pythonfmu" / "extra.py").is_file()
+    assert not (gain / "resources" / "pythonfmu" / "extra.py").exists()
+    assert len(list((tmp_path / "cache" / "packages").iterdir())) == 3
+
+
+def test_processes_extracting_the_same_fmus_at_once_all_succeed(tmp_path, toy_dir):
+    """Three fresh processes fill one empty cache at the same time: each run works with the
+    same results, and the cache ends with one folder per FMU, one copy per package and no
+    temporary folder."""
+    import os
+    import subprocess
+    env = {**os.environ, "FLEXFUSION_CACHE_DIR": str(tmp_path / "cache")}
+    scenario = write(tmp_path, CHAIN)
+    runs = [subprocess.Popen([sys.executable, "-c", FOLDERS_OF_A_RUN, str(scenario), str(tmp_path / str(i))],
+                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE) for i in range(3)]
+    for process in runs:
+        out, err = process.communicate(timeout=120)
+        assert process.returncode == 0, err.decode()
+    results = {(tmp_path / str(i) / "results.csv").read_bytes() for i in range(3)}
+    assert len(results) == 1
+    assert len(os.listdir(tmp_path / "cache" / "fmus")) == 2
+    assert len(os.listdir(tmp_path / "cache" / "packages")) == 2
+
+
+def test_a_package_another_process_extracted_first_is_used(tmp_path, toy_dir, monkeypatch):
+    """The loser of a race: its package was not there when it looked, and another process
+    published it before this one's rename; this one links to that copy and leaves no
+    temporary folder."""
+    import os
+    import shutil
+    from orchestration import master
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    first = bundled(Path(master._cached_folder(toy_dir / "Gain.fmu")))
+    stamps = {p: p.stat().st_ino for p in first.values()}
+    shutil.rmtree(tmp_path / "cache" / "fmus")
+    utime = os.utime
+
+    def not_there_yet(path, *args, **kwargs):
+        if Path(path).parent.name == "packages":
+            raise FileNotFoundError(path)
+        return utime(path, *args, **kwargs)
+
+    monkeypatch.setattr(os, "utime", not_there_yet)
+    again = bundled(Path(master._cached_folder(toy_dir / "Gain.fmu")))
+    assert again == first and {p: p.stat().st_ino for p in again.values()} == stamps
+    assert all(not p.name.startswith(".") for p in (tmp_path / "cache" / "packages").iterdir())
+
+
+def test_pruning_keeps_the_packages_a_kept_folder_links_to(tmp_path, toy_dir, monkeypatch):
+    """Packages go when no FMU folder links to them and they were not used for an hour (so a
+    process that just took one up keeps it); temporary folders a dead process left go too."""
+    import os
+    import shutil
+    import time
+    from orchestration import master
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    packages = tmp_path / "cache" / "packages"
+    linked = {p.parent.parent.name for p in bundled(Path(master._cached_folder(toy_dir / "Gain.fmu"))).values()}
+    hours_ago = time.time() - 7200
+    for name in ("old-1", "recent-2", ".extracting-3", "taken-up-again-4"):
+        (packages / name / "resources").mkdir(parents=True)
+    for entry in packages.iterdir():
+        if entry.name != "recent-2":
+            os.utime(entry, (hours_ago, hours_ago))
+    rename = Path.rename
+
+    def used_meanwhile(self, target):      # another process marks it between the look and the rename
+        moved = rename(self, target)
+        if self.name == "taken-up-again-4":
+            os.utime(target)
+        return moved
+
+    monkeypatch.setattr(Path, "rename", used_meanwhile)
+    master._prune_packages(tmp_path / "cache" / "fmus")
+    assert {p.name for p in packages.iterdir()} == linked | {"recent-2", "taken-up-again-4"}
+    monkeypatch.setattr(Path, "rename", rename)
+    for entry in packages.iterdir():
+        os.utime(entry, (hours_ago, hours_ago))
+    master._prune_packages(tmp_path / "cache" / "fmus")
+    assert {p.name for p in packages.iterdir()} == linked               # still linked: kept
+    shutil.rmtree(tmp_path / "cache" / "fmus")
+    (tmp_path / "cache" / "fmus").mkdir()
+    master._prune_packages(tmp_path / "cache" / "fmus")
+    assert list(packages.iterdir()) == []
+
+
+def test_a_cached_folder_whose_packages_were_removed_gets_them_again(tmp_path, toy_dir, monkeypatch):
+    import shutil
+    from orchestration import master
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    folder = Path(master._cached_folder(toy_dir / "Gain.fmu"))
+    files = files_below(folder)
+    shutil.rmtree(tmp_path / "cache" / "packages")
+    assert master._cached_folder(toy_dir / "Gain.fmu") == str(folder)
+    assert files_below(folder) == files
+
+
+def test_a_cached_folder_pruned_under_a_process_comes_back_at_its_path(tmp_path, monkeypatch):
+    """Another process pruned the folders this one used: its next run extracts them again,
+    at the same paths (its imported packages keep their paths), whole and with links."""
+    import shutil
+    from orchestration import master
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(master, "_EXTRACTED", {})
+    scenario = write(tmp_path, CHAIN)
+    run(scenario, out_dir=tmp_path / "a")
+    folders = sorted(master._EXTRACTED.values())
+    shutil.rmtree(tmp_path / "cache" / "fmus")
+    run(scenario, out_dir=tmp_path / "b")
+    assert sorted(master._EXTRACTED.values()) == folders
+    assert all(Path(f, ".complete").is_file() and (Path(f) / "resources" / "pythonfmu").is_symlink() for f in folders)
+    assert (tmp_path / "a" / "results.csv").read_bytes() == (tmp_path / "b" / "results.csv").read_bytes()
+
+
+def test_without_symbolic_links_each_fmu_folder_gets_its_own_packages(tmp_path, toy_dir, monkeypatch):
+    import os
+    from orchestration import master
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    linked = Path(master._cached_folder(toy_dir / "Gain.fmu"))
+
+    def no_links(*args, **kwargs):
+        raise OSError("symbolic links are not supported here")
+
+    monkeypatch.setattr(os, "symlink", no_links)
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "other"))
+    own = Path(master._cached_folder(toy_dir / "Gain.fmu"))
+    assert not any(p.is_symlink() for p in (own / "resources").iterdir())
+    assert files_below(own) == files_below(linked)
+
+
 LAZY_RUN = """
 import json, sys
 from orchestration import cli, master

@@ -99,20 +99,13 @@ def _product(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 @kernel
 def _sandwich(A: np.ndarray, P: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """``A P A^T + Q``, symmetrised: ``(S + S^T) / 2`` of ``S = (A P) A^T + Q`` (each sum in
-    index order, as :func:`_product`), in place (``S_ij + S_ji`` is ``S_ji + S_ij``)."""
-    AP = _product(A, P)
+    """``A P A^T + Q``, symmetrised: ``(S + S^T) / 2`` of ``S = (A P) A^T + Q`` (the products by
+    :func:`_product`), in place (``S_ij + S_ji`` is ``S_ji + S_ij``)."""
+    out = _product(_product(A, P), A.T)
     n = A.shape[0]
-    out = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(A.shape[1]):
-                s += AP[i, k] * A[j, k]
-            out[i, j] = s + Q[i, j]
     for i in range(n):
         for j in range(i, n):
-            out[i, j] = out[j, i] = 0.5 * (out[i, j] + out[j, i])
+            out[i, j] = out[j, i] = 0.5 * ((out[i, j] + Q[i, j]) + (out[j, i] + Q[j, i]))
     return out
 
 

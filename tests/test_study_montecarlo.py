@@ -15,7 +15,8 @@ from numpy.testing import assert_allclose
 
 from orchestration import cli, study, study_montecarlo
 from orchestration.scenario import scenario_document
-from toys import assert_same_document, with_third_party
+from references import STUDY_RTOL, assert_same_document
+from toys import with_third_party
 
 SCENARIO = Path(study_montecarlo.__file__).resolve().parent / "scenarios" / "axelsson2012.toml"
 SHORT = ["scenario.stop_time=0.5"]
@@ -23,12 +24,25 @@ SHORT = ["scenario.stop_time=0.5"]
 pytestmark = pytest.mark.usefixtures("fmu_env_module")      # also for the module-scoped runs
 
 
+def small_study(out: Path) -> dict:
+    """The small study of these tests (3 runs of 0.5 s, one sweep point, 3 validation runs)."""
+    return study_montecarlo.run_study(SCENARIO, 3, out, SHORT, workers=1, progress=False, after=0.2,
+                                      sweep=(1.0,), sweep_runs=2, validation_runs=3)
+
+
+def comparable(study_json: Path) -> dict:
+    """study.json without what changes from run to run (wall times, executor, the file's path)."""
+    saved = json.loads(study_json.read_text())
+    for key in ("wall_time_s", "executor", "scenario_file"):
+        saved.pop(key)
+    saved["engine"].pop("engine_wall_time_s")
+    return saved
+
+
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     out = tmp_path_factory.mktemp("mc1")
-    data = study_montecarlo.run_study(SCENARIO, 3, out, SHORT, workers=1, progress=False, after=0.2,
-                                      sweep=(1.0,), sweep_runs=2, validation_runs=3)
-    return out, data
+    return out, small_study(out)
 
 
 #: Table 1 of Axelsson, Karlsson, Norrlöf (2012), transcribed here independently of the study's copy.
@@ -356,16 +370,23 @@ def test_pf_algorithm_1_needs_many_particles(tmp_path):
 REFERENCE = Path(__file__).parent / "data" / "montecarlo_main_reference.json"
 
 
-def test_without_estimator_the_study_is_mains(small):
-    """No --estimator: study.json of the paper's study is main's before the generic studies
-    (tests/data/montecarlo_main_reference.json; its "how" says how it was computed, with main's
-    code): every key, every number."""
+def save() -> None:
+    """Re-record :data:`REFERENCE` from the working tree (``python tests/references.py montecarlo``)."""
+    import tempfile
+    with tempfile.TemporaryDirectory() as tmp:
+        small_study(Path(tmp))
+        study_json = comparable(Path(tmp) / "study.json")
+    REFERENCE.write_text(json.dumps({"how": "small_study() of tests/test_study_montecarlo.py, written by its save() "
+                                            "(python tests/references.py montecarlo): study.json without wall times, "
+                                            "executor and the file's path", "study": study_json}, indent=1) + "\n")
+
+
+def test_without_estimator_the_study_is_its_reference(small):
+    """No --estimator: study.json of the paper's study is its stored reference
+    (tests/data/montecarlo_main_reference.json, first recorded from main before the generic
+    studies; tests/references.py): every key, every number (tests/toys.assert_same_document)."""
     out, _ = small
-    saved = json.loads((out / "study.json").read_text())
-    for key in ("wall_time_s", "executor", "scenario_file"):
-        saved.pop(key)
-    saved["engine"].pop("engine_wall_time_s")
-    assert_same_document(saved, json.loads(REFERENCE.read_text())["study"], rtol=study_montecarlo.CHECK_RTOL)
+    assert_same_document(comparable(out / "study.json"), json.loads(REFERENCE.read_text())["study"], STUDY_RTOL)
 
 
 @pytest.fixture(scope="module")

@@ -1,11 +1,11 @@
 """The tracker's plain-float update (issue 16: a history of floats, the noise drawn in blocks)
-against the stored behaviour of the numpy version before it: samples and stamps at rates that
-are and are not multiples of the step, with a clock skew between updates, the same numbers to
-1e-12 (the same operations: expected bit for bit).
+against its stored behaviour (first recorded from the numpy version before it, commit f04d4a7):
+samples and stamps at rates that are and are not multiples of the step, with a clock skew
+between updates.
 
-``tests/data/tracker_reference.npz`` was recorded by :func:`record` with the code of commit
-f04d4a7 (in that tree, with this file copied to its tests/: ``PYTHONPATH=. python -c
-"import sys; sys.path.insert(0, 'tests'); from test_tracker_scalar import save; save()"``).
+``tests/data/tracker_reference.npz`` is re-recorded from the working tree by ``python tests/references.py tracker``
+(tests/references.py: what it guards, and why not bit for bit). 1e-12: an
+interpolation of a path of sines and cosines, whose last bits differ between machines.
 """
 from __future__ import annotations
 
@@ -13,9 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
 
 from fmus.robot_plant.tracker_model import TrackerModel
+
+from references import KERNEL_RTOL, assert_near
 
 REFERENCE = Path(__file__).parent / "data" / "tracker_reference.npz"
 
@@ -41,8 +42,8 @@ def save() -> None:
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_tracker_is_the_numpy_version_before(name) -> None:
+def test_tracker_is_its_reference(name) -> None:
     stored = np.load(REFERENCE)[f"{name}/values"]
     now = record(name)["values"]
-    assert_allclose(now, stored, rtol=1e-12, atol=0)
+    assert_near(now, stored, rtol=KERNEL_RTOL)
     assert np.ptp(now[:, 0]) > 0.01                   # the position moved

@@ -30,25 +30,6 @@ def with_third_party(scenario: Path | dict, fmus: dict[str, Path], path: Path, n
     return path
 
 
-def assert_same_document(got, ref, rtol: float, path: str = "") -> None:
-    """Every key of ``ref`` (a JSON document) in ``got`` and no other, equal strings and flags,
-    numbers to ``rtol`` (a study's own tolerance between its engines: the last bits may move
-    with the order of floating-point operations, nothing more)."""
-    from numpy.testing import assert_allclose
-    if isinstance(ref, dict):
-        assert isinstance(got, dict) and set(got) == set(ref), (path, set(got) ^ set(ref))
-        for k in ref:
-            assert_same_document(got[k], ref[k], rtol, f"{path}.{k}")
-    elif isinstance(ref, list):
-        assert isinstance(got, list) and len(got) == len(ref), path
-        for i, (g, r) in enumerate(zip(got, ref)):
-            assert_same_document(g, r, rtol, f"{path}[{i}]")
-    elif isinstance(ref, float):
-        assert_allclose(got, ref, rtol=rtol, atol=0, err_msg=path)
-    else:
-        assert got == ref, path
-
-
 def write(tmp_path: Path, text: str, name: str = "s.toml") -> Path:
     """A scenario file with ``text`` in ``tmp_path``."""
     p = tmp_path / name

@@ -313,7 +313,7 @@ def _wrap(x: float) -> float:
 def _pose_text(position, R) -> str:
     p = np.asarray(position, float)
     return (f"tool pose at ({p[0]:.4g}, {p[1]:.4g}, {p[2]:.4g}) m, quaternion "
-            f"{tuple(np.round(from_matrix(R), 4))}")
+            f"({', '.join(f'{c:.4g}' for c in from_matrix(R))})")
 
 
 def _as_rotation(orientation) -> np.ndarray:
@@ -408,8 +408,8 @@ def ik_solutions(position, orientation, a: Arm | None = None, q_ref=None,
         ok = np.all((sols >= a.q_min) & (sols <= a.q_max), axis=1)
         if not ok.any():
             worst = sorted({i + 1 for s in sols for i in range(N) if not a.q_min[i] <= s[i] <= a.q_max[i]})
-            raise ValueError(f"{_pose_text(p, R)} is reachable only outside the working range of "
-                             f"axis {', '.join(map(str, worst))}")
+            raise ValueError(f"{_pose_text(p, R)} is reachable only outside the working range"
+                             f"{'s of axes' if len(worst) > 1 else ' of axis'} {', '.join(map(str, worst))}")
         sols = sols[ok]
     return sols
 

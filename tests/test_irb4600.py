@@ -163,6 +163,19 @@ def test_the_wrist_singularity_keeps_axis_4_where_it_was() -> None:
     assert np.abs(p2 - pos).max() < 1e-12
 
 
+def test_the_arm_stretched_out_is_still_reached() -> None:
+    """Forearm and upper arm in line (the edge of the workspace, where the elbow's sine is 1 up
+    to round-off): the pose is found again, not refused. The elbow angle comes back only to
+    ~sqrt(eps) = 1e-8 rad there, but the position error is second order in it (1.9 m x 1e-16):
+    1e-12 m."""
+    beta = math.atan2(ARM.origins[3, 2], ARM.origins[4, 0])
+    for q2 in (-0.5, 0.0, 0.7):
+        q = np.array([0.4, q2, beta - math.pi / 2, 0.3, 0.6, -0.2])
+        pos, quat = irb4600.tool_pose(q, ARM)
+        sol = irb4600.inverse_kinematics(pos, quat, q, ARM)
+        assert np.abs(irb4600.tool_pose(sol, ARM)[0] - pos).max() < 1e-12
+
+
 def test_unreachable_poses_raise_naming_the_pose() -> None:
     with pytest.raises(ValueError, match=r"tool pose at \(3, 0, 0.5\) m.*out of reach"):
         irb4600.ik_solutions([3.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0], ARM)

@@ -53,6 +53,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fmus.common import quaternion
+from fmus.common.frames import rot_y
 from fmus.common.quaternion import from_matrix
 from fmus.common.robot_params import RobotParameters
 
@@ -240,11 +242,11 @@ def arm(robot: RobotParameters | None = None, tool_mass: float = TOOL_MASS, tool
 # ---- kinematics ------------------------------------------------------------------------------
 def rotation(axis: int, angle: float) -> np.ndarray:
     """Rotation matrix by ``angle`` [rad] about the coordinate axis ``axis`` (0: x, 1: y, 2: z)."""
+    if axis == 1:
+        return rot_y(angle)
     c, s = math.cos(angle), math.sin(angle)
     if axis == 0:
         return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-    if axis == 1:
-        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
@@ -319,13 +321,10 @@ def _pose_text(position, R) -> str:
 def _as_rotation(orientation) -> np.ndarray:
     o = np.asarray(orientation, float)
     if o.shape == (4,):
-        n = float(np.linalg.norm(o))
-        if not (n > 0.0 and math.isfinite(n)):
-            raise ValueError(f"tool quaternion {tuple(o)} is not a rotation")
-        w, x, y, z = o / n
-        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        try:
+            return quaternion.to_matrix(quaternion.normalise(o))
+        except ValueError:
+            raise ValueError(f"tool quaternion {tuple(float(c) for c in o)} is not a rotation") from None
     if o.shape == (3, 3):
         return o
     raise ValueError(f"tool orientation must be a quaternion (w, x, y, z) or a 3x3 matrix, got shape {o.shape}")
@@ -375,8 +374,9 @@ def ik_solutions(position, orientation, a: Arm | None = None, q_ref=None,
         z = wc[2] - base_z
         s = (l1 * l1 + L * L - (u * u + z * z)) / (2.0 * l1 * L)
         reach.append(math.hypot(u, z))
-        if not -1.0 <= s <= 1.0:
+        if not -1.0 - 1e-12 <= s <= 1.0 + 1e-12:   # round-off at full stretch or fold still reaches
             continue
+        s = min(1.0, max(-1.0, s))
         for th in (math.asin(s), math.pi - math.asin(s)):     # th = q3 - beta
             q3 = _wrap(th + beta)
             q2 = _wrap(math.atan2(u, z) - math.atan2(L * math.cos(th), l1 - L * math.sin(th)))

@@ -103,7 +103,9 @@ class Arm:
     point in the link-6 frame; ``tool_mass`` [kg]; drive train, motor side unless said:
     ``gear_ratio`` (motor angle / arm angle), ``J_m`` [kg m^2], ``k_hi``, ``k_lo`` [N.m/rad] and
     ``delta`` [rad] (gearbox spring, arm side), ``d`` [N.m.s/rad] (gearbox damping, arm side),
-    ``f_v`` [N.m.s/rad], ``f_c`` [N.m] (motor friction); ``g`` [m/s^2].
+    ``f_v`` [N.m.s/rad], ``f_c`` [N.m] (motor friction); ``g`` [m/s^2]; ``sources``: where
+    each group of numbers comes from. Build it with :func:`arm` (the joint axes are the data
+    sheet's: :func:`link_frames` turns joint ``i`` about the coordinate axis of ``AXES[i]``).
     """
 
     origins: np.ndarray

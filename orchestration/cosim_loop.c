@@ -3,11 +3,12 @@
  * cosim_steps() runs the base steps k0 .. k1-1 of a co-simulation whose FMUs are already
  * initialised, following the tables of its schedule (orchestration/schedule.py: which
  * components are due at k, in Gauss-Seidel order; which buffer slots each one's inputs are
- * gathered from): per base step k, the components due at k each get one fmi2SetReal of their inputs from the shared value buffer, one
- * fmi2DoStep(k h, step) and one fmi2GetReal of their outputs straight into the buffer; then one
- * NaN check of the connected outputs, and a recorded row (t, values[record_idx]) every `every`
- * base steps. It returns early on an FMI status above fmi2Warning or a NaN, saying where, so
- * that Python raises the same RunError as its own loop and keeps the rows written before.
+ * gathered from): per base step k, the components due at k each get one fmi2SetReal of their
+ * inputs from the shared value buffer, one fmi2DoStep(k h, step) and one fmi2GetReal of their
+ * outputs straight into the buffer; then one NaN check of the connected outputs, and a
+ * recorded row (t, values[record_idx]) every `every` base steps. It returns early on an FMI
+ * status above fmi2Warning or a NaN, saying where, so that Python raises the same RunError as
+ * its own loop and keeps the rows written before.
  *
  * No FMI header is needed: the three function types are those of fmi2FunctionTypes.h (FMI 2.0),
  * called through pointers the caller took from each FMU's library. Plain C99; compiled without

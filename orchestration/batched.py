@@ -1,11 +1,10 @@
 """The batched study engine: many runs of one scenario (over seeds, and over parameter sets where
 the structure allows) simulated together, vectorised over runs, without FMI.
 
-Same schedule as the co-simulation, from the master's own definitions: the Gauss–Seidel order
-and the broken cycle edges (:func:`orchestration.master.plan`), which components step at each
-base step (:func:`orchestration.master.due`: multi-rate) and each one's inputs
-(:func:`orchestration.master.wiring`, set from the freshest outputs before its step);
-initialisation in the same order, with the extra pass when an edge is broken. Same math: every component is either
+The co-simulation's own schedule (:class:`orchestration.schedule.Schedule`, the one the master
+follows): the Gauss–Seidel order and the broken cycle edges, which components step at each base
+step (multi-rate, no step past the stop time), each one's inputs (set from the freshest outputs
+before its step), the initialisation passes. Same math: every component is either
 
 * **shared**: its parameters are the same in every run and so are its inputs (no per-run
   producer upstream): it is simulated once, by its own FMU class instantiated in this process
@@ -41,8 +40,9 @@ import numpy as np
 
 from fmus.common.fmi import nominal_step
 
-from .master import RunError, due, plan, wiring
+from .master import RunError
 from .scenario import Component, Scenario, load_scenario, scenario_document
+from .schedule import Schedule
 
 
 class BatchError(RuntimeError):
@@ -531,16 +531,6 @@ class BatchedRuns:
         _check_structure(scenarios)
         sc = scenarios[0]
         R = len(scenarios)
-        p = plan(sc)
-        ins = wiring(sc)
-        varying = _per_run(scenarios, ins)
-
-        # which outputs each component hands on: connected first, then the recorded ones
-        needed: dict[str, list[str]] = {n: [] for n in sc.components}
-        for n, lst in ins.items():
-            for _, src, s in lst:
-                if s not in needed[src]:
-                    needed[src].append(s)
         wanted: dict[str, list[str]] = {}
         for var in record:
             cname, v = var.split(".", 1)
@@ -549,7 +539,10 @@ class BatchedRuns:
             wanted[var] = sc.components[cname].group(v)
             if not wanted[var]:
                 raise BatchError(f"component '{cname}' has no variable '{v}'")
-            needed[cname] += [s for s in wanted[var] if s not in needed[cname]]
+        p = Schedule.of(sc, [f"{var.split('.', 1)[0]}.{s}" for var in record for s in wanted[var]])
+        # which outputs each component hands on: connected first, then the recorded ones
+        ins, needed = p.inputs, p.reads
+        varying = _per_run(scenarios, ins)
 
         kernels: dict[str, _Kernel] = {}
         shared, batched, looped = [], [], []
@@ -573,7 +566,7 @@ class BatchedRuns:
             else:
                 kernels[n] = _Slaves([s.components[n] for s in scenarios], in_names, needed[n], sc.stop_time)
                 looped.append(n)
-        self.scenario, self.runs, self.plan, self.inputs, self.varying = sc, R, p, ins, varying
+        self.scenario, self.runs, self.schedule, self.inputs, self.varying = sc, R, p, ins, varying
         self.needed, self.wanted, self.kernels, self.record = needed, wanted, kernels, dict(record)
         self.shared, self.batched, self.looped = shared, batched, looped
         self.replayed = replayed
@@ -585,7 +578,7 @@ class BatchedRuns:
 
     def run(self) -> BatchResult:
         """Simulate the runs (once: the kernels hold their state)."""
-        t_wall, sc, R, p, ins, varying = self._t0, self.scenario, self.runs, self.plan, self.inputs, self.varying
+        t_wall, sc, R, p, ins, varying = self._t0, self.scenario, self.runs, self.schedule, self.inputs, self.varying
         needed, wanted, kernels, record = self.needed, self.wanted, self.kernels, self.record
         shared, batched, looped = self.shared, self.batched, self.looped
         out: dict[str, np.ndarray] = {n: np.zeros((len(needed[n]), 1)) for n in sc.components}
@@ -619,30 +612,29 @@ class BatchedRuns:
                 if masks[var][j]:
                     taken[var].append(out[cname][idx].T.copy())      # (b, size)
 
-        # ---- initialisation in dependency order (master.simulate)
-        for n in p.order:
+        # ---- initialisation: the schedule's passes
+        def exchange(i: int, leave: bool) -> None:
+            n = p.order[i]
             k = kernels[n]
-            k.set_inputs(gather(n))
-            k.exit_init(0.0)
+            if sources[n]:
+                k.set_inputs(gather(n))
+                if not leave:
+                    k.refresh(0.0)           # the FMU updates its outputs on a set input
+            if leave:
+                k.exit_init(0.0)
             if needed[n]:
                 out[n] = k.outputs()
-        if p.broken:
-            for n in p.order:
-                k = kernels[n]
-                if sources[n]:
-                    k.set_inputs(gather(n))
-                    k.refresh(0.0)
-                if needed[n]:
-                    out[n] = k.outputs()
+        p.initialise(exchange)
         keep(0)
 
-        # ---- stepping
+        # ---- stepping: the schedule's rows of due components
         h = sc.base_step
-        slots = {n: (kernels[n], sc.components[n].step, bool(needed[n])) for n in p.order}
-        stepping = [[(n, *slots[n]) for n in names] for names in due(sc, p.order)]
+        slots = [(n, kernels[n], p.step[i], bool(needed[n])) for i, n in enumerate(p.order)]
+        stepping = [[slots[i] for i in row] for row in p.due]
+        row = p.row
         for j in range(n_steps):
             t = j * h
-            for n, k, dt, read in stepping[j % len(stepping)]:
+            for n, k, dt, read in stepping[row(j)]:
                 if sources[n]:
                     k.set_inputs(gather(n))
                 k.do_step(t, dt)

@@ -22,11 +22,14 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from fmus.common import disk_cache
+
+if TYPE_CHECKING:
+    from .schedule import Schedule
 
 SOURCE = Path(__file__).with_name("cosim_loop.c")
 # no -ffast-math: the loop's NaN test (x != x) must stay
@@ -41,12 +44,13 @@ class _Slot(ctypes.Structure):
                 ("n_in", ctypes.c_size_t), ("in_vr", ctypes.c_void_p), ("in_idx", ctypes.c_void_p),
                 ("in_buf", ctypes.c_void_p),
                 ("n_out", ctypes.c_size_t), ("out_vr", ctypes.c_void_p), ("out_start", ctypes.c_int64),
-                ("n_check", ctypes.c_int64), ("step", ctypes.c_double), ("last_k", ctypes.c_int64)]
+                ("n_check", ctypes.c_int64), ("step", ctypes.c_double)]
 
 
 class _Loop(ctypes.Structure):
     _fields_ = [("slots", ctypes.c_void_p), ("n_slots", ctypes.c_int64), ("due", ctypes.c_void_p),
-                ("due_start", ctypes.c_void_p), ("period", ctypes.c_int64), ("values", ctypes.c_void_p),
+                ("due_start", ctypes.c_void_p), ("period", ctypes.c_int64), ("tail_start", ctypes.c_int64),
+                ("values", ctypes.c_void_p),
                 ("record_idx", ctypes.c_void_p), ("n_record", ctypes.c_int64), ("every", ctypes.c_int64),
                 ("h", ctypes.c_double)]
 
@@ -126,15 +130,16 @@ def _pointer(array: Any) -> int:
 
 
 class CLoop:
-    """``cosim_steps`` bound to one run: the master's slots (``orchestration.master._Slot``), the
-    components due at each base step of the pattern (indices into ``slots``), the shared buffer.
+    """``cosim_steps`` bound to one run: the master's slots (``orchestration.master._Slot``, one
+    per component of the schedule's order), the run's :class:`~orchestration.schedule.Schedule`
+    (its rows of components due, indices into ``slots``), the shared buffer.
 
     ``loop(k0, k1, rows)`` runs base steps ``k0 .. k1-1`` and returns ``(rows written, stop)``,
     ``stop`` None or ``(k, slot index or None, function name, status)``, as the master's
     ``_python_steps``.
     """
 
-    def __init__(self, lib: Any, slots: Sequence[Any], due: list[list[int]], values_c: Any,
+    def __init__(self, lib: Any, slots: Sequence[Any], schedule: Schedule, values_c: Any,
                  record_idx: np.ndarray, every: int, h: float) -> None:
         self._steps = lib.cosim_steps
         keep: list[Any] = []
@@ -152,10 +157,12 @@ class CLoop:
             c.n_in, c.in_vr, c.in_buf = s.n_in.value, _pointer(s.in_vr), _pointer(s.in_buf)
             c.in_idx = array(ctypes.c_int64, [int(i) for i in s.in_idx])
             c.n_out, c.out_vr, c.out_start, c.n_check = s.n_out.value, _pointer(s.out_vr), s.out_start, s.n_check
-            c.step, c.last_k = s.step.value, s.last_k
+            c.step = s.step.value
+        due = schedule.due
         starts = np.cumsum([0] + [len(d) for d in due])
         self._loop = _Loop(_pointer(self._slots), len(slots), array(ctypes.c_int64, [i for d in due for i in d]),
-                           array(ctypes.c_int64, starts.tolist()), len(due), _pointer(values_c),
+                           array(ctypes.c_int64, starts.tolist()), schedule.period, schedule.tail_start,
+                           _pointer(values_c),
                            array(ctypes.c_int64, record_idx.tolist()), len(record_idx), every, h)
         self._keep = (keep, slots, values_c)    # what the structures point into
         self._stop = _Stop()

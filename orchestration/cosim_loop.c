@@ -1,12 +1,14 @@
 /* The master's stepping loop in C (orchestration/master.py, _python_steps is the reference).
  *
  * cosim_steps() runs the base steps k0 .. k1-1 of a co-simulation whose FMUs are already
- * initialised: per base step k, the components due at k (Gauss-Seidel order, the multi-rate
- * pattern) each get one fmi2SetReal of their inputs from the shared value buffer, one
- * fmi2DoStep(k h, step) and one fmi2GetReal of their outputs straight into the buffer; then one
- * NaN check of the connected outputs, and a recorded row (t, values[record_idx]) every `every`
- * base steps. It returns early on an FMI status above fmi2Warning or a NaN, saying where, so
- * that Python raises the same RunError as its own loop and keeps the rows written before.
+ * initialised, following the tables of its schedule (orchestration/schedule.py: which
+ * components are due at k, in Gauss-Seidel order; which buffer slots each one's inputs are
+ * gathered from): per base step k, the components due at k each get one fmi2SetReal of their
+ * inputs from the shared value buffer, one fmi2DoStep(k h, step) and one fmi2GetReal of their
+ * outputs straight into the buffer; then one NaN check of the connected outputs, and a
+ * recorded row (t, values[record_idx]) every `every` base steps. It returns early on an FMI
+ * status above fmi2Warning or a NaN, saying where, so that Python raises the same RunError as
+ * its own loop and keeps the rows written before.
  *
  * No FMI header is needed: the three function types are those of fmi2FunctionTypes.h (FMI 2.0),
  * called through pointers the caller took from each FMU's library. Plain C99; compiled without
@@ -36,15 +38,15 @@ typedef struct {                          /* one component (master.py's _Slot) *
     int64_t out_start;
     int64_t n_check;                      /* the first n_check outputs are connected */
     double step;                          /* communication step size */
-    int64_t last_k;                       /* its last base step (the next would pass the stop time) */
 } Slot;
 
 typedef struct {
     const Slot *slots;
     int64_t n_slots;
     const int64_t *due;                   /* due at base step k: slots due[due_start[j]] .. */
-    const int64_t *due_start;             /* .. due[due_start[j + 1] - 1], j = k % period */
-    int64_t period;
+    const int64_t *due_start;             /* .. due[due_start[j + 1] - 1], j the row of k: */
+    int64_t period;                       /* k % period before tail_start, then */
+    int64_t tail_start;                   /* period + k - tail_start (Schedule.row) */
     double *values;                       /* the shared value buffer */
     const int64_t *record_idx;
     int64_t n_record;
@@ -80,12 +82,11 @@ int64_t cosim_steps(const Loop *loop, int64_t k0, int64_t k1, double *rows, Stop
     stop->function = RAN;
     for (int64_t k = k0; k < k1; k++) {
         const double t = (double)k * loop->h;
-        const int64_t j = k % loop->period;
+        const int64_t j = k < loop->tail_start ? k % loop->period : loop->period + k - loop->tail_start;
         for (int64_t d = loop->due_start[j]; d < loop->due_start[j + 1]; d++) {
             const Slot *s = &loop->slots[loop->due[d]];
             int32_t function = SET_REAL;
             fmi2Status status = 0;
-            if (k > s->last_k) continue;
             if (s->n_in) {
                 for (size_t i = 0; i < s->n_in; i++) s->in_buf[i] = values[s->in_idx[i]];
                 status = s->set_real(s->component, s->in_vr, s->n_in, s->in_buf);

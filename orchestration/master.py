@@ -1,17 +1,12 @@
 """The co-simulation master algorithm on fmpy's ``FMU2Slave``.
 
-* Fixed base step ``h``; a component with communication step ``k h`` is stepped every ``k`` base
-  steps (``doStep(t, k h)``) and its outputs are held in between (multi-rate).
-* Gauss–Seidel: the components are stepped in topological order of the connection graph, each
-  one's inputs set from the freshest outputs of its producers. A cycle of connections is broken
-  at one edge, preferably one the scenario declares in ``delays`` (an intended one-step delay),
-  else one whose target input has no direct feedthrough to an output; the consumer on that edge
-  reads the producer's previous value (Jacobi) and, unless declared, a :class:`CouplingWarning`
-  names the edge once. A cycle made of direct-feedthrough dependencies
-  only (output -> input -> output ...) is an algebraic loop and is rejected.
-* Initialisation in dependency order: every instance enters initialisation mode and gets its
-  parameters; then, in Gauss–Seidel order, each gets its inputs from its producers' initial
-  outputs and leaves initialisation mode, and its outputs are read.
+* The schedule (:class:`orchestration.schedule.Schedule`, computed once from the scenario):
+  fixed base step ``h``, multi-rate (a component of step ``k h`` is stepped every ``k`` base
+  steps and its outputs held in between; no step past the stop time), Gauss–Seidel order with
+  cycles broken at one edge (Jacobi; an undeclared one gives a :class:`CouplingWarning` naming
+  it once; an algebraic loop is rejected), initialisation in that order with one more pass
+  when an edge is broken. The master follows it with the FMUs; so does the batched study
+  engine (:mod:`orchestration.batched`) with its kernels.
 * Per component and step: one batched ``fmi2SetReal`` of all connected inputs and one batched
   ``fmi2GetReal`` of all needed outputs, straight from/to one shared value buffer (ctypes arrays
   and numpy views, value references precomputed), through the library's raw functions.
@@ -24,9 +19,6 @@
   :class:`RunError` naming the component, the variable and the time (with the FMU's own log).
   The NaN check runs once per base step; a consumer that fails on a NaN input before it is
   reported by the producer's NaN. Instances are always terminated and freed.
-* No step past the stop time: a component whose step does not divide the stop time takes its
-  last step where the next one would pass it, and its outputs are held from then on (the
-  multi-rate rule).
 * Inside :func:`stop_on_signals`, SIGINT and SIGTERM stop the stepping loop at its next check
   (every 100 base steps at most, between FMU calls, never inside one) with
   :class:`Interrupted`.
@@ -34,8 +26,6 @@
 from __future__ import annotations
 
 import ctypes
-import heapq
-import math
 import os
 import shutil
 import signal
@@ -45,14 +35,15 @@ import threading
 import time
 import warnings
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 import numpy as np
 
 from .scenario import Component, Overrides, Scenario, ScenarioError, check_metric_windows
+from .schedule import Schedule
 
 if TYPE_CHECKING:
     from .results import Result
@@ -105,171 +96,6 @@ def stop_on_signals() -> Iterator[None]:
         for s, handler in previous.items():
             signal.signal(s, handler)
         _STOP[0] = 0
-
-
-# ---------------------------------------------------------------------------------------------
-# ordering
-# ---------------------------------------------------------------------------------------------
-@dataclass
-class Plan:
-    """Gauss–Seidel order and the connections that read a previous value."""
-    order: list[str]
-    broken: list[tuple[str, str]] = field(default_factory=list)  # (producer, consumer) edges
-    broken_text: list[str] = field(default_factory=list)         # the connections on them
-
-
-def _feedthrough(comp: Component, input_scalar: str) -> bool:
-    return any(input_scalar in (v.depends_on or ()) for v in comp.variables.values()
-               if v.causality == "output")
-
-
-def find_algebraic_loop(scenario: Scenario) -> list[str] | None:
-    """A cycle of direct feedthrough through the connections (as ``comp.var`` names), or None."""
-    succ: dict[str, list[str]] = {}
-    for c in scenario.connections:
-        for s, d in c.pairs:
-            succ.setdefault(f"{c.src}.{s}", []).append(f"{c.dst}.{d}")
-    for comp in scenario.components.values():
-        for name, v in comp.variables.items():
-            if v.causality == "output":
-                for inp in v.depends_on or ():
-                    succ.setdefault(f"{comp.name}.{inp}", []).append(f"{comp.name}.{name}")
-    color: dict[str, int] = {}
-    stack: list[str] = []
-
-    def visit(n: str) -> list[str] | None:
-        color[n] = 1
-        stack.append(n)
-        for m in succ.get(n, ()):
-            if color.get(m) == 1:
-                return stack[stack.index(m):] + [m]
-            if color.get(m) is None:
-                found = visit(m)
-                if found:
-                    return found
-        stack.pop()
-        color[n] = 2
-        return None
-
-    limit = sys.getrecursionlimit()
-    sys.setrecursionlimit(max(limit, 10 * len(succ) + 100))
-    try:
-        for n in sorted(succ):
-            if color.get(n) is None:
-                found = visit(n)
-                if found:
-                    return found
-    finally:
-        sys.setrecursionlimit(limit)
-    return None
-
-
-def plan(scenario: Scenario) -> Plan:
-    """The Gauss–Seidel order of the components (ties: scenario order), cycles broken.
-
-    Raises
-    ------
-    ScenarioError
-        On an algebraic loop (a cycle of direct-feedthrough dependencies); a connection declared
-        in ``delays`` where no cycle is broken (it would read the fresh value).
-    """
-    loop = find_algebraic_loop(scenario)
-    if loop:
-        where = f"{scenario.path}: " if scenario.path else ""
-        raise ScenarioError(f"{where}algebraic loop of direct feedthrough: " + " -> ".join(loop)
-                            + " (break it with a component that has no direct feedthrough)")
-    names = list(scenario.components)
-    rank = {n: i for i, n in enumerate(names)}
-    edges: dict[tuple[str, str], list[Any]] = {}
-    for c in scenario.connections:
-        edges.setdefault((c.src, c.dst), []).append(c)
-    active = set(edges)
-    result = Plan(order=[])
-    while True:
-        order = _kahn(names, active, rank)
-        if len(order) == len(names):
-            result.order = order
-            unbroken = sorted(set(scenario.delays) - set(result.broken_text))
-            if unbroken:
-                raise ScenarioError(f"{scenario.path or scenario.name}: delays: "
-                                    f"{', '.join(repr(d) for d in unbroken)} is where no cycle is "
-                                    "broken: it reads the fresh value, not a delayed one")
-            return result
-        placed = set(order)
-        rest = [n for n in names if n not in placed]
-        cycle = _find_cycle(rest, active, rank)
-        # prefer a declared delay, then an edge whose consumer inputs have no direct feedthrough
-        def cost(e: tuple[str, str]) -> tuple[int, int, int, int]:
-            ft = any(_feedthrough(scenario.components[e[1]], d) for c in edges[e] for _, d in c.pairs)
-            declared = all(str(c) in scenario.delays for c in edges[e])
-            return (0 if declared else 1, 1 if ft else 0, rank[e[1]], rank[e[0]])
-        edge = min(cycle, key=cost)
-        active.discard(edge)
-        result.broken.append(edge)
-        result.broken_text += [str(c) for c in edges[edge]]
-
-
-def _kahn(names: list[str], edges: set[tuple[str, str]], rank: dict[str, int]) -> list[str]:
-    """Kahn's topological sort, the ready component of lowest rank first; O((V + E) log V)."""
-    indeg = {n: 0 for n in names}
-    succ: dict[str, list[str]] = {n: [] for n in names}
-    for (s, d) in edges:
-        indeg[d] += 1
-        succ[s].append(d)
-    ready = [(rank[n], n) for n in names if indeg[n] == 0]
-    heapq.heapify(ready)
-    order: list[str] = []
-    while ready:
-        _, n = heapq.heappop(ready)
-        order.append(n)
-        for d in succ[n]:
-            indeg[d] -= 1
-            if indeg[d] == 0:
-                heapq.heappush(ready, (rank[d], d))
-    return order
-
-
-def _find_cycle(nodes: list[str], edges: set[tuple[str, str]], rank: dict[str, int]) -> list[tuple[str, str]]:
-    """Edges of one cycle among ``nodes``, the ones Kahn's sort left.
-
-    Each of them has a predecessor among them (else the sort would have taken it), so a walk
-    backwards through predecessors (the one of lowest rank) must repeat a node; the repeated
-    part is a cycle. (A forward walk can end at a node that is only downstream of a cycle.)
-    """
-    node_set = set(nodes)
-    pred: dict[str, str] = {}
-    for (s, d) in edges:
-        if s in node_set and d in node_set and (d not in pred or rank[s] < rank[pred[d]]):
-            pred[d] = s
-    path = [nodes[0]]
-    seen = {nodes[0]: 0}
-    while True:
-        n = pred[path[-1]]
-        if n in seen:
-            cyc = (path[seen[n]:] + [n])[::-1]
-            return list(zip(cyc[:-1], cyc[1:]))
-        seen[n] = len(path)
-        path.append(n)
-
-
-def wiring(scenario: Scenario) -> dict[str, list[tuple[str, str, str]]]:
-    """Each component's connected inputs as ``(input scalar, producer, producer scalar)``, in the
-    order they are set (from the freshest outputs, just before the component's step). With
-    :func:`plan` and :func:`due`, the schedule :func:`simulate` follows; the batched study engine
-    (:mod:`orchestration.batched`) takes it from here too."""
-    inputs: dict[str, list[tuple[str, str, str]]] = {n: [] for n in scenario.components}
-    for c in scenario.connections:
-        for s, d in c.pairs:
-            inputs[c.dst].append((d, c.src, s))
-    return inputs
-
-
-def due(scenario: Scenario, order: list[str]) -> list[list[str]]:
-    """The components that step at base step ``j``, in Gauss–Seidel order: ``due(...)[j % len]``
-    (a component of ratio ``k`` steps at the base steps ``j`` with ``j % k == 0``, as
-    ``doStep(j h, k h)``); one period of the pattern (the least common multiple of the ratios)."""
-    period = math.lcm(*(scenario.components[n].ratio for n in order)) if order else 1
-    return [[n for n in order if j % scenario.components[n].ratio == 0] for j in range(period)]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -364,7 +190,6 @@ class _Slot:
     """Precomputed per-component data of the stepping loop: the arguments of its FMI calls as
     ctypes objects (the raw functions of :class:`_Instance` take no argtypes)."""
     inst: _Instance
-    ratio: int
     step: ctypes.c_double
     n_in: ctypes.c_size_t     # false when there is no input (a ctypes number is false at 0)
     in_vr: Any
@@ -377,65 +202,35 @@ class _Slot:
     out_start: int
     n_check: int             # the first n_check outputs are connected: checked for NaN
     out_names: list[str]
-    last_k: int              # the base step of its last step (the next would pass the stop time)
 
 
-@dataclass
-class _Layout:
-    """Where every value a run reads lives: one shared buffer ``values`` (a ctypes array and
-    its numpy view) holding, per component in plan order, its connected outputs first, then
-    the ones only recorded; ``offsets[(comp, var)]`` indexes it."""
-    needed: dict[str, list[str]]           # the scalars read from each component, in buffer order
-    connected: dict[str, int]              # how many of them are connected (checked for NaN)
-    starts: dict[str, int]                 # each component's first slot in the buffer
-    offsets: dict[tuple[str, str], int]
-    inputs: dict[str, list[tuple[str, str, str]]]   # per component: (dst var, src comp, src var)
-    values_c: Any
-    values: np.ndarray
-    record_idx: np.ndarray                 # the recorded columns' slots
+class _Buffer:
+    """The schedule's buffer of every output read (:attr:`Schedule.offsets
+    <orchestration.schedule.Schedule.offsets>`) as one ctypes array ``values_c`` and its numpy
+    view ``values``; ``record_idx`` the recorded columns' slots."""
 
-    @classmethod
-    def of(cls, scenario: Scenario, order: list[str]) -> "_Layout":
-        comps = scenario.components
-        needed: dict[str, list[str]] = {n: [] for n in comps}
-        for c in scenario.connections:
-            for s, _ in c.pairs:
-                if s not in needed[c.src]:
-                    needed[c.src].append(s)
-        connected = {n: len(needed[n]) for n in comps}
-        for col in scenario.record_columns():
-            cname, var = col.split(".", 1)
-            if var not in needed[cname]:
-                needed[cname].append(var)
-        offsets: dict[tuple[str, str], int] = {}
-        starts = {}
-        total = 0
-        for n in order:
-            starts[n] = total
-            for var in needed[n]:
-                offsets[(n, var)] = total
-                total += 1
-        values_c = (ctypes.c_double * (total + 1))()   # + 1: a component reading nothing points at the end
-        values = np.ctypeslib.as_array(values_c)
-        values[:] = 0.0
-        record_idx = np.array([offsets[tuple(col.split(".", 1))] for col in scenario.record_columns()],
-                              dtype=np.intp)
-        return cls(needed, connected, starts, offsets, wiring(scenario), values_c, values, record_idx)
+    def __init__(self, schedule: Schedule, record_columns: list[str]) -> None:
+        self.schedule = schedule
+        self.values_c = (ctypes.c_double * (schedule.size + 1))()   # + 1: a component reading nothing points at the end
+        self.values = np.ctypeslib.as_array(self.values_c)
+        self.values[:] = 0.0
+        self.record_idx = np.array([schedule.offsets[tuple(col.split(".", 1))] for col in record_columns],
+                                   dtype=np.intp)
 
-    def slot(self, inst: _Instance, scenario: Scenario) -> _Slot:
-        """The stepping loop's data of the component of ``inst``: its input and output value
-        references and buffers (its outputs written straight into ``values``)."""
-        n = inst.name
-        comp = scenario.components[n]
-        ins, needed = self.inputs[n], self.needed[n]
+    def slot(self, i: int, inst: _Instance) -> _Slot:
+        """The stepping loop's data of component ``i`` of the schedule's order, instance
+        ``inst``: its input and output value references and buffers (its outputs written
+        straight into ``values``)."""
+        sch, n = self.schedule, inst.name
+        comp = inst.comp
+        ins, reads = sch.inputs[n], sch.reads[n]
         in_vr = (ctypes.c_uint * max(len(ins), 1))(*[comp.variables[d].value_reference for d, _, _ in ins])
         in_buf = (ctypes.c_double * max(len(ins), 1))()
-        out_vr = (ctypes.c_uint * max(len(needed), 1))(*[comp.variables[v].value_reference for v in needed])
-        out_ptr = (ctypes.c_double * max(len(needed), 1)).from_buffer(self.values_c, 8 * self.starts[n])
-        return _Slot(inst, comp.ratio, ctypes.c_double(comp.step), ctypes.c_size_t(len(ins)), in_vr, in_buf,
-                     np.ctypeslib.as_array(in_buf), np.array([self.offsets[(s, v)] for _, s, v in ins], dtype=np.intp),
-                     ctypes.c_size_t(len(needed)), out_vr, out_ptr, self.starts[n], self.connected[n],
-                     needed, scenario.n_steps - comp.ratio)
+        out_vr = (ctypes.c_uint * max(len(reads), 1))(*[comp.variables[v].value_reference for v in reads])
+        out_ptr = (ctypes.c_double * max(len(reads), 1)).from_buffer(self.values_c, 8 * sch.starts[n])
+        return _Slot(inst, ctypes.c_double(sch.step[i]), ctypes.c_size_t(len(ins)), in_vr, in_buf,
+                     np.ctypeslib.as_array(in_buf), np.array(sch.gathers[i], dtype=np.intp),
+                     ctypes.c_size_t(len(reads)), out_vr, out_ptr, sch.starts[n], sch.connected[n], reads)
 
 
 def _instantiate(comp: Component) -> _Instance:
@@ -487,14 +282,13 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
     """
     from fmpy.fmi1 import FMICallException
 
-    p = plan(scenario)
-    notes = [f"{scenario.name}: connection '{text}' is in a cycle; it uses the previous step's "
-             "value (Jacobi)" for text in p.broken_text if text not in scenario.delays]
+    schedule = Schedule.of(scenario)
+    notes = list(schedule.notes)
     for msg in notes:
         warnings.warn(msg, CouplingWarning, stacklevel=2)
 
-    layout = _Layout.of(scenario, p.order)
-    values = layout.values
+    buffer = _Buffer(schedule, scenario.record_columns())
+    values = buffer.values
 
     instances: list[_Instance] = []
     _ACTIVE_RUNS[0] += 1
@@ -503,7 +297,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
     current: _Instance | None = None
     try:
         # ---- instantiate, parameters -----------------------------------------------------
-        for n in p.order:
+        for n in schedule.order:
             current = None
             inst = _instantiate(scenario.components[n])
             instances.append(inst)
@@ -514,21 +308,17 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
             _set_parameters(inst)
 
         by_name = {i.name: i for i in instances}
-        slots = [layout.slot(by_name[n], scenario) for n in p.order]
+        slots = [buffer.slot(i, inst) for i, inst in enumerate(instances)]
 
-        # ---- initialisation in dependency order ------------------------------------------
-        for s in slots:
-            current = s.inst
-            _exchange_initial_values(s, values, leave_initialisation=True)
-        if p.broken:
-            # a consumer on a broken edge saw its producer's start value: one more Gauss–Seidel
-            # pass (step mode, before the first step) gives every input its initial value
-            for s in slots:
-                current = s.inst
-                _exchange_initial_values(s, values, leave_initialisation=False)
+        # ---- initialisation (the schedule's passes) --------------------------------------
+        def exchange(i: int, leave: bool) -> None:
+            nonlocal current
+            current = slots[i].inst
+            _exchange_initial_values(slots[i], values, leave)
+        schedule.initialise(exchange)
         current = None
-        k0 = hook.start(by_name, values, layout.offsets) if hook is not None else 0
-        record_idx = layout.record_idx
+        k0 = hook.start(by_name, values, schedule.offsets) if hook is not None else 0
+        record_idx = buffer.record_idx
         sink(round(k0 * h, 12), values[record_idx])
 
         # ---- stepping --------------------------------------------------------------------
@@ -540,9 +330,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
         every = scenario.record_every
         tick = max(1, min(n_steps // 200, 100))
         save_at = getattr(hook, "step", None)
-        index = {s.inst.name: i for i, s in enumerate(slots)}
-        pattern = [[index[n] for n in names] for names in due(scenario, p.order)]
-        steps = _stepper(slots, pattern, layout, every, h)
+        steps = _stepper(slots, buffer, every, h)
         k = k0
         while k < n_steps:
             end = min(n_steps, (k // tick + 1) * tick, save_at if save_at is not None and save_at > k else n_steps)
@@ -559,7 +347,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
             k = end
             t_now = (k - 1) * h
             if k == save_at:
-                hook.save(k, by_name, values, layout.offsets)
+                hook.save(k, by_name, values, schedule.offsets)
             if k % tick == 0:
                 if _STOP[0]:
                     raise Interrupted(_STOP[0], round(k * h, 12))
@@ -851,38 +639,36 @@ def _check_nan(slots: list[_Slot], values: np.ndarray, t: float) -> None:
 _Stopped = tuple[int, "int | None", str, int]   # base step, slot index (None: a NaN), function, status
 
 
-def _stepper(slots: list[_Slot], pattern: list[list[int]], layout: _Layout, every: int,
+def _stepper(slots: list[_Slot], buffer: _Buffer, every: int,
              h: float) -> Callable[[int, int, np.ndarray], tuple[int, _Stopped | None]]:
-    """``steps(k0, k1, rows)``: run base steps ``k0 .. k1-1``, write the recorded rows (t, then
-    the recorded values) into ``rows`` and return how many, and where it stopped early (an FMU
-    status above warning, a NaN on a connection) or None. The C loop
+    """``steps(k0, k1, rows)``: run base steps ``k0 .. k1-1`` of the buffer's schedule, write the
+    recorded rows (t, then the recorded values) into ``rows`` and return how many, and where it
+    stopped early (an FMU status above warning, a NaN on a connection) or None. The C loop
     (:mod:`orchestration.cloop`), or where there is none, :func:`_python_steps`."""
     from . import cloop
     lib = cloop.library()
     if lib is None:
-        return partial(_python_steps, slots, pattern, layout.values, layout.record_idx, every, h)
-    return cloop.CLoop(lib, slots, pattern, layout.values_c, layout.record_idx, every, h)
+        return partial(_python_steps, slots, buffer.schedule, buffer.values, buffer.record_idx, every, h)
+    return cloop.CLoop(lib, slots, buffer.schedule, buffer.values_c, buffer.record_idx, every, h)
 
 
-def _python_steps(slots: list[_Slot], pattern: list[list[int]], values: np.ndarray, record_idx: np.ndarray,
+def _python_steps(slots: list[_Slot], schedule: Schedule, values: np.ndarray, record_idx: np.ndarray,
                   every: int, h: float, k0: int, k1: int, rows: np.ndarray) -> tuple[int, _Stopped | None]:
     """The stepping loop in Python, line by line as ``cosim_steps`` in cosim_loop.c (keep them
-    alike): per base step, each due component of ``pattern[k % period]`` (slot indices, in
-    Gauss–Seidel order) that has not taken its last step gets one fmi2SetReal, fmi2DoStep and
-    fmi2GetReal through the raw function pointers, straight from/to ``values``; then one NaN
-    check (the dot product of ``values`` with itself is NaN if and only if a value is) and,
-    every ``every`` base steps, a row."""
+    alike): per base step, each component the schedule has due (``schedule.due_at(k)``, slot
+    indices in Gauss–Seidel order) gets one fmi2SetReal, fmi2DoStep and fmi2GetReal through the
+    raw function pointers, straight from/to ``values``; then one NaN check (the dot product of
+    ``values`` with itself is NaN if and only if a value is) and, every ``every`` base steps, a
+    row."""
     t_c = ctypes.c_double()          # the communication point of every doStep of a base step
     true = ctypes.c_int(1)           # noSetFMUStatePriorToCurrentPoint
     take, dot = values.take, values.dot
-    period = len(pattern)
+    due_at = schedule.due_at
     n_rows = 0
     for k in range(k0, k1):
         t_c.value = k * h
-        for i in pattern[k % period]:
+        for i in due_at(k):
             s = slots[i]
-            if k > s.last_k:        # its next step would pass the stop time
-                continue
             inst = s.inst
             if s.n_in:
                 take(s.in_idx, out=s.in_view)
@@ -957,7 +743,7 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Overrides =
 
     overrides = override_strings(overrides)
     sc = load(scenario, overrides)
-    plan(sc)  # reject an algebraic loop before anything is written
+    Schedule.of(sc)  # reject an algebraic loop before anything is written
     check_metric_windows(sc)
     if _STOP[0]:      # a signal while the scenario was loading: stop before writing anything
         raise Interrupted(_STOP[0], 0.0)
@@ -1219,5 +1005,5 @@ def metric_unit(sc: Scenario, ref: str) -> str:
     return c.variables[c.group(var)[0]].unit or ""
 
 
-__all__ = ["RunError", "CouplingWarning", "Interrupted", "stop_on_signals", "metric_unit", "Plan", "plan", "wiring", "due",
-           "find_algebraic_loop", "simulate", "run", "load", "run_loaded", "RunFolder", "evaluate_metrics"]
+__all__ = ["RunError", "CouplingWarning", "Interrupted", "stop_on_signals", "metric_unit", "simulate", "run", "load",
+           "run_loaded", "RunFolder", "evaluate_metrics"]

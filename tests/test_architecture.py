@@ -77,3 +77,23 @@ def test_the_rules_catch_a_violation() -> None:
     assert not allowed("force_observer", "matplotlib.pyplot")
     assert allowed("estimators", "fmus.common.frames") and allowed("estimators", "fmus.estimators.axelsson2012_model")
     assert allowed("common", "scipy.linalg") and allowed("common", "math")
+
+
+def test_the_schedule_is_plain_and_the_engines_take_it_from_there() -> None:
+    """orchestration/schedule.py decides the stepping for every engine (ARCHITECTURE.md, "One
+    schedule"): it imports the standard library and the scenario only (no FMI, no engine), and
+    no engine orders components or builds rates of its own (no topological sort, no lcm)."""
+    path = ROOT / "orchestration" / "schedule.py"
+    bad = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            if node.module != "scenario":
+                bad.append(f"{node.lineno}: .{node.module}")
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+            bad += [f"{node.lineno}: {n}" for n in names if n.split(".")[0] not in sys.stdlib_module_names]
+    assert not bad, "schedule.py imports beyond the standard library and the scenario:\n" + "\n".join(bad)
+    engines = [ROOT / "orchestration" / f for f in ("master.py", "batched.py", "cloop.py")]
+    own = [f"{p.name}: {word}" for p in engines for word in ("heapq", "lcm(", "_kahn", "def plan(", "def due(")
+           if word in p.read_text()]
+    assert not own, "an engine schedules by itself:\n" + "\n".join(own)

@@ -97,6 +97,23 @@ def test_batched_runs_equal_the_fmus():
     assert not np.allclose(runs[0]["ekf_acc"], runs[1]["ekf_acc"])
 
 
+def test_a_stop_time_the_filter_step_does_not_divide_ends_as_on_the_fmus():
+    """Stop at 55 ms: the 10 ms components (sensors, EKFs) take their last step at 40 ms (one at
+    50 ms would pass the stop time) and hold their outputs, on the batched engine as on the
+    FMUs: both follow the one schedule (orchestration/schedule.py)."""
+    stop = ["scenario.stop_time=0.055"]
+    runs = [stop + [f"scenario.seed={s}"] for s in (1, 2)]
+    variables = ["plant.q_a", "ekf_acc.q_a_hat", "ekf_motor.P_x"]
+    res = batched.simulate_runs(str(SCENARIO), runs, {v: None for v in variables})
+    for r, overrides in enumerate(runs):
+        f = study.simulate(str(SCENARIO), overrides, variables)
+        assert len(f.time) == 56
+        for v in variables:
+            assert_array_equal(res[v][r if res[v].shape[0] > 1 else 0], f[v], err_msg=v)
+    q = res["ekf_acc.q_a_hat"][0]
+    assert np.array_equal(q[41], q[55]) and not np.array_equal(q[40], q[41])   # held after its last step
+
+
 def test_check_names_seed_quantity_and_difference():
     """A difference above the tolerance stops the study with the seed, the quantity and the number."""
     filters = [study_montecarlo.FilterInfo("ekf_acc", "EkfAccelerometer", True, 10, 0.01, {}, True)]

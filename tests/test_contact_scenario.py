@@ -177,14 +177,14 @@ def test_the_loop_is_broken_at_the_plant_inputs(runs):
 def test_reference_with_the_offset_would_be_an_algebraic_loop(fmu_dir, monkeypatch):
     """Why the scenarios have a second MotionController ('path'): the controller's own p_ref
     includes dp_ref, and the impedance controller's dp_ref depends directly on p_ref."""
-    from orchestration.master import plan
     from orchestration.scenario import ScenarioError, load_scenario
+    from orchestration.schedule import Schedule
 
     monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
     doc = scenario_document(sc.SCENARIO_FILES["observer"])
     doc["connections"] = [c.replace("path.p_ref", "controller.p_ref") for c in doc["connections"]]
     with pytest.raises(ScenarioError, match="algebraic loop"):
-        plan(load_scenario(doc))
+        Schedule.of(load_scenario(doc))
 
 
 def test_free_space_observer_removes_the_inertial_force(metrics):

@@ -15,7 +15,7 @@ from fmpy.util import read_csv
 from numpy.testing import assert_allclose, assert_array_equal
 
 from orchestration import CouplingWarning, Result, ResultWarning, RunError, ScenarioError, run
-from orchestration.master import due, plan
+from orchestration.schedule import Schedule
 from orchestration.scenario import load_scenario
 from toys import FAILING, MASS_SPRING, analytic, write
 
@@ -52,8 +52,8 @@ def test_cycle_is_broken_with_one_warning_naming_the_edge(tmp_path):
     msgs = [str(w.message) for w in record if issubclass(w.category, CouplingWarning)]
     assert len(msgs) == 1
     assert "b.x -> a.x_other" in msgs[0] and "previous" in msgs[0]
-    p = plan(load_scenario(path))
-    assert p.order == ["a", "b"] and p.broken == [("b", "a")]
+    p = Schedule.of(load_scenario(path))
+    assert p.order == ("a", "b") and p.broken == (("b", "a"),)
 
 
 def test_a_cycle_is_found_when_a_component_behind_it_comes_first(tmp_path):
@@ -61,8 +61,8 @@ def test_a_cycle_is_found_when_a_component_behind_it_comes_first(tmp_path):
     downstream of the cycle."""
     path = write(tmp_path, MASS_SPRING.replace('connections = [', 'connections = ["a.x -> g.x_other", ')
                  .replace("[components.a]", '[components.g]\nfmu = "MassSpring"\n[components.a]'))
-    p = plan(load_scenario(path))
-    assert p.broken == [("b", "a")] and p.order == ["a", "g", "b"]
+    p = Schedule.of(load_scenario(path))
+    assert p.broken == (("b", "a"),) and p.order == ("a", "g", "b")
 
 
 def _kahn_reference(names, edges, rank):
@@ -86,7 +86,7 @@ def _kahn_reference(names, edges, rank):
 
 
 def test_the_linear_ordering_equals_the_reference_on_random_graphs():
-    from orchestration.master import _find_cycle, _kahn
+    from orchestration.schedule import _find_cycle, _kahn
     rng = np.random.default_rng(7)
     for trial in range(200):
         n = int(rng.integers(1, 25))
@@ -112,10 +112,10 @@ def test_ten_thousand_connections_are_ordered_in_linear_time(tmp_path):
     path = write(tmp_path, f"connections = [{conns}]\n[scenario]\nstop_time = 0.01\nbase_step = 0.01\n{comps}")
     sc = load_scenario(path)
     t0 = time.perf_counter()
-    p = plan(sc)
+    p = Schedule.of(sc)
     assert time.perf_counter() - t0 < 60              # hang guard (about 0.5 s here)
-    assert p.broken == [(f"m{n - 1}", "m0")]
-    assert p.order == [f"m{k}" for k in range(n)]
+    assert p.broken == ((f"m{n - 1}", "m0"),)
+    assert p.order == tuple(f"m{k}" for k in range(n))
 
 
 # ---- multi-rate -----------------------------------------------------------------------------
@@ -146,9 +146,12 @@ variables = ["slow.n", "slow.t_s", "fast.n", "g.y"]
     # g (step 0.002) samples slow.y when it is stepped (base steps 0, 2, 4, ...) and holds it
     expected = np.where(k == 0, 0.0, 0.004 * np.ceil((2 * np.floor((k - 1) / 2) + 1) / 4))
     assert_allclose(r["g.y"], expected, rtol=0, atol=1e-15)
-    # the schedule behind it (shared with the batched engine): one period of lcm(4, 1, 2) steps
-    sc = load_scenario(path)
-    assert due(sc, plan(sc).order) == [["slow", "fast", "g"], ["fast"], ["fast", "g"], ["fast"]]
+    # the schedule behind it (shared with the batched engine): one period of lcm(4, 1, 2) steps,
+    # then the last 3 base steps, where slow (and g at 19) would step past the stop time
+    p = Schedule.of(load_scenario(path))
+    assert [p.names(row) for row in p.due] == [["slow", "fast", "g"], ["fast"], ["fast", "g"], ["fast"],
+                                               ["fast"], ["fast", "g"], ["fast"]]
+    assert (p.period, p.tail_start) == (4, 17)
 
 
 def test_multirate_coupled_mass_springs_stay_accurate(tmp_path):
@@ -187,7 +190,7 @@ variables = ["src.y", "g1.y", "g2.y"]
 
 def test_gauss_seidel_order_gives_same_step_values_through_a_feedthrough_chain(tmp_path):
     path = write(tmp_path, CHAIN)
-    assert plan(load_scenario(path)).order == ["src", "g1", "g2"]
+    assert Schedule.of(load_scenario(path)).order == ("src", "g1", "g2")
     r = run(path, out_dir=tmp_path / "o")
     assert_allclose(r["src.y"], 3.0 * r.time, rtol=0, atol=1e-14)
     # the same step's value all along the chain (a wrong order would lag by one or two steps),

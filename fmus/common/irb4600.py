@@ -462,39 +462,55 @@ def potential_energy(q, a: Arm | None = None) -> float:
 
 
 # ---- a URDF of the arm, for rigid-body libraries (Pinocchio's buildModelFromXML) --------------
-def urdf(a: Arm | None = None, name: str = "irb4600_60_205") -> str:
-    """URDF text of the arm ``a`` (:func:`arm` when ``None``), the robot called ``name``: the
-    links with their inertial data, the six revolute joints with their working ranges and
-    speeds, and a fixed ``tool`` frame at the tool centre point (URDF: ROS REP 103 axes, the
-    same x forward, y left, z up)."""
-    a = a if a is not None else _default()
+def tree_urdf(name: str, joints, tcp_parent: str, tcp) -> str:
+    """URDF text of a tree of revolute joints, the robot called ``name`` (URDF: ROS REP 103 axes,
+    x forward, y left, z up, as this module's). ``joints``: one row per joint, parents before
+    children: ``(joint, link, parent_link, origin, axis, body, limits)`` with the joint's name,
+    its child link's name, the parent link's name (``"base_link"`` for the root), the joint's
+    origin in the parent link frame [m] (no rotation), its unit axis, the child link's body
+    ``(mass [kg], com (3,) [m], inertia (3, 3) [kg m^2] about the com, link frame)`` or ``None``
+    for a massless link, and ``(lower, upper, velocity)`` [rad, rad/s]. A fixed ``tool`` frame
+    sits at ``tcp`` [m] in the link ``tcp_parent``."""
 
     def vec(v) -> str:
         return " ".join(repr(float(x)) for x in v)
 
     parts = [f'<robot name="{name}">', '  <link name="base_link"/>']
-    for i in range(N):
-        I = a.inertia[i]
+    for joint, link, parent, origin, axis, body, (lower, upper, velocity) in joints:
+        if body is None:
+            parts.append(f'  <link name="{link}"/>')
+        else:
+            m, c, I = body
+            parts.append(
+                f'  <link name="{link}"><inertial><origin xyz="{vec(c)}" rpy="0 0 0"/>'
+                f'<mass value="{float(m)!r}"/><inertia ixx="{float(I[0, 0])!r}" '
+                f'ixy="{float(I[0, 1])!r}" ixz="{float(I[0, 2])!r}" iyy="{float(I[1, 1])!r}" '
+                f'iyz="{float(I[1, 2])!r}" izz="{float(I[2, 2])!r}"/>'
+                f'</inertial></link>')
         parts.append(
-            f'  <link name="link_{i + 1}"><inertial><origin xyz="{vec(a.com[i])}" rpy="0 0 0"/>'
-            f'<mass value="{float(a.mass[i])!r}"/><inertia ixx="{float(I[0, 0])!r}" '
-            f'ixy="{float(I[0, 1])!r}" ixz="{float(I[0, 2])!r}" iyy="{float(I[1, 1])!r}" '
-            f'iyz="{float(I[1, 2])!r}" izz="{float(I[2, 2])!r}"/>'
-            f'</inertial></link>')
-        parent = "base_link" if i == 0 else f"link_{i}"
-        parts.append(
-            f'  <joint name="joint_{i + 1}" type="revolute"><parent link="{parent}"/>'
-            f'<child link="link_{i + 1}"/><origin xyz="{vec(a.origins[i])}" rpy="0 0 0"/>'
-            f'<axis xyz="{vec(a.axes[i])}"/><limit lower="{float(a.q_min[i])!r}" '
-            f'upper="{float(a.q_max[i])!r}" velocity="{float(a.dq_max[i])!r}" effort="0"/></joint>')
+            f'  <joint name="{joint}" type="revolute"><parent link="{parent}"/>'
+            f'<child link="{link}"/><origin xyz="{vec(origin)}" rpy="0 0 0"/>'
+            f'<axis xyz="{vec(axis)}"/><limit lower="{float(lower)!r}" '
+            f'upper="{float(upper)!r}" velocity="{float(velocity)!r}" effort="0"/></joint>')
     parts.append('  <link name="tool"/>')
-    parts.append(f'  <joint name="tool_joint" type="fixed"><parent link="link_6"/><child link="tool"/>'
-                 f'<origin xyz="{vec(a.tcp)}" rpy="0 0 0"/></joint>')
+    parts.append(f'  <joint name="tool_joint" type="fixed"><parent link="{tcp_parent}"/><child link="tool"/>'
+                 f'<origin xyz="{vec(tcp)}" rpy="0 0 0"/></joint>')
     parts.append("</robot>")
     return "\n".join(parts) + "\n"
+
+
+def urdf(a: Arm | None = None, name: str = "irb4600_60_205") -> str:
+    """URDF text of the arm ``a`` (:func:`arm` when ``None``), the robot called ``name``: the
+    links with their inertial data, the six revolute joints with their working ranges and
+    speeds, and a fixed ``tool`` frame at the tool centre point (:func:`tree_urdf`)."""
+    a = a if a is not None else _default()
+    joints = [(f"joint_{i + 1}", f"link_{i + 1}", "base_link" if i == 0 else f"link_{i}", a.origins[i],
+               a.axes[i], (a.mass[i], a.com[i], a.inertia[i]), (a.q_min[i], a.q_max[i], a.dq_max[i]))
+              for i in range(N)]
+    return tree_urdf(name, joints, "link_6", a.tcp)
 
 
 __all__ = ["N", "ORIGINS", "AXES", "Q_MIN", "Q_MAX", "DQ_MAX", "ROBOT_MASS", "HANDLING_CAPACITY",
            "BASE_MASS", "BASE_COM", "TOOL_MASS", "TOOL_COM", "TOOL_INERTIA", "Arm", "arm", "combine",
            "rotation", "link_frames", "tool_pose", "tool_rotation", "jacobian", "ik_solutions",
-           "inverse_kinematics", "kinetic_energy", "potential_energy", "urdf"]
+           "inverse_kinematics", "kinetic_energy", "potential_energy", "tree_urdf", "urdf"]

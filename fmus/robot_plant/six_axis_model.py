@@ -1,0 +1,716 @@
+"""The six-axis flexible robot's physics (plain math, numpy, no FMI): ``FlexibleRobot6DOF``'s
+continuous-time model and its fixed-step integrator (issue 23).
+
+The arm is :mod:`fmus.common.irb4600`'s IRB4600-class arm. Each of its six axes is an elastic
+joint as the two-axis plant's (:mod:`fmus.common.dynamics`, Axelsson et al. 2012, eqs. 10-11):
+motor inertia ``J_m`` behind a gear ratio ``r``, the nonlinear gearbox spring ``tau_s(D) = k_hi D
+- (k_hi - k_lo) delta tanh(D / delta)`` of the deflection ``D = q_m / r - q_a``, gearbox damping
+``d``, motor friction. Added to the rigid-body tree, as passive revolute joints with linear
+springs and dampers (the extended flexible joint model of [MWHB]: non-actuated joints at the
+bearings, about the axes orthogonal to the actuated one), the elasticity no encoder sees:
+
+* **foundation tilt** about x and y at the floor (``tilt_x``, ``tilt_y``): the fixed base
+  (:data:`fmus.common.irb4600.BASE_MASS`) rocks on its bolts and the floor;
+* **upper arm** out-of-plane bending (``upper_bend``, about its x axis at axis 2) and torsion
+  (``upper_twist``, about its long axis z);
+* **forearm** out-of-plane bending (``fore_bend``, about its z axis at axis 3) and torsion
+  (``fore_twist``, about its long axis x).
+
+The wrist's compliance is axes 4-6's gearboxes. With the motors locked the passive joints' modes
+lie at 10-40 Hz over the workspace (``docs/six_axis.md`` gives the poses and the figures).
+
+The drive train's realism, each with its own switch (``ideal = true`` turns all of it and the
+passive joints off):
+
+* gearbox **hysteresis / lost motion**: a Bouc-Wen element in parallel with the spring (Ismail,
+  Ikhouane and Rodellar 2009, the review of the model; ``n = 1``, ``beta = gamma``): torque
+  ``k_h z`` with ``z' = D' - (|D'| z + D' |z|) / (2 z_0)``, ``k_h = T_h / z_0``: ``z`` follows the
+  deflection and saturates at ``+-z_0``, the torque at ``+-T_h``, a loop of height ``2 T_h``;
+* **Stribeck and load-dependent friction** (Bittencourt and Gunnarsson 2012, an ABB robot's
+  joint; Olsson et al. 1998 for the Stribeck curve), motor side, a different form from the
+  estimators' ``f_v w + f_c tanh(w / w_c)``: ``F(w, tau_g) = f_v w + (f_c + (f_s - f_c)
+  exp(-(w / w_s)^2) + mu_L |tau_g| / r) tanh(w / w_c)``;
+* **torque ripple** ``A sin(n q_m)`` and a **torque-constant error** ``e``: applied torque
+  ``(1 + e) i + A sin(n q_m)`` ([SERVO] of :mod:`fmus.robot_plant.plant_model`);
+* the **current loop**, a first-order lag of bandwidth ``f_i``: ``i' = 2 pi f_i (tau_m - i)``
+  (``tau_m`` the commanded torque). With the command held over a step (zero-order hold) it is
+  integrated exactly, ``i(t) = tau_m + (i_0 - tau_m) exp(-2 pi f_i t)``, and its eigenvalue does
+  not limit the step.
+
+Rigid-body dynamics of the tree (6 actuated + up to 6 passive revolute joints, any tree: a joint
+is a parent, an origin in the parent's frame and a unit axis) by Featherstone's algorithms
+(Featherstone 2008, *Rigid Body Dynamics Algorithms*: RNEA, section 5.3; CRBA, section 6.2) in
+world coordinates (spatial vectors at the world origin, angular part first). Their recursions
+over the tree are sums along paths: with the ancestor matrix ``A`` (``A_ij = 1`` when joint ``j``
+is joint ``i`` or one of its ancestors), the forward recursion ``v_i = v_parent + S_i dq_i`` is
+``v = A (S dq)`` and the backward one ``f_i = f_i^B + sum_children f_c`` is ``f = A^T f^B``: the
+same sums, in matrix products.
+
+* RNEA: ``v = A (S dq)``, ``a = a_0 + A (S ddq + v_parent x S dq)`` (``a_0 = (0, -g)``: gravity
+  as the base's acceleration upward), ``f^B = I a + v x* I v``, ``tau = S . (A^T f^B)``.
+* CRBA: composite inertias ``I^c = A^T I``, ``M_ij = S_j . I^c_i S_i`` for ``j`` an ancestor of
+  ``i`` (or ``i``), ``M_ji = M_ij``, zero for unrelated joints.
+* forward dynamics ``ddq = M^-1 (tau - RNEA(q, dq, 0))`` (Cholesky of ``M``).
+
+State ``x = (q (n), q_m (6), dq (n), dq_m (6), z (6))``: the tree's joint angles in tree order
+(:attr:`SixAxisPlant.names`), the motor angles (motor side), their rates and the hysteresis
+variables; the current ``i`` (6) is kept beside it (:attr:`SixAxisPlant.current`). Inputs: the
+commanded motor torques ``tau_m`` (6) [N m] and an external wrench on the tool at the tool
+centre point, world axes: force (3) [N], moment (3) [N m].
+
+Integration: fixed-step RK4 with ``substeps`` per step; ``substeps = 0`` chooses the number from
+the stiffest eigenvalue of the linearisation at the initial state, ``|lambda| h <=`` 1.5
+(:data:`RK4_STEP_LIMIT`; RK4 is stable up to 2.83 on the imaginary axis), tests/
+test_six_axis_model.py shows fourth-order convergence.
+
+Sources of the defaults:
+
+* [MWHB] Moberg, Wernholt, Hanssen, Brogardh, "Modeling and parameter estimation of robot
+  manipulators using extended flexible joint models", ASME J. Dyn. Sys. Meas. Control 136 (2014):
+  non-actuated elastic joints at the gearboxes and bearings, in the directions orthogonal to the
+  actuated ones, identified on large ABB robots, with modes of 10-30 Hz beside the gearbox modes.
+* [OHR] Ohr, Moberg, Wernholt, Hanssen, Pettersson, Persson, Sander, "Identification of
+  flexibility parameters of 6-axis industrial manipulator models", ISMA (2006): the same kind of
+  model fitted to an IRB-class robot; base and arm out-of-plane modes among the lowest ones.
+* [BG] Bittencourt and Gunnarsson, "Static friction in a robot joint - modeling and
+  identification of load and temperature effects", ASME J. Dyn. Sys. Meas. Control 134 (2012):
+  Stribeck curve and a friction rising with the load torque, on an ABB robot's axis.
+* [RV] cycloidal (RV-type) reducer catalogues, the reducers of axes 1-3 of robots of this class:
+  lost motion about 1 arcmin (2.9e-4 rad) at a few % of rated torque.
+* [SERVO] as :mod:`fmus.robot_plant.plant_model`: torque-constant tolerance +-5-10 %, ripple about
+  1 % of rated torque, 24 ripple periods per revolution; a current loop of about 1 kHz bandwidth
+  (PWM at 8-16 kHz, the loop closes about a decade below).
+
+The figures of these sources are quoted from memory, not checked against them here: the defaults
+are this project's estimates in their ranges, each chosen as its parameter's source says.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from fmus.common import dynamics, irb4600
+from fmus.common.parameters import ParameterError, param
+from fmus.common.robot_params import RobotParameters
+
+#: the passive (non-actuated) joints, in the order of the tilt_ and bend_ parameters
+TILT = ("tilt_x", "tilt_y")
+BEND = ("upper_bend", "upper_twist", "fore_bend", "fore_twist")
+#: |lambda| h of the automatic step: the stiffest eigenvalue's, well inside RK4's stability
+#: region (2.83 on the imaginary axis, 2.79 on the negative real axis)
+RK4_STEP_LIMIT = 1.5
+RK4_STABILITY = 2.0 * math.sqrt(2.0)
+#: motor friction smoothing of axes 1, 4-6 [rad/s] (axes 2, 3: RobotParameters.w_c; the same)
+W_C_OTHER = 0.5
+_X, _Y, _Z = np.eye(3)
+_spring_inverse = getattr(dynamics.spring_inverse, "py_func", dynamics.spring_inverse)
+
+
+@dataclass(frozen=True)
+class SixAxisParameters(RobotParameters):
+    """The six-axis plant: the planar robot's axis-2/3 values (inherited, the single source of
+    those), the tool, the initial pose, the integration settings and the realism.
+
+    Vectors of six are per axis 1-6; ``tilt_*`` per ``(tilt_x, tilt_y)``; ``bend_*`` per
+    ``(upper_bend, upper_twist, fore_bend, fore_twist)``.
+    """
+
+    q0: tuple = param((0.0, 0.3, -0.2, 0.4, 0.5, 0.3), "rad", "initial arm angles of axes 1-6 (the "
+                      "plant starts at rest in static equilibrium there); must lie in the working ranges",
+                      source="a pose in the middle of the workspace, wrist turned")
+    tool_mass: float = param(irb4600.TOOL_MASS, "kg", "tool with its load on the flange", low=0.0,
+                             high=irb4600.HANDLING_CAPACITY, source="irb4600.TOOL_MASS (the planar arm's)")
+    tool_com: tuple = param(irb4600.TOOL_COM, "m", "the tool's centre of mass in the link-6 frame",
+                            low=-1.0, high=1.0, source="irb4600.TOOL_COM")
+    tool_inertia: tuple = param(irb4600.TOOL_INERTIA, "kg.m2", "the tool's principal inertias about its "
+                                "centre of mass (link-6 axes)", source="irb4600.TOOL_INERTIA")
+    base_inertia: tuple = param((6.4, 6.4, 6.9), "kg.m2", "principal inertias of the fixed base about its "
+                                "centre of mass (x, y, z): the body the foundation tilt rocks",
+                                source="irb4600.BASE_MASS 115 kg as a 0.6 x 0.6 m block 0.6 m high "
+                                "(m (b^2 + c^2) / 12)")
+    substeps: int = param(0, "1", "RK4 steps per communication step; 0: the fewest with |lambda| h <= 1.5 "
+                          "for the stiffest eigenvalue of the linearisation at the initial state", low=0,
+                          high=1000, source="tests/test_six_axis_model.py: fourth-order convergence")
+    max_substeps: int = param(64, "1", "largest automatic substeps: a stiffer plant is refused naming "
+                              "the parameter of its stiffest mode", low=1, high=1000,
+                              source="64 RK4 steps per 1 ms step: a mode of about 15 kHz")
+    locked: tuple = param((False,) * 6, "1", "axes held still (a brake on the arm side and the motor): "
+                          "joint and motor do not move", source="tests: the two-axis plant is the six-axis "
+                          "one with axes 1, 4-6 locked")
+    ideal: bool = param(False, "1", "switch every realism feature and every passive joint off: six "
+                        "flexible joints with the estimators' spring, damping and friction",
+                        source="the ideal case of tests")
+    foundation_tilt: bool = param(True, "1", "passive joints tilt_x, tilt_y at the floor",
+                                  source="[MWHB], [OHR]")
+    tilt_stiffness: tuple = param((1.5e6, 2.3e6), "N.m/rad", "foundation tilt stiffness about x, y",
+                                  low=0.0, low_inclusive=False,
+                                  source="[MWHB], [OHR]: with bend_stiffness, fitted so that the modes the "
+                                  "passive joints strain lie near 12-38 Hz at q0 and q = 0 (docs/six_axis.md)")
+    tilt_damping: tuple = param((400.0, 600.0), "N.m.s/rad", "foundation tilt damping about x, y", low=0.0,
+                                source="about 2 % of critical at 25 Hz, 2 zeta k / (2 pi 25 Hz) (bolted steel on concrete)")
+    arm_bending: bool = param(True, "1", "passive joints upper_bend, upper_twist, fore_bend, fore_twist",
+                              source="[MWHB]")
+    bend_stiffness: tuple = param((4.7e5, 2.0e5, 1.6e5, 1.7e5), "N.m/rad", "stiffness of the upper "
+                                  "arm's out-of-plane bending and torsion, the forearm's out-of-plane bending "
+                                  "and torsion", low=0.0, low_inclusive=False,
+                                  source="[MWHB]: with tilt_stiffness, fitted so that the modes the "
+                                  "passive joints strain lie near 12-38 Hz at q0 and q = 0 (docs/six_axis.md)")
+    bend_damping: tuple = param((120.0, 50.0, 40.0, 40.0), "N.m.s/rad", "damping of the four arm "
+                                "bending joints", low=0.0, source="about 2 % of critical at 25 Hz, 2 zeta k / (2 pi 25 Hz) (structural)")
+    hysteresis: bool = param(True, "1", "gearbox hysteresis / lost motion (Bouc-Wen element)", source="[RV]")
+    hysteresis_torque: tuple = param((60.0, 80.0, 24.0, 3.0, 3.0, 0.5), "N.m", "half-height T_h of "
+                                     "the gearbox's hysteresis loop, arm side", low=0.0,
+                                     source="[RV]: a loop 2 T_h / k_lo wide at zero torque, 1-2e-4 rad "
+                                     "(about half the catalogue's 1 arcmin lost motion)")
+    hysteresis_angle: tuple = param((1e-4,) * 6, "rad", "deflection z_0 over which the hysteresis "
+                                    "torque builds up after a reversal", low=0.0, low_inclusive=False,
+                                    source="[RV]: a fraction of the lost motion")
+    friction_realism: bool = param(True, "1", "Stribeck and load-dependent motor friction", source="[BG]")
+    f_s: tuple = param((0.3, 0.3, 0.22, 0.12, 0.12, 0.08), "N.m", "breakaway (static) friction, motor "
+                       "side", low=0.0, source="[BG]: about 1.5 x Coulomb")
+    w_s: tuple = param((3.0,) * 6, "rad/s", "Stribeck speed, motor side", low=0.0, low_inclusive=False,
+                       source="[BG]: about 0.015 rad/s arm side times a gear ratio of 200")
+    load_friction: tuple = param((1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4), "1", "friction rise mu_L per "
+                                 "unit of gearbox torque: motor-side N m per arm-side N m", low=0.0,
+                                 source="[BG]: friction rising by about half at high load (1000 N m on axis 2)")
+    ripple_amplitude: tuple = param((0.1, 0.1, 0.08, 0.03, 0.03, 0.02), "N.m", "motor torque ripple "
+                                    "amplitude, motor side (0: off)", low=0.0, high=2.0,
+                                    source="[SERVO] about 1 % of rated motor torque")
+    ripple_periods: tuple = param((24.0,) * 6, "1", "torque ripple periods per motor revolution",
+                                  low=1.0, high=1000.0, source="[SERVO] 6 x 4 pole pairs")
+    torque_constant_error: tuple = param((0.02, 0.03, -0.02, 0.01, -0.03, 0.02), "1", "relative "
+                                         "torque-constant error (0: off)", low=-0.2, high=0.2,
+                                         source="[SERVO] tolerance +-5-10 %")
+    current_bandwidth: float = param(1000.0, "Hz", "current loop bandwidth (first-order lag; 0: off, the "
+                                     "torque follows the command at once)", low=0.0, source="[SERVO]")
+
+    def on(self, feature: str) -> bool:
+        """Whether the realism ``feature`` (a switch's field name) is on: its switch, unless ``ideal``."""
+        return not self.ideal and bool(getattr(self, feature))
+
+    def check(self) -> None:
+        """The robot's checks, the initial pose inside the working ranges and physical inertias
+        of the tool and the base; raises :class:`ParameterError` naming the parameter."""
+        super().check()
+        if len(self.q0) != 6:
+            raise ParameterError(f"parameter 'q0' needs 6 angles, got {len(self.q0)}")
+        for i, q in enumerate(self.q0):
+            lo, hi = irb4600.Q_MIN[i], irb4600.Q_MAX[i]
+            if not lo <= q <= hi:
+                raise ParameterError(f"parameter 'q0[{i + 1}]' = {q} rad is outside axis {i + 1}'s working "
+                                     f"range [{lo:.4g}, {hi:.4g}] rad")
+        for name in ("tool_inertia", "base_inertia"):
+            ev = np.sort(np.asarray(getattr(self, name), float))
+            if len(ev) != 3 or ev[0] <= 0.0 or ev[2] > ev[0] + ev[1]:
+                raise ParameterError(f"parameter '{name}' = {getattr(self, name)} kg.m2 is not a physical "
+                                     "inertia (principal moments positive, each at most the sum of the others)")
+
+
+# ---- the tree ---------------------------------------------------------------------------------
+def rotation(axis, angle: float) -> np.ndarray:
+    """Rotation matrix by ``angle`` [rad] about the unit vector ``axis`` (Rodrigues' formula)."""
+    a = np.asarray(axis, float)
+    c, s = math.cos(angle), math.sin(angle)
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    return c * np.eye(3) + s * K + (1.0 - c) * np.outer(a, a)
+
+
+@dataclass(frozen=True, eq=False)
+class Tree:
+    """A tree of revolute joints with rigid bodies: joint ``i`` (parents before children) turns
+    body ``i`` about the unit ``axis[i]`` (link frame) through ``origin[i]`` [m] in the frame of
+    body ``parent[i]`` (-1: the ground); body ``i`` has ``mass[i]`` [kg], centre of mass
+    ``com[i]`` [m] and inertia ``inertia[i]`` [kg m^2] about it, in its frame (zero for a
+    massless link). ``names``: the joints'; ``tool``: the body carrying the tool centre point
+    ``tcp`` [m] (its frame); ``g`` [m/s^2] gravity along -z; ``limits`` (n, 3): lower, upper
+    [rad] and speed [rad/s] (for the URDF). Build the arm's with :func:`arm_tree`."""
+
+    names: tuple
+    parent: np.ndarray
+    origin: np.ndarray
+    axis: np.ndarray
+    mass: np.ndarray
+    com: np.ndarray
+    inertia: np.ndarray
+    tool: int
+    tcp: np.ndarray
+    g: float
+    limits: np.ndarray
+
+    @property
+    def n(self) -> int:
+        """Number of joints."""
+        return len(self.names)
+
+    def ancestors(self) -> np.ndarray:
+        """``A`` (n, n): ``A[i, j] = 1`` when joint ``j`` is joint ``i`` or one of its ancestors."""
+        A = np.zeros((self.n, self.n))
+        for i in range(self.n):
+            j = i
+            while j >= 0:
+                A[i, j] = 1.0
+                j = int(self.parent[j])
+        return A
+
+    def urdf(self, name: str = "irb4600_six_axis_plant") -> str:
+        """URDF text of the tree (:func:`fmus.common.irb4600.tree_urdf`), the robot ``name``:
+        link ``l_<joint>`` after each joint, the ``tool`` frame at ``tcp``."""
+        link = [f"l_{nm}" for nm in self.names]
+        rows = [(nm, link[i], "base_link" if self.parent[i] < 0 else link[int(self.parent[i])], self.origin[i],
+                 self.axis[i], (self.mass[i], self.com[i], self.inertia[i]) if self.mass[i] > 0 else None,
+                 self.limits[i]) for i, nm in enumerate(self.names)]
+        return irb4600.tree_urdf(name, rows, link[self.tool], self.tcp)
+
+
+def arm_tree(arm: irb4600.Arm, p: SixAxisParameters) -> Tree:
+    """The tree of the ``arm`` (:func:`fmus.common.irb4600.arm`) with the passive joints the
+    parameters ``p`` switch on (foundation tilt, arm bending); passive joints sit at the
+    bearing they stand for, so at zero angles the tree is the rigid arm."""
+    zero = (0.0, np.zeros(3), np.zeros((3, 3)))
+    rows: list = []          # (name, parent, origin, axis, body, limits)
+    passive_limits = (-0.1, 0.1, 10.0)
+
+    def add(name, parent, origin, axis, body=zero, limits=passive_limits) -> int:
+        rows.append((name, parent, np.asarray(origin, float), np.asarray(axis, float), body, limits))
+        return len(rows) - 1
+
+    link = [(float(arm.mass[i]), arm.com[i].copy(), arm.inertia[i].copy()) for i in range(6)]
+    lim = [(arm.q_min[i], arm.q_max[i], arm.dq_max[i]) for i in range(6)]
+    parent = -1
+    if p.on("foundation_tilt"):
+        base = (irb4600.BASE_MASS, np.asarray(irb4600.BASE_COM, float), np.diag(np.asarray(p.base_inertia, float)))
+        parent = add("tilt_y", add("tilt_x", -1, np.zeros(3), _X), np.zeros(3), _Y, base)
+    bend = p.on("arm_bending")
+    j = add("axis_1", parent, arm.origins[0], arm.axes[0], link[0], lim[0])
+    j = add("axis_2", j, arm.origins[1], arm.axes[1], zero if bend else link[1], lim[1])
+    if bend:
+        j = add("upper_twist", add("upper_bend", j, np.zeros(3), _X), np.zeros(3), _Z, link[1])
+    j = add("axis_3", j, arm.origins[2], arm.axes[2], zero if bend else link[2], lim[2])
+    if bend:
+        j = add("fore_twist", add("fore_bend", j, np.zeros(3), _Z), np.zeros(3), _X, link[2])
+    for i in (3, 4, 5):
+        j = add(f"axis_{i + 1}", j, arm.origins[i], arm.axes[i], link[i], lim[i])
+    return Tree(names=tuple(r[0] for r in rows), parent=np.array([r[1] for r in rows]),
+                origin=np.array([r[2] for r in rows]), axis=np.array([r[3] for r in rows]),
+                mass=np.array([r[4][0] for r in rows]), com=np.array([r[4][1] for r in rows]),
+                inertia=np.array([r[4][2] for r in rows]), tool=j, tcp=arm.tcp.copy(), g=float(arm.g),
+                limits=np.array([r[5] for r in rows], float))
+
+
+_P1, _P2 = [1, 2, 0], [2, 0, 1]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (n, 3) arrays ``a x b`` (cheaper than np.cross for small n)."""
+    return a[:, _P1] * b[:, _P2] - a[:, _P2] * b[:, _P1]
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """``[v]x`` (n, 3, 3) of the rows of ``v`` (n, 3)."""
+    K = np.zeros(v.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return K
+
+
+def _crm(v: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Spatial motion cross product ``v x m`` of rows (n, 6): ``(w x a, w x b + u x a)`` for
+    ``v = (w, u)``, ``m = (a, b)`` (Featherstone 2008, eq. 2.31); one call of :func:`_cross`."""
+    n = len(v)
+    w, u, a, b = v[:, :3], v[:, 3:], m[:, :3], m[:, 3:]
+    c = _cross(np.concatenate([w, w, u]), np.concatenate([a, b, a]))
+    return np.concatenate([c[:n], c[n:2 * n] + c[2 * n:]], axis=1)
+
+
+def _crf(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Spatial force cross product ``v x* f`` of rows (n, 6): ``(w x n + u x f, w x f)`` for
+    ``v = (w, u)``, ``f = (n, f)`` (Featherstone 2008, eq. 2.32); one call of :func:`_cross`."""
+    n = len(v)
+    w, u, nf, fl = v[:, :3], v[:, 3:], f[:, :3], f[:, 3:]
+    c = _cross(np.concatenate([w, u, w]), np.concatenate([nf, fl, fl]))
+    return np.concatenate([c[:n] + c[n:2 * n], c[2 * n:]], axis=1)
+
+
+class RigidBodyDynamics:
+    """RNEA, CRBA and forward dynamics of a :class:`Tree` ``tree`` in world coordinates (the
+    module docstring); methods take the joint angles ``q`` [rad], rates ``dq`` [rad/s] and
+    accelerations ``ddq`` [rad/s^2] (n each) or the :meth:`kinematics` ``k`` of ``q``."""
+
+    def __init__(self, tree: Tree) -> None:
+        self.tree = tree
+        self.n = tree.n
+        self.A = tree.ancestors()
+        self.AT = self.A.T.copy()
+        self.has_parent = tree.parent >= 0
+        self.par = np.where(self.has_parent, tree.parent, 0)
+        self.a0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, tree.g])      # gravity: the base accelerates up
+        self.tool_path = self.A[tree.tool].copy()
+        self._K = _skew(tree.axis)                                # Rodrigues: I + sin K + (1 - cos) K^2
+        self._KK = self._K @ self._K
+        self._axis = tree.axis[:, :, None]
+        self._T = np.zeros((self.n, 4, 4))
+        self._T[:, :3, :3] = np.eye(3)
+        self._T[:, :3, 3] = tree.origin
+        self._T[:, 3, 3] = 1.0
+        self._com = tree.com[:, :, None]
+        self._m = tree.mass[:, None, None]
+        self._mI = tree.mass[:, None, None] * np.eye(3)
+
+    def kinematics(self, q) -> dict:
+        """World rotation ``R`` (n, 3, 3) and origin ``o`` (n, 3) of each body, the joint axes ``z``
+        (n, 3), the motion subspaces ``S`` (n, 6) at the world origin ``(z, o x z)``, the centres
+        of mass ``c`` (n, 3) and the spatial inertias ``I`` (n, 6, 6) at the world origin,
+        ``[[I_c + m [c]x [c]x^T, m [c]x], [m [c]x^T, m 1]]`` (Featherstone 2008, eq. 2.63), at ``q``."""
+        t = self.tree
+        qa = np.asarray(q, float)[:, None, None]
+        T = self._T.copy()                       # joint transforms: origin, then the rotation
+        T[:, :3, :3] += np.sin(qa) * self._K + (1.0 - np.cos(qa)) * self._KK
+        Ts = []
+        for i, j in enumerate(t.parent):
+            Ts.append(T[i] if j < 0 else Ts[j] @ T[i])
+        W = np.array(Ts)
+        R, o = W[:, :3, :3], W[:, :3, 3]
+        z = (R @ self._axis)[:, :, 0]
+        c = o + (R @ self._com)[:, :, 0]
+        C = _skew(c)
+        mC = self._m * C
+        I = np.empty((self.n, 6, 6))
+        I[:, :3, :3] = R @ t.inertia @ R.transpose(0, 2, 1) - mC @ C
+        I[:, :3, 3:] = mC
+        I[:, 3:, :3] = -mC
+        I[:, 3:, 3:] = self._mI
+        S = np.concatenate([z, _cross(o, z)], axis=1)
+        return dict(R=R, o=o, z=z, c=c, S=S, I=I)
+
+    def rnea(self, q, dq, ddq, k: dict | None = None) -> np.ndarray:
+        """Inverse dynamics ``tau = M ddq + C dq + G`` [N m] (Featherstone 2008, section 5.3,
+        world coordinates; the recursions as path sums through the ancestor matrix)."""
+        k = self.kinematics(q) if k is None else k
+        S, I = k["S"], k["I"]
+        Sdq = S * np.asarray(dq, float)[:, None]
+        v = self.A @ Sdq
+        vp = v - Sdq                                             # the parent's velocity
+        a = self.a0 + self.A @ (S * np.asarray(ddq, float)[:, None] + _crm(vp, Sdq))
+        f = (I @ a[:, :, None])[:, :, 0] + _crf(v, (I @ v[:, :, None])[:, :, 0])
+        return np.sum(S * (self.AT @ f), axis=1)
+
+    def mass_matrix(self, q, k: dict | None = None) -> np.ndarray:
+        """Joint-space inertia matrix ``M`` (n, n) [kg m^2] (CRBA, Featherstone 2008, section 6.2)."""
+        k = self.kinematics(q) if k is None else k
+        S = k["S"]
+        Ic = (self.AT @ k["I"].reshape(self.n, 36)).reshape(self.n, 6, 6)   # composite inertia of each subtree
+        F = (Ic @ S[:, :, None])[:, :, 0]
+        P = (S @ F.T) * self.AT                                  # P[j, i] = S_j . Ic_i S_i, j ancestor of i
+        return P + P.T - np.diag(np.diag(P))
+
+    def external(self, wrench, k: dict) -> np.ndarray:
+        """Generalised force [N m] of the ``wrench`` (force (3) [N], moment (3) [N m], world axes)
+        on the tool at its centre point: ``S_j . (m + p x f, f)`` for the tool's ancestors."""
+        w = np.asarray(wrench, float)
+        p = k["o"][self.tree.tool] + k["R"][self.tree.tool] @ self.tree.tcp
+        f0 = np.concatenate([w[3:] + np.cross(p, w[:3]), w[:3]])
+        return (k["S"] @ f0) * self.tool_path
+
+    def potential_energy(self, q, k: dict | None = None) -> float:
+        """Gravitational potential energy [J] of the bodies at ``q``: ``sum m_i g z_ci``."""
+        k = self.kinematics(q) if k is None else k
+        return float(self.tree.g * self.tree.mass @ k["c"][:, 2])
+
+
+# ---- the plant --------------------------------------------------------------------------------
+class SixAxisPlant:
+    """The six-axis flexible robot of the parameters ``p`` (:class:`SixAxisParameters`, checked),
+    at rest in static equilibrium at ``p.q0``.
+
+    Methods take the state ``x`` (the module's layout), the motor torque commands ``tau_m`` (6)
+    [N m], the motor currents ``current`` (6) [N m, the torque the drive delivers before the
+    torque-constant error and ripple] and the external ``wrench`` (6) on the tool (force [N],
+    moment [N m], world axes, at the tool centre point).
+
+    Raises
+    ------
+    ParameterError
+        A non-physical inertia, a pose outside the working ranges (from ``p.check``), or an
+        inertia matrix that is not positive definite, naming the parameter.
+    """
+
+    def __init__(self, p: SixAxisParameters) -> None:
+        p.check()
+        self.p = p
+        try:
+            self.arm = irb4600.arm(p.robot(), tool_mass=p.tool_mass, tool_com=p.tool_com,
+                                   tool_inertia=p.tool_inertia)
+        except ValueError as exc:
+            name = "tool_mass" if "tool mass" in str(exc) else "tool_inertia" if "tool" in str(exc) else "m2"
+            raise ParameterError(f"parameter '{name}': {exc}") from None
+        a = self.arm
+        self.tree = tree = arm_tree(a, p)
+        self.dyn = RigidBodyDynamics(tree)
+        self.names = tree.names
+        self.n = n = tree.n
+        self.act = np.array([tree.names.index(f"axis_{i + 1}") for i in range(6)])
+        self.pas = np.array([i for i, nm in enumerate(tree.names) if not nm.startswith("axis_")], int)
+        pas_k = dict(zip(TILT, p.tilt_stiffness)) | dict(zip(BEND, p.bend_stiffness))
+        pas_d = dict(zip(TILT, p.tilt_damping)) | dict(zip(BEND, p.bend_damping))
+        self.k_p = np.array([pas_k[tree.names[i]] for i in self.pas], float)
+        self.d_p = np.array([pas_d[tree.names[i]] for i in self.pas], float)
+        self.r, self.J_m = a.gear_ratio.copy(), a.J_m.copy()
+        self.k_hi, self.k_soft, self.delta = a.k_hi.copy(), a.k_hi - a.k_lo, a.delta.copy()
+        self.d, self.f_v, self.f_c = a.d.copy(), a.f_v.copy(), a.f_c.copy()
+        self.w_c = np.array([W_C_OTHER, p.w_c[0], p.w_c[1], W_C_OTHER, W_C_OTHER, W_C_OTHER])
+        fr = p.on("friction_realism")
+        self.f_s = np.asarray(p.f_s, float) if fr else self.f_c.copy()
+        self.w_s = np.asarray(p.w_s, float)
+        self.mu_L = np.asarray(p.load_friction, float) if fr else np.zeros(6)
+        self.hyst = p.on("hysteresis")
+        self.z0 = np.asarray(p.hysteresis_angle, float)
+        self.k_h = np.asarray(p.hysteresis_torque, float) / self.z0 if self.hyst else np.zeros(6)
+        real = not p.ideal
+        self.kt = 1.0 + (np.asarray(p.torque_constant_error, float) if real else np.zeros(6))
+        self.ripple = np.asarray(p.ripple_amplitude, float) if real else np.zeros(6)
+        self.periods = np.asarray(p.ripple_periods, float)
+        self.w_i = 2.0 * math.pi * float(p.current_bandwidth) if real else 0.0
+        self.locked = np.array([bool(v) for v in p.locked])
+        self.free = np.ones(n, bool)
+        self.free[self.act[self.locked]] = False
+        self.size = 2 * n + 18
+        q = self.tree_angles(p.q0)
+        try:
+            np.linalg.cholesky(self.dyn.mass_matrix(q))
+        except np.linalg.LinAlgError:
+            raise ParameterError("parameters 'tool_inertia', 'base_inertia': the arm's inertia matrix at "
+                                 f"q0 = {tuple(p.q0)} is not positive definite") from None
+        self.x, self.current = self.static_equilibrium(p.q0)
+        self.t = 0.0
+        #: the stiffest eigenvalue's magnitude [rad/s] at the initial state, and the parameter of
+        #: the elastic element its mode strains most
+        self.stiffest, self.stiffest_parameter = self._stiffest()
+        self._substeps: dict = {}
+
+    # ---- state ----------------------------------------------------------------------------
+    def split(self, x) -> tuple:
+        """``(q, q_m, dq, dq_m, z)`` of the state ``x``."""
+        n = self.n
+        x = np.asarray(x, float)
+        return x[:n], x[n:n + 6], x[n + 6:2 * n + 6], x[2 * n + 6:2 * n + 12], x[2 * n + 12:]
+
+    def tree_angles(self, q_arm, passive=None) -> np.ndarray:
+        """The tree's joint angles (n) from the six arm angles ``q_arm`` [rad] and the passive
+        joints' ``passive`` [rad] (zero when ``None``)."""
+        q = np.zeros(self.n)
+        q[self.act] = np.asarray(q_arm, float)
+        if passive is not None:
+            q[self.pas] = np.asarray(passive, float)
+        return q
+
+    def gearbox_torque(self, x) -> np.ndarray:
+        """Arm-side gearbox torque (6) [N m] at ``x``: spring, damping and hysteresis."""
+        q, qm, dq, dqm, z = self.split(x)
+        D = qm / self.r - q[self.act]
+        Dd = dqm / self.r - dq[self.act]
+        return self.k_hi * D - self.k_soft * self.delta * np.tanh(D / self.delta) + self.d * Dd + self.k_h * z
+
+    def motor_friction(self, dqm, tau_g) -> np.ndarray:
+        """Motor friction (6) [N m, motor side] at the motor rates ``dqm`` [rad/s] under the
+        gearbox torque ``tau_g`` [N m, arm side] ([BG]'s form; the estimators' with it off)."""
+        level = self.f_c + (self.f_s - self.f_c) * np.exp(-(dqm / self.w_s) ** 2) + self.mu_L * np.abs(tau_g) / self.r
+        return self.f_v * dqm + level * np.tanh(dqm / self.w_c)
+
+    def derivatives(self, x, current, wrench=None) -> np.ndarray:
+        """``x_dot`` at the state ``x`` with the motor ``current`` (6) and the tool ``wrench``
+        (6, or ``None``: none)."""
+        n = self.n
+        q, qm, dq, dqm, z = self.split(x)
+        k = self.dyn.kinematics(q)
+        D = qm / self.r - q[self.act]
+        Dd = dqm / self.r - dq[self.act]
+        tau_g = self.k_hi * D - self.k_soft * self.delta * np.tanh(D / self.delta) + self.d * Dd + self.k_h * z
+        tau = np.zeros(n)
+        tau[self.act] = tau_g
+        tau[self.pas] = -self.k_p * q[self.pas] - self.d_p * dq[self.pas]
+        if wrench is not None:
+            tau += self.dyn.external(wrench, k)
+        rhs = tau - self.dyn.rnea(q, dq, np.zeros(n), k)
+        M = self.dyn.mass_matrix(q, k)
+        ddq = np.zeros(n)
+        f = self.free
+        if f.all():
+            ddq = np.linalg.solve(M, rhs)
+        else:
+            ddq[f] = np.linalg.solve(M[np.ix_(f, f)], rhs[f])
+        applied = self.kt * np.asarray(current, float) + self.ripple * np.sin(self.periods * qm)
+        ddqm = (applied - self.motor_friction(dqm, tau_g) - tau_g / self.r) / self.J_m
+        ddqm[self.locked] = 0.0
+        if self.hyst:
+            dz = Dd - (np.abs(Dd) * z + Dd * np.abs(z)) / (2.0 * self.z0)
+        else:
+            dz = np.zeros(6)
+        return np.concatenate([dq, dqm, ddq, ddqm, dz])
+
+    def current_at(self, i0, tau_m, t: float) -> np.ndarray:
+        """The current loop's output [N m] a time ``t`` [s] after it was ``i0`` with the command
+        ``tau_m`` held (exact; the command itself with the loop off)."""
+        if self.w_i <= 0.0:
+            return np.asarray(tau_m, float)
+        tau_m = np.asarray(tau_m, float)
+        return tau_m + (np.asarray(i0, float) - tau_m) * math.exp(-self.w_i * t)
+
+    # ---- integration ----------------------------------------------------------------------
+    def substeps_for(self, dt: float) -> int:
+        """RK4 steps per step of ``dt`` [s]: ``p.substeps``, or with 0 the fewest that keep
+        ``|lambda| h <=`` :data:`RK4_STEP_LIMIT` for the stiffest eigenvalue.
+
+        Raises
+        ------
+        ParameterError
+            ``substeps`` too few for RK4's stability (naming it and the mode), or an automatic
+            number above ``max_substeps`` (naming the parameter whose element the mode strains).
+        """
+        got = self._substeps.get(dt)
+        if got is not None:
+            return got
+        lam = self.stiffest
+        if self.p.substeps > 0:
+            s = int(self.p.substeps)
+            if lam * dt / s > RK4_STABILITY:
+                raise ParameterError(
+                    f"parameter 'substeps' = {s}: the step {dt / s:.3g} s does not resolve the plant's stiffest "
+                    f"mode (|lambda| = {lam:.4g} rad/s, {lam / (2 * math.pi):.1f} Hz, of {self.stiffest_parameter}): "
+                    f"RK4 needs |lambda| h <= 2.83; raise 'substeps' to at least {math.ceil(lam * dt / RK4_STABILITY)}")
+        else:
+            s = max(1, math.ceil(lam * dt / RK4_STEP_LIMIT))
+            if s > self.p.max_substeps:
+                raise ParameterError(
+                    f"parameter {self.stiffest_parameter}: the plant's stiffest mode (|lambda| = {lam:.4g} rad/s, "
+                    f"{lam / (2 * math.pi):.1f} Hz) needs {s} RK4 substeps per {dt:g} s step, more than "
+                    f"'max_substeps' = {self.p.max_substeps}")
+        self._substeps[dt] = s
+        return s
+
+    def step(self, tau_m, wrench=None, dt: float = 1e-3) -> None:
+        """Advance the state by ``dt`` [s] with the motor torque commands ``tau_m`` (6) [N m]
+        and the tool ``wrench`` (6, or ``None``) held: :meth:`substeps_for` RK4 steps, the
+        current loop exact at each stage's time."""
+        s = self.substeps_for(dt)
+        h = dt / s
+        x, i0 = self.x, self.current
+        for k in range(s):
+            t0 = k * h
+            c0 = self.current_at(i0, tau_m, t0)
+            cm = self.current_at(i0, tau_m, t0 + 0.5 * h)
+            c1 = self.current_at(i0, tau_m, t0 + h)
+            k1 = self.derivatives(x, c0, wrench)
+            k2 = self.derivatives(x + 0.5 * h * k1, cm, wrench)
+            k3 = self.derivatives(x + 0.5 * h * k2, cm, wrench)
+            k4 = self.derivatives(x + h * k3, c1, wrench)
+            x = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        self.x = x
+        self.current = self.current_at(i0, tau_m, dt)
+        self.t += dt
+
+    # ---- analysis -------------------------------------------------------------------------
+    def static_equilibrium(self, q_arm) -> tuple[np.ndarray, np.ndarray]:
+        """The state at rest with the gearbox outputs at ``q_arm`` (6) [rad] (passive joints
+        and gearbox springs carry gravity; hysteresis variables zero) and the current that holds
+        it: ``(x, current)``."""
+        q = self.tree_angles(q_arm)
+        for _ in range(100):
+            G = self.dyn.rnea(q, np.zeros(self.n), np.zeros(self.n))
+            old = q[self.pas].copy()
+            q[self.pas] = -G[self.pas] / self.k_p
+            if np.all(np.abs(q[self.pas] - old) < 1e-15):
+                break
+        G = self.dyn.rnea(q, np.zeros(self.n), np.zeros(self.n))
+        tau_g = G[self.act]
+        D = np.array([_spring_inverse(self.k_hi[i], self.k_soft[i], self.delta[i], float(tau_g[i]), 0.0, False)
+                      for i in range(6)])
+        qm = self.r * (np.asarray(q_arm, float) + D)
+        x = np.concatenate([q, qm, np.zeros(self.n + 6), np.zeros(6)])
+        current = (tau_g / self.r - self.ripple * np.sin(self.periods * qm)) / self.kt
+        return x, current
+
+    def energy(self, x) -> float:
+        """Kinetic, gravity and spring energy [J] at ``x``, with the ripple's potential
+        ``(A / n) cos(n q_m)`` (the ripple torque ``A sin(n q_m)`` is its negative gradient)."""
+        q, qm, dq, dqm, _ = self.split(x)
+        k = self.dyn.kinematics(q)
+        D = qm / self.r - q[self.act]
+        kin = 0.5 * dq @ self.dyn.mass_matrix(q, k) @ dq + 0.5 * np.sum(self.J_m * dqm ** 2)
+        spring = np.sum(0.5 * self.k_hi * D ** 2 - self.k_soft * self.delta ** 2 * np.log(np.cosh(D / self.delta)))
+        passive = 0.5 * np.sum(self.k_p * q[self.pas] ** 2)
+        ripple = np.sum(self.ripple / self.periods * np.cos(self.periods * qm))
+        return float(kin + self.dyn.potential_energy(q, k) + spring + passive + ripple)
+
+    def tool_position(self, x, point=None) -> np.ndarray:
+        """World position [m] of the tool centre point (or of ``point`` [m], in the tool frame)
+        at the state ``x``."""
+        k = self.dyn.kinematics(self.split(x)[0])
+        t = self.tree.tool
+        r = self.tree.tcp if point is None else self.tree.tcp + np.asarray(point, float)
+        return k["o"][t] + k["R"][t] @ r
+
+    def jacobian(self, x, current=None, h: float = 1e-7) -> np.ndarray:
+        """``d x_dot / d x`` at ``x`` with the ``current`` held (the holding current when
+        ``None``), by central differences of step ``h`` (relative)."""
+        c = self.current if current is None else current
+        x0 = np.asarray(x, float)
+        J = np.empty((x0.size, x0.size))
+        for i in range(x0.size):
+            e = np.zeros(x0.size)
+            e[i] = h * max(1.0, abs(x0[i]))
+            J[:, i] = (self.derivatives(x0 + e, c) - self.derivatives(x0 - e, c)) / (2 * e[i])
+        return J
+
+    def _stiffest(self) -> tuple[float, str]:
+        """:attr:`stiffest` and :attr:`stiffest_parameter` from the linearisation at :attr:`x`."""
+        lam, vec = np.linalg.eig(self.jacobian(self.x))
+        i = int(np.argmax(np.abs(lam)))
+        v = vec[:, i]
+        q, qm = v[:self.n], v[self.n:self.n + 6]
+        gear = self.k_hi * np.abs(qm / self.r - q[self.act]) ** 2
+        pas = self.k_p * np.abs(q[self.pas]) ** 2
+        j = int(np.argmax(np.concatenate([gear, pas])))
+        if j >= 6:
+            nm = self.names[self.pas[j - 6]]
+            name = (f"'tilt_stiffness[{TILT.index(nm) + 1}]'" if nm in TILT
+                    else f"'bend_stiffness[{BEND.index(nm) + 1}]'")
+        elif j in (1, 2):
+            name = f"'k_hi[{j}]'"
+        else:
+            name = f"'tool_inertia' (against the axis-{j + 1} gearbox)"
+        return float(abs(lam[i])), name
+
+    def linearised_modes(self, x, free=None, shapes: bool = False) -> tuple:
+        """Natural frequencies [Hz] and damping ratios of the linearisation at the rest state
+        ``x`` with only the position coordinates ``free`` (indices into ``(q, q_m)``; all when
+        ``None``) moving, the others clamped (held by constraints); ascending. With ``shapes``,
+        the mode shapes as columns of the free positions (complex).
+
+        ``M_ff y'' = K_ff y + D_ff y'`` with ``M = diag(M_tree, J_m)`` and the generalised forces'
+        Jacobians ``[K, D] = M d(accelerations)/d(positions, rates)`` (at rest the accelerations
+        vanish, so ``M d acc`` is the Jacobian of the forces), from :meth:`jacobian`."""
+        m_all = self.n + 6
+        f = list(range(m_all)) if free is None else list(free)
+        M = np.zeros((m_all, m_all))
+        M[:self.n, :self.n] = self.dyn.mass_matrix(self.split(x)[0])
+        M[self.n:, self.n:] = np.diag(self.J_m)
+        F = M @ self.jacobian(x)[m_all:2 * m_all]
+        Mff = M[np.ix_(f, f)]
+        K, D = F[np.ix_(f, f)], F[np.ix_(f, [m_all + i for i in f])]
+        A = np.block([[np.zeros((len(f), len(f))), np.eye(len(f))],
+                      [np.linalg.solve(Mff, K), np.linalg.solve(Mff, D)]])
+        lam, vec = np.linalg.eig(A)
+        keep = lam.imag > 1e-9
+        lam, vec = lam[keep], vec[:len(f), keep]
+        wn = np.abs(lam)
+        order = np.argsort(wn)
+        zeta = -lam.real / wn
+        if shapes:
+            return wn[order] / (2 * np.pi), zeta[order], vec[:, order]
+        return wn[order] / (2 * np.pi), zeta[order]
+
+
+__all__ = ["TILT", "BEND", "RK4_STEP_LIMIT", "SixAxisParameters", "Tree", "arm_tree", "rotation",
+           "RigidBodyDynamics", "SixAxisPlant"]

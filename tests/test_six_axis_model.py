@@ -101,6 +101,24 @@ def test_the_tool_wrench_and_tool_point_equal_pinocchio(pin, model, plant) -> No
         assert np.abs(plant.tool_position(x) - data.oMf[tool].translation).max() < 1e-14
 
 
+def test_the_tree_at_rest_deflection_zero_is_irb4600s_arm(plant) -> None:
+    """The tree's kinematics with the passive joints at zero is irb4600's forward kinematics
+    (the rigid arm's, which the controller's IK and the estimators use; the tree's is its one
+    extension, held equal here): tool point to round-off (1e-14 m on 2 m), and the rigid arm's
+    kinetic energy (irb4600.kinetic_energy) is the tree's 1/2 dq^T M dq (1e-12 relative)."""
+    rng = np.random.default_rng(9)
+    for _ in range(20):
+        q6 = rng.uniform(irb4600.Q_MIN, irb4600.Q_MAX)
+        dq6 = rng.uniform(-1, 1, 6)
+        x = np.zeros(plant.size)
+        x[:plant.n] = plant.tree_angles(q6)
+        pos, _ = irb4600.tool_pose(q6, plant.arm)
+        assert np.abs(plant.tool_position(x) - pos).max() < 1e-14
+        dq = plant.tree_angles(dq6)
+        T = 0.5 * dq @ plant.dyn.mass_matrix(x[:plant.n]) @ dq
+        assert T == pytest.approx(irb4600.kinetic_energy(q6, dq6, plant.arm), rel=1e-12)
+
+
 # ---- energy and integration ------------------------------------------------------------------
 def test_energy_is_conserved_without_damping_friction_and_hysteresis() -> None:
     """Passive joints, nonlinear gearbox springs and ripple (with its potential; 3 periods per

@@ -126,7 +126,7 @@ def test_energy_is_conserved_without_damping_friction_and_hysteresis() -> None:
     60 Hz and the step resolves it, as the two-axis plant's test) on; from a perturbed
     equilibrium with the arm swinging (0.3 s): the energy's rate is zero (central
     differences along x_dot, 1e-9 of the power a single term carries) and its drift is RK4's
-    error: it falls at least 2^4-fold when the step halves (measured 31-fold: RK4's energy error
+    error: it falls at least 2^4-fold when the step halves (measured 32-fold: RK4's energy error
     is fifth order per unit time) and is under 1e-7 relative at the automatic step (measured
     3.3e-9)."""
     drifts = []

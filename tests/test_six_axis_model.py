@@ -178,9 +178,9 @@ def test_rk4_converges_at_fourth_order(realism) -> None:
 
     With ``realism`` the current loop and the hysteresis are on too. The current's transient
     (``exp(-2 pi 1 kHz t)``) is exact but RK4 samples it at its stages only: the order reaches 4
-    as the step resolves 0.16 ms (measured 3.2, 3.8, 3.9 for 1, 2, 4 substeps against 32) and
-    the automatic step (2 substeps) errs by 1e-7 m (measured 1.1e-7): asserted orders 3-4.5
-    and 3e-7 m."""
+    as the step resolves 0.16 ms (measured 3.2, 4.0) and the automatic step (2 substeps, for the
+    current loop: 2 pi f_i h <= pi) errs by 1e-7 m (measured 1.2e-7): asserted orders 3-4.5 and
+    3e-7 m."""
     p = replace(P, hysteresis=realism, current_bandwidth=P.current_bandwidth if realism else 0.0)
     subs = (1, 2, 4, 16)
     models = [SixAxisPlant(replace(p, substeps=s)) for s in subs]

@@ -35,7 +35,7 @@ passive joints off):
 * the **current loop**, a first-order lag of bandwidth ``f_i``: ``i' = 2 pi f_i (tau_m - i)``
   (``tau_m`` the commanded torque). With the command held over a step (zero-order hold) it is
   integrated exactly, ``i(t) = tau_m + (i_0 - tau_m) exp(-2 pi f_i t)``, and its eigenvalue does
-  not limit the step.
+  not limit RK4's stability (the automatic step still resolves the transient, ``2 pi f_i h <= pi``).
 
 Rigid-body dynamics of the tree (6 actuated + up to 6 passive revolute joints, any tree: a joint
 is a parent, an origin in the parent's frame and a unit axis) by Featherstone's algorithms
@@ -61,7 +61,8 @@ centre point, world axes: force (3) [N], moment (3) [N m].
 Integration: fixed-step RK4 with ``substeps`` per step; ``substeps = 0`` chooses the number from
 the stiffest eigenvalue of the linearisation at the initial state, ``|lambda| h <=`` 0.7
 (:data:`RK4_STEP_LIMIT`: RK4's numerical damping of that mode stays a tenth of its structural
-damping; RK4 is stable up to 2.83 on the imaginary axis); tests/test_six_axis_model.py shows
+damping; RK4 is stable up to 2.83 on the imaginary axis), and from the current loop's bandwidth,
+``2 pi f_i h <= pi`` (:data:`CURRENT_STEP_LIMIT`); tests/test_six_axis_model.py shows
 fourth-order convergence.
 
 Sources of the defaults:
@@ -104,6 +105,10 @@ BEND = ("upper_bend", "upper_twist", "fore_bend", "fore_twist")
 #: tenth of the plant's least structural damping (2 %); stable up to 2.83 (imaginary axis)
 RK4_STEP_LIMIT = 0.7
 RK4_STABILITY = 2.0 * math.sqrt(2.0)
+#: 2 pi f_i h of the automatic step for the current loop: its transient, exact in the current, is
+#: seen by the mechanics only at RK4's stages; at pi the tool path errs by about 1e-7 m after a
+#: strike (tests/test_six_axis_model.py), ten times less than at 2 pi
+CURRENT_STEP_LIMIT = math.pi
 #: motor friction smoothing of axes 1, 4-6 [rad/s] (axes 2, 3: RobotParameters.w_c; the same)
 W_C_OTHER = 0.5
 _X, _Y, _Z = np.eye(3)
@@ -133,11 +138,12 @@ class SixAxisParameters(RobotParameters):
                                 source="irb4600.BASE_MASS 115 kg as a 0.6 x 0.6 m block 0.6 m high "
                                 "(m (b^2 + c^2) / 12)")
     substeps: int = param(0, "1", "RK4 steps per communication step; 0: the fewest with |lambda| h <= 0.7 "
-                          "for the stiffest eigenvalue of the linearisation at the initial state", low=0,
+                          "for the stiffest eigenvalue of the linearisation at the initial state and "
+                          "2 pi f_i h <= pi for the current loop", low=0,
                           high=1000, source="tests/test_six_axis_model.py: fourth-order convergence")
     max_substeps: int = param(64, "1", "largest automatic substeps: a stiffer plant is refused naming "
                               "the parameter of its stiffest mode", low=1, high=1000,
-                              source="64 RK4 steps per 1 ms step: a mode of about 15 kHz")
+                              source="64 RK4 steps per 1 ms step at |lambda| h = 0.7: a mode of about 7 kHz")
     locked: tuple = param((False,) * 6, "1", "axes held still (a brake on the arm side and the motor): "
                           "joint and motor do not move", source="tests: the two-axis plant is the six-axis "
                           "one with axes 1, 4-6 locked")
@@ -162,13 +168,14 @@ class SixAxisParameters(RobotParameters):
     bend_damping: tuple = param((120.0, 50.0, 40.0, 40.0), "N.m.s/rad", "damping of the four arm "
                                 "bending joints", low=0.0, source="about 2 % of critical at 25 Hz, 2 zeta k / (2 pi 25 Hz) (structural)")
     hysteresis: bool = param(True, "1", "gearbox hysteresis / lost motion (Bouc-Wen element)", source="[RV]")
-    hysteresis_torque: tuple = param((60.0, 80.0, 24.0, 3.0, 3.0, 0.5), "N.m", "half-height T_h of "
+    hysteresis_torque: tuple = param((30.0, 40.0, 12.0, 1.5, 1.5, 0.25), "N.m", "half-height T_h of "
                                      "the gearbox's hysteresis loop, arm side", low=0.0,
-                                     source="[RV]: a loop 2 T_h / k_lo wide at zero torque, 1-2e-4 rad "
-                                     "(about half the catalogue's 1 arcmin lost motion)")
-    hysteresis_angle: tuple = param((1e-4,) * 6, "rad", "deflection z_0 over which the hysteresis "
+                                     source="[RV]: T_h = 1e-4 rad x k_lo, a loop 2 T_h / k_lo = 2e-4 rad "
+                                     "(0.7 arcmin) wide at zero torque, within the catalogue's 1 arcmin lost motion")
+    hysteresis_angle: tuple = param((2e-4,) * 6, "rad", "deflection z_0 over which the hysteresis "
                                     "torque builds up after a reversal", low=0.0, low_inclusive=False,
-                                    source="[RV]: a fraction of the lost motion")
+                                    source="[RV]: the soft zone's width delta, so that the element's "
+                                    "small-amplitude stiffness T_h / z_0 is half of k_lo")
     friction_realism: bool = param(True, "1", "Stribeck and load-dependent motor friction", source="[BG]")
     f_s: tuple = param((0.3, 0.3, 0.22, 0.12, 0.12, 0.08), "N.m", "breakaway (static) friction, motor "
                        "side", low=0.0, source="[BG]: about 1.5 x Coulomb")
@@ -562,7 +569,8 @@ class SixAxisPlant:
     # ---- integration ----------------------------------------------------------------------
     def substeps_for(self, dt: float) -> int:
         """RK4 steps per step of ``dt`` [s]: ``p.substeps``, or with 0 the fewest that keep
-        ``|lambda| h <=`` :data:`RK4_STEP_LIMIT` for the stiffest eigenvalue.
+        ``|lambda| h <=`` :data:`RK4_STEP_LIMIT` for the stiffest eigenvalue and ``2 pi f_i h <=``
+        :data:`CURRENT_STEP_LIMIT` for the current loop.
 
         Raises
         ------
@@ -582,7 +590,7 @@ class SixAxisPlant:
                     f"mode (|lambda| = {lam:.4g} rad/s, {lam / (2 * math.pi):.1f} Hz, of {self.stiffest_parameter}): "
                     f"RK4 needs |lambda| h <= 2.83; raise 'substeps' to at least {math.ceil(lam * dt / RK4_STABILITY)}")
         else:
-            s = max(1, math.ceil(lam * dt / RK4_STEP_LIMIT))
+            s = max(1, math.ceil(lam * dt / RK4_STEP_LIMIT), math.ceil(self.w_i * dt / CURRENT_STEP_LIMIT))
             if s > self.p.max_substeps:
                 raise ParameterError(
                     f"parameter {self.stiffest_parameter}: the plant's stiffest mode (|lambda| = {lam:.4g} rad/s, "
@@ -716,5 +724,5 @@ class SixAxisPlant:
         return wn[order] / (2 * np.pi), zeta[order]
 
 
-__all__ = ["TILT", "BEND", "RK4_STEP_LIMIT", "SixAxisParameters", "Tree", "arm_tree", "rotation",
+__all__ = ["TILT", "BEND", "RK4_STEP_LIMIT", "CURRENT_STEP_LIMIT", "SixAxisParameters", "Tree", "arm_tree", "rotation",
            "RigidBodyDynamics", "SixAxisPlant"]

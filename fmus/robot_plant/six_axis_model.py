@@ -16,8 +16,9 @@ bearings, about the axes orthogonal to the actuated one), the elasticity no enco
 * **forearm** out-of-plane bending (``fore_bend``, about its z axis at axis 3) and torsion
   (``fore_twist``, about its long axis x).
 
-The wrist's compliance is axes 4-6's gearboxes. With the motors locked the passive joints' modes
-lie at 10-40 Hz over the workspace (``docs/six_axis.md`` gives the poses and the figures).
+The wrist's compliance is axes 4-6's gearboxes. With the motors locked the modes the passive
+joints strain most lie at 13-50 Hz over the workspace, ``upper_twist``'s at 80-90 Hz
+(``docs/six_axis.md`` gives the poses and the figures).
 
 The drive train's realism, each with its own switch (``ideal = true`` turns all of it and the
 passive joints off):
@@ -517,8 +518,11 @@ class SixAxisPlant:
     def gearbox_torque(self, x) -> np.ndarray:
         """Arm-side gearbox torque (6) [N m] at ``x``: spring, damping and hysteresis."""
         q, qm, dq, dqm, z = self.split(x)
-        D = qm / self.r - q[self.act]
-        Dd = dqm / self.r - dq[self.act]
+        return self._gearbox(qm / self.r - q[self.act], dqm / self.r - dq[self.act], z)
+
+    def _gearbox(self, D: np.ndarray, Dd: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """:meth:`gearbox_torque` of the deflections ``D``, their rates ``Dd`` and the hysteresis
+        variables ``z``."""
         return self.k_hi * D - self.k_soft * self.delta * np.tanh(D / self.delta) + self.d * Dd + self.k_h * z
 
     def motor_friction(self, dqm, tau_g) -> np.ndarray:
@@ -535,7 +539,7 @@ class SixAxisPlant:
         k = self.dyn.kinematics(q)
         D = qm / self.r - q[self.act]
         Dd = dqm / self.r - dq[self.act]
-        tau_g = self.k_hi * D - self.k_soft * self.delta * np.tanh(D / self.delta) + self.d * Dd + self.k_h * z
+        tau_g = self._gearbox(D, Dd, z)
         tau = np.zeros(n)
         tau[self.act] = tau_g
         tau[self.pas] = -self.k_p * q[self.pas] - self.d_p * dq[self.pas]

@@ -301,6 +301,27 @@ def test_linearised_modes_are_the_hammer_spectrum_peaks(pose) -> None:
         assert np.abs(damped - fp).min() < 0.5, (fp, damped)
 
 
+# ---- switches ---------------------------------------------------------------------------------
+def test_every_switch_off_is_the_ideal_plant_and_the_initial_state_is_at_rest() -> None:
+    """Each feature's own switch off (passive joints, hysteresis, friction, ripple amplitude,
+    torque-constant error, current loop) gives exactly the ``ideal`` plant's right side at
+    random states (the same operations: bit for bit); and the default plant starts at rest:
+    its accelerations at the static equilibrium with the holding current vanish to round-off of
+    ~1e3 N m torques over ~1e-2 kg m^2 inertias (1e-8 rad/s^2)."""
+    off = replace(P, foundation_tilt=False, arm_bending=False, hysteresis=False, friction_realism=False,
+                  ripple_amplitude=(0.0,) * 6, torque_constant_error=(0.0,) * 6, current_bandwidth=0.0)
+    a, b = SixAxisPlant(off), SixAxisPlant(replace(P, ideal=True))
+    assert a.names == b.names and a.n == 6
+    rng = np.random.default_rng(8)
+    for _ in range(10):
+        x = a.x + rng.normal(0.0, 1e-2, a.size)
+        c, w = rng.normal(0.0, 3.0, 6), rng.normal(0.0, 100.0, 6)
+        assert np.array_equal(a.derivatives(x, c, w), b.derivatives(x, c, w))
+    for q0 in POSES:
+        m = SixAxisPlant(replace(P, q0=q0))
+        assert np.abs(m.derivatives(m.x, m.current)).max() < 1e-8
+
+
 # ---- bad input --------------------------------------------------------------------------------
 def test_bad_input_is_refused_naming_the_parameter() -> None:
     with pytest.raises(ParameterError, match=r"'q0\[3\]' = 1.5 rad is outside axis 3's working range"):

@@ -155,13 +155,22 @@ def test_seeds_are_the_scenarios_seed_on_the_flagship(tmp_path):
     assert main(["study", "sweep", str(flagship), "--estimator", "ekf", "--runs", "2", "--first-seed", "3",
                  "--set", "scenario.stop_time=0.3", "--after", "0.1", "--workers", "1", "--no-progress",
                  "--no-plots", "--out", str(out)]) == 0
-    ekf = json.loads((out / "study.json").read_text())["points"][0]["estimators"]["ekf"]
+    data = json.loads((out / "study.json").read_text())
+    ekf = data["points"][0]["estimators"]["ekf"]
     doc = scenario_document(flagship)
     doc["record"]["variables"] += ["plant.dq_a", "plant.ddq_a", "ekf.ddq_a_hat"]
     r = study.simulate(doc, ["scenario.stop_time=0.3", "scenario.seed=4"])
     keep = r.time >= 0.1 - 1e-12
-    assert_allclose(ekf["position_rmse_per_seed"][1], rmse(r["ekf.p_tool_hat"][keep], r["plant.p_tool"][keep]),
+    # judged by the flagship's tracker by default (its fresh samples at their stamps), the
+    # plant's truth beside it
+    assert data["against"] == "reference" and data["judge"]["variable"] == "tracker.p_tool_meas"
+    from orchestration.metrics import at_sample_times
+    t, est, ref = at_sample_times(r.time, r["ekf.p_tool_hat"], r["tracker.p_tool_meas"], r["tracker.t_meas"])
+    assert_allclose(ekf["position_rmse_per_seed"][1], rmse(est[t >= 0.1 - 1e-12], ref[t >= 0.1 - 1e-12]),
                     rtol=1e-12)
+    assert ekf["truth"]["variable"] == "plant.p_tool"
+    assert_allclose(ekf["truth"]["position_rmse_per_seed"][1],
+                    rmse(r["ekf.p_tool_hat"][keep], r["plant.p_tool"][keep]), rtol=1e-12)
     assert ekf["position_rmse_std"] > 0
     assert list(ekf["arm"]) == ["q_a_hat", "dq_a_hat", "ddq_a_hat"]
     for est in ekf["arm"]:

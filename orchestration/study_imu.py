@@ -440,10 +440,9 @@ def main(args: argparse.Namespace) -> int:
         return 0
     res = run_study(out, stop_time=args.stop_time, workers=args.workers, scheduler=args.scheduler,
                     progress=progress, overrides=tuple(args.set or ()), against=args.against)
-    print(judged_line(run_judge(res)))
-    print(format_table(res["table1"]), end="")
+    print(format_table(res["table1"], judged_line(run_judge(res))), end="")
     if res["against"] != "truth":
-        print(format_table(res["table1_truth"], "Against the plant's truth (plant.p_tool), which the paper "
+        print("\n" + format_table(res["table1_truth"], "Against the plant's truth (plant.p_tool), which the paper "
                            "could not see:"), end="")
     for f in res["findings"]:
         print(f"[{f['reproduced']:>3}] {f['claim']}\n      ours: {f['ours']}"

@@ -6,7 +6,8 @@ estimators against a laser tracker (Henriksson et al. 2009, section IV; Axelsson
 section 5.1; the IMU paper, section 3.3). Our studies do the same by default: the **judge** of
 an estimate is the scenario's reference measurement system (a component whose role is
 ``reference``, :mod:`orchestration.roles`: the ``Tracker`` FMU, ``p_tool_meas`` stamped
-``t_meas``); the plant's truth (``plant.p_tool``) is reported beside it, named as such.
+``t_meas``; or a replayed log whose column map feeds ``p_tool_meas``, stamped ``t_tool_meas``
+when mapped); the plant's truth (``plant.p_tool``) is reported beside it, named as such.
 
 Scoring against a sampled, skewed reference (:func:`aligned`)
 --------------------------------------------------------------
@@ -50,6 +51,8 @@ AGAINST = ("reference", "truth")
 #: The outputs of a reference measurement system (the Tracker's): the measured tool position and
 #: the stamp of the held sample.
 REFERENCE_POSITION, REFERENCE_STAMP = "p_tool_meas", "t_meas"
+#: The stamps of a recorded reference system in a log (LogReplay; its ``t_meas`` is the sensors').
+LOG_REFERENCE_STAMP = "t_tool_meas"
 #: The plant's true tool position (the truth judge).
 TRUTH_POSITION = "p_tool"
 
@@ -94,11 +97,34 @@ def _kind(doc: dict[str, Any], component: str) -> str:
     return Path(str(doc["components"][component].get("fmu", ""))).stem
 
 
+def log_feeds(columns: str, var: str) -> bool:
+    """Whether a LogReplay's column map ``columns`` (``output = column [unit]; ...``) feeds its
+    output ``var`` (it declares every contract signal; reading one no column feeds is an error)."""
+    entries = str(columns).replace("\n", ";").split(";")
+    return var in {e.partition("=")[0].strip().partition("[")[0] for e in entries if "=" in e}
+
+
+def _parameter(doc: dict[str, Any], component: str, name: str) -> Any:
+    """A component's parameter in a document: its own, else its parameter sets' (last wins)."""
+    ctab = doc["components"][component]
+    value = None
+    for sname in ctab.get("parameter_sets", []):
+        value = doc.get("parameter_sets", {}).get(sname, {}).get(name, value)
+    return ctab.get("parameters", {}).get(name, value)
+
+
+def _log_reference(doc: dict[str, Any], component: str) -> bool:
+    return log_feeds(_parameter(doc, component, "columns") or "", REFERENCE_POSITION)
+
+
 def reference_components(doc: dict[str, Any]) -> list[str]:
-    """The components of a scenario document whose FMU's role is ``reference`` (the Tracker),
-    in file order."""
+    """The components of a scenario document that measure the tool as a reference system, in
+    file order: those whose FMU's role is ``reference`` (the Tracker), and a LogReplay whose
+    column map feeds ``p_tool_meas`` (a recorded laser tracker)."""
     from .roles import ROLES
-    return [c for c in doc.get("components", {}) if ROLES.get(_kind(doc, c)) == "reference"]
+    return [c for c in doc.get("components", {})
+            if ROLES.get(_kind(doc, c)) == "reference"
+            or (ROLES.get(_kind(doc, c)) == "log" and _log_reference(doc, c))]
 
 
 def truth_components(doc: dict[str, Any]) -> list[str]:
@@ -132,10 +158,10 @@ def judge(doc: dict[str, Any], against: str = "reference", truth: str | None = N
             raise JudgeError(f"'{truth}': the scenario has no component '{comp}' (components: "
                              f"{', '.join(doc.get('components', {}))})")
         kind = _kind(doc, comp)
+        if var == REFERENCE_POSITION and comp in reference_components(doc):
+            return _reference_judge(doc, comp)
         role = ROLES.get(kind, "estimator")
-        what = "truth" if role in ("plant", "environment") else role
-        stamp = f"{comp}.{REFERENCE_STAMP}" if role == "reference" and var == REFERENCE_POSITION else None
-        return Judge(what, comp, truth, stamp, kind)
+        return Judge("truth" if role in ("plant", "environment") else role, comp, truth, None, kind)
     if against == "reference":
         refs = reference_components(doc)
         if len(refs) != 1:
@@ -145,8 +171,7 @@ def judge(doc: dict[str, Any], against: str = "reference", truth: str | None = N
                  f"the scenario has {len(refs)} reference systems ({', '.join(refs)}): name one with "
                  f"--truth COMP.{REFERENCE_POSITION}")
                 + "; add one (with_reference) or score against the plant's truth (--against truth)")
-        return Judge("reference", refs[0], f"{refs[0]}.{REFERENCE_POSITION}", f"{refs[0]}.{REFERENCE_STAMP}",
-                     _kind(doc, refs[0]))
+        return _reference_judge(doc, refs[0])
     if against == "truth":
         plants = truth_components(doc)
         if len(plants) != 1:
@@ -154,6 +179,19 @@ def judge(doc: dict[str, Any], against: str = "reference", truth: str | None = N
                              f"{len(plants)}: name the truth with --truth COMP.VAR")
         return Judge("truth", plants[0], f"{plants[0]}.{TRUTH_POSITION}", None, _kind(doc, plants[0]))
     raise JudgeError(f"unknown judge {against!r} (one of {', '.join(AGAINST)})")
+
+
+def _reference_judge(doc: dict[str, Any], comp: str) -> Judge:
+    """The judge of a reference component: the Tracker's ``p_tool_meas`` at its stamps
+    ``t_meas``; a log's ``p_tool_meas`` at its ``t_tool_meas`` when its column map feeds them
+    (else at every row: a log without the tracker's stamps)."""
+    from .roles import ROLES
+    kind = _kind(doc, comp)
+    if ROLES.get(kind) == "log":
+        stamp = LOG_REFERENCE_STAMP if log_feeds(_parameter(doc, comp, "columns") or "", LOG_REFERENCE_STAMP) else None
+    else:
+        stamp = REFERENCE_STAMP
+    return Judge("reference", comp, f"{comp}.{REFERENCE_POSITION}", stamp and f"{comp}.{stamp}", kind)
 
 
 def aligned(time: np.ndarray, estimate: np.ndarray, position: np.ndarray, stamp: np.ndarray | None
@@ -191,4 +229,4 @@ def with_reference(doc: dict[str, Any], name: str = "tracker") -> dict[str, Any]
 
 
 __all__ = ["AGAINST", "Judge", "JudgeError", "judge", "aligned", "with_reference", "reference_components",
-           "truth_components", "REFERENCE_POSITION", "REFERENCE_STAMP", "TRUTH_POSITION"]
+           "truth_components", "log_feeds", "LOG_REFERENCE_STAMP", "REFERENCE_POSITION", "REFERENCE_STAMP", "TRUTH_POSITION"]

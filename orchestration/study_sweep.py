@@ -194,8 +194,8 @@ def contract_estimators(sc: Any, names: Sequence[str]) -> dict[str, Any]:
 def _log_feeds(comp: Any, var: str) -> bool:
     """Whether a LogReplay component's column map (``output = column [unit]; ...``) feeds its
     output ``var``: it declares every contract signal, but reading one no column feeds is an error."""
-    entries = str(comp.parameters.get("columns", "")).replace("\n", ";").split(";")
-    return var in {e.partition("=")[0].strip().partition("[")[0] for e in entries if "=" in e}
+    from .judge import log_feeds
+    return log_feeds(str(comp.parameters.get("columns", "")), var)
 
 
 def arm_estimates(sc: Any, name: str, truth_comp: str) -> list[str]:
@@ -222,23 +222,24 @@ def prepare(scenario: str | Path, estimators: Sequence[str], truth: str,
 
     doc = scenario_document(scenario, overrides)
     sc = load_scenario(doc)
-    if not _variable(sc, truth):
+    if truth is not None and not _variable(sc, truth):
         raise StudyError(f"--truth {truth}: scenario '{sc.name}' has no such variable (components: "
                          f"{', '.join(sc.components)}; a recorded log's truth is e.g. log.p_tool)")
-    truth_comp = truth.partition(".")[0]
+    truth_comp = truth.partition(".")[0] if truth else None
     nis_dof = dict(nis_dof or {})
     unknown = sorted(set(nis_dof) - set(estimators))
     if unknown:
         raise StudyError(f"--nis-dof {', '.join(unknown)}: not an --estimator of the study")
     record = doc.setdefault("record", {}).setdefault("variables", [])
-    needed = [truth]
+    needed = [truth] if truth else []
     gives: dict[str, dict[str, Any]] = {}
     for name, comp in contract_estimators(sc, estimators).items():
-        has_nees = all(_variable(sc, v) for v in (f"{name}.q_a_hat", f"{name}.P_x", f"{truth_comp}.q_a"))
+        has_nees = bool(truth_comp) and all(_variable(sc, v) for v in (f"{name}.q_a_hat", f"{name}.P_x",
+                                                                          f"{truth_comp}.q_a"))
         nis_out = next((v for v in ("nis", "innovation_norm") if comp.group(v)), None)
         dof = nis_dof.get(name) or next((m.dof for m in sc.metrics if m.kind == "nis"
                                          and m.estimate == f"{name}.{nis_out}"), None)
-        arm = arm_estimates(sc, name, truth_comp)
+        arm = arm_estimates(sc, name, truth_comp) if truth_comp else []
         gives[name] = {"nees": has_nees, "nis": nis_out, "nis_dof": dof if nis_out else None, "arm": arm}
         needed.append(f"{name}.p_tool_hat")
         needed += [v for est in arm for v in (f"{name}.{est}", f"{truth_comp}.{ARM_TRUTH[est][0]}")]
@@ -331,12 +332,15 @@ def estimator_figures(runs: Sequence[dict[str, np.ndarray]], name: str, truth: s
     judge (``judged``, :class:`orchestration.judge.Judge`; None: ``truth``), the same against
     ``truth`` when the judge is another (``truth``), the arm estimates it gives against the
     truth component's (``arm``), ANEES and ANIS."""
-    truth_comp = truth.partition(".")[0]
+    truth_comp = truth.partition(".")[0] if truth else None
     keep = runs[0]["time"] >= after - 1e-12
     if not keep.any():
         raise StudyError(f"--after {after:g}: no sample left (the runs end at {runs[0]['time'][-1]:g} s)")
     if judged is None or judged.position == truth:
         p, beside = errors_over_seeds(runs, f"{name}.p_tool_hat", truth, keep), None
+    elif truth is None:              # a real robot's log: its reference system, no truth
+        p, beside = errors_over_seeds(runs, f"{name}.p_tool_hat", judged.position,
+                                      keep if judged.stamp is None else after, judged.stamp), None
     else:
         p = errors_over_seeds(runs, f"{name}.p_tool_hat", judged.position,
                               keep if judged.stamp is None else after, judged.stamp)
@@ -396,12 +400,12 @@ def run_study(scenario: str | Path, estimators: Sequence[str], out: str | Path, 
         judged = judge(doc0, against, truth)
     except JudgeError as exc:
         raise StudyError(str(exc)) from None
-    if truth is None:
+    if truth is None:                # the plant's; none in a real robot's log (its reference judges)
         plants = truth_components(doc0)
-        if len(plants) != 1:
+        if len(plants) > 1:
             raise StudyError(f"the truth is the plant's tool position, and the scenario has {len(plants)} plants: "
                              "name it with --truth COMP.VAR")
-        truth = f"{plants[0]}.p_tool"
+        truth = f"{plants[0]}.p_tool" if plants else None
     doc, gives = prepare(scenario, estimators, truth, overrides, nis_dof)
     record = doc["record"]["variables"]
     record += [v for v in judged.variables if v not in record]
@@ -499,7 +503,7 @@ def format_summary(data: dict[str, Any]) -> str:
     j = data.get("judge") or {}
     judged = (f"judged against the {data.get('against')} {j.get('variable')}"
               + (f" at its stamps {j['stamp']}" if j.get("stamp") else "")
-              + (f" (truth {data['truth']} beside)" if j.get("variable") != data["truth"] else ""))
+              + (f" (truth {data['truth']} beside)" if data["truth"] and j.get("variable") != data["truth"] else ""))
     lines = [f"{data['scenario']}: {len(data['points'])} point(s) x {data['runs']} seed(s), {judged}"]
     eng = data.get("engine") or {}
     if eng.get("used") == "batched":

@@ -170,7 +170,8 @@ def judge(doc: dict[str, Any], against: str = "reference", truth: str | None = N
                  "the tool) to score against" if not refs else
                  f"the scenario has {len(refs)} reference systems ({', '.join(refs)}): name one with "
                  f"--truth COMP.{REFERENCE_POSITION}")
-                + "; add one (with_reference) or score against the plant's truth (--against truth)")
+                + "; add a Tracker measuring the plant's p_tool (as flagship.toml does) or score against "
+                  "the plant's truth (--against truth)")
         return _reference_judge(doc, refs[0])
     if against == "truth":
         plants = truth_components(doc)
@@ -205,28 +206,5 @@ def aligned(time: np.ndarray, estimate: np.ndarray, position: np.ndarray, stamp:
     return at_sample_times(time, estimate, position, stamp)
 
 
-def with_reference(doc: dict[str, Any], name: str = "tracker") -> dict[str, Any]:
-    """``doc`` itself with a ``Tracker`` (its defaults: the papers' laser tracker) measuring the
-    plant's tool, unless it has a reference system already: the connections from the plant's
-    ``p_tool`` and ``t_state``. Nothing else changes (the tracker's noise stream is its own).
-
-    Raises
-    ------
-    JudgeError
-        No single plant to measure, or ``name`` taken.
-    """
-    if reference_components(doc):
-        return doc
-    plants = truth_components(doc)
-    if len(plants) != 1:
-        raise JudgeError(f"a tracker measures one plant's tool; the scenario has {len(plants)} plants")
-    if name in doc.get("components", {}):
-        raise JudgeError(f"cannot add the tracker: the scenario has a component '{name}' already")
-    doc.setdefault("components", {})[name] = {"fmu": "Tracker"}
-    doc.setdefault("connections", []).extend([f"{plants[0]}.p_tool -> {name}.p_tool",
-                                               f"{plants[0]}.t_state -> {name}.t_truth"])
-    return doc
-
-
-__all__ = ["AGAINST", "Judge", "JudgeError", "judge", "aligned", "with_reference", "reference_components",
+__all__ = ["AGAINST", "Judge", "JudgeError", "judge", "aligned", "reference_components",
            "truth_components", "log_feeds", "LOG_REFERENCE_STAMP", "REFERENCE_POSITION", "REFERENCE_STAMP", "TRUTH_POSITION"]

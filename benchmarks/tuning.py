@@ -47,18 +47,20 @@ METRIC = "bandpass_mean"
 def one_evaluation(component: str) -> tuple[float, float, float]:
     """Seconds of one candidate on the FMUs, of one seed's tape (the scenario's own values),
     and of the candidate replayed on it (in this process; the same cost both ways)."""
-    doc = st.prune(st.load_document(SCENARIO), [f"{component}.p_tool_hat", "plant.p_tool"])
-    est, truth = f"{component}.p_tool_hat", "plant.p_tool"
+    # judged as the tuner does by default: the scenario's tracker, its fresh samples at their stamps
+    score = st.Score(f"{component}.p_tool_hat", "tracker.p_tool_meas", "tracker.t_meas", METRIC, 0.5)
+    doc = st.prune(st.load_document(SCENARIO), score.variables)
+    est, judge, stamp = score.estimate, score.judge, score.stamp
     candidate = OVERRIDES + [f"{component}.{CANDIDATE[st.fmu_type(doc, component)]}"]
-    st.evaluate(doc, OVERRIDES, est, truth, 0.5, METRIC)          # imports, extraction: not timed
+    st.evaluate(doc, OVERRIDES, est, judge, 0.5, METRIC, stamp)          # imports, extraction: not timed
     t = time.perf_counter()
-    fmu_cost = st.evaluate(doc, candidate, est, truth, 0.5, METRIC)
+    fmu_cost = st.evaluate(doc, candidate, est, judge, 0.5, METRIC, stamp)
     t_fmu = time.perf_counter() - t
     t = time.perf_counter()
-    tape, _ = st._tape_job(doc, OVERRIDES, est, truth, 0.5, METRIC)
+    tape, _ = st._tape_job(doc, OVERRIDES, score)
     t_tape = time.perf_counter() - t
     t = time.perf_counter()
-    costs, _ = st._candidates_job(doc, tape, [candidate], est, truth, 0.5, METRIC)
+    costs, _ = st._candidates_job(doc, tape, [candidate], score)
     t_replay = time.perf_counter() - t
     assert costs[0] == fmu_cost, (costs, fmu_cost)
     return t_fmu, t_tape, t_replay

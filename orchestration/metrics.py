@@ -171,6 +171,95 @@ def at_sample_times(time: np.ndarray, estimate: np.ndarray, truth: np.ndarray, t
     return stamps, interp.reshape((len(stamps),) + np.shape(estimate)[1:]), truth[fresh]
 
 
+def autocorrelation(x: np.ndarray, lags: int) -> np.ndarray:
+    """Normalised sample autocorrelation of a series at lags ``1..lags``:
+    ``rho_l = sum_k <d_k, d_{k+l}> / sum_k <d_k, d_k>`` with ``d = x - mean(x)`` (rows are
+    times; a (K, m) series sums over its components). For a white series ``rho_l`` is about
+    ``N(0, 1/K)`` (Mehra 1970, "On the identification of variances and adaptive Kalman
+    filtering", IEEE Trans. Automatic Control 15(2): its whiteness test, 95 % band
+    ``1.96 / sqrt(K)``).
+
+    Raises
+    ------
+    ValueError
+        Fewer than ``lags + 2`` samples, ``lags < 1``, or a constant series.
+    """
+    d = np.asarray(x, dtype=float)
+    d = d.reshape(len(d), -1)
+    if lags < 1 or len(d) < lags + 2:
+        raise ValueError(f"an autocorrelation at {lags} lags needs at least {lags + 2} samples, got {len(d)}")
+    d = d - d.mean(axis=0)
+    c0 = float(np.sum(d * d))
+    if not c0 > 0.0:
+        raise ValueError("the series is constant: no autocorrelation")
+    return np.array([float(np.sum(d[:-l] * d[l:])) / c0 for l in range(1, lags + 1)])
+
+
+#: Lags of :func:`innovation_criterion`'s whiteness term.
+WHITENESS_LAGS = 10
+
+
+def innovation_criterion(statistic: np.ndarray, dof: int, squared: bool = True,
+                         lags: int = WHITENESS_LAGS) -> dict[str, Any]:
+    """A tuning criterion for a Kalman filter's Q and R that needs no truth: the consistency of
+    its innovations (Bar-Shalom, Li, Kirubarajan 2001, "Estimation with applications to
+    tracking and navigation", section 5.4.2: the NIS ``nu_k^T S_k^-1 nu_k`` of a consistent
+    filter is chi-square with ``dof`` = measurement dimension degrees of freedom, eq. 5.4.2-7)
+    and their whiteness (Mehra 1970: the innovations of the optimal filter are white; a wrong
+    Q or R colours them).
+
+    ``cost = ln(ANIS / dof)^2 + sum_{l=1..lags} rho_l^2``
+
+    with ANIS the time average of the NIS and ``rho_l`` the normalised autocorrelation
+    (:func:`autocorrelation`) of the NIS series. Both terms are zero for a consistent filter
+    (up to sampling error: ``ANIS`` within :func:`chi2_band` (dof, K) for independent
+    samples, ``K sum rho_l^2`` about chi-square(``lags``), the Box-Pierce statistic); Q too small
+    makes the NIS too large and its sequence correlated (the filter lags: runs of large
+    innovations), Q too large makes it too small.
+
+    The whiteness term is on the NIS, the scalar every estimator of the contract gives
+    (``nis`` or ``innovation_norm``), not on the innovation vector Mehra tests: for Gaussian
+    innovations of unit variance ``corr(e_k^2, e_{k+l}^2) = rho_l^2`` (Isserlis), so it is
+    zero exactly when the innovations are uncorrelated at that lag, and less sensitive near
+    zero. A held statistic (a row that repeats the last update's value exactly: the filter did
+    not update) is dropped, so the hold does not count as correlation.
+
+    Parameters
+    ----------
+    statistic
+        (K,) the filter's NIS per update, or its square root (``squared=False``).
+    dof
+        Degrees of freedom: the dimension of the measurement fused at each update.
+    lags
+        Lags of the whiteness term.
+
+    Returns
+    -------
+    dict
+        ``cost``, ``anis``, ``anis_band_95`` (:func:`chi2_band` (dof, K)), ``rho`` (list),
+        ``box_pierce`` (``K sum rho_l^2``), ``box_pierce_95`` (its chi-square(lags) 95 %
+        quantile) and ``samples`` K.
+
+    Raises
+    ------
+    ValueError
+        Too few samples, a non-positive ANIS or dof.
+    """
+    s = nis(statistic, squared=squared)
+    s = s[np.r_[True, np.diff(s) != 0.0]]            # held repeats are not updates
+    if dof < 1:
+        raise ValueError(f"dof must be >= 1, got {dof}")
+    anis = float(np.mean(s)) if len(s) else float("nan")
+    if not anis > 0.0:
+        raise ValueError(f"the average NIS must be positive, got {anis}")
+    rho = autocorrelation(s, lags)
+    from scipy.stats import chi2
+    return {"cost": float(np.log(anis / dof) ** 2 + np.sum(rho * rho)), "anis": anis,
+            "anis_band_95": list(chi2_band(dof, len(s))), "rho": rho.tolist(),
+            "box_pierce": float(len(s) * np.sum(rho * rho)), "box_pierce_95": float(chi2.ppf(0.95, lags)),
+            "samples": len(s), "dof": dof}
+
+
 def packed_dimension(m: int) -> int | None:
     """``n`` of a covariance packed as its lower triangle in ``m = n (n + 1) / 2`` elements
     (None when ``m`` is no such number)."""
@@ -308,5 +397,5 @@ def entries(spec: Any, values: dict[str, float]) -> dict[str, dict[str, Any]]:
 
 
 __all__ = ["rmse", "max_error", "bandpass", "bandpass_errors", "at_sample_times", "packed_dimension",
-           "unpack_covariance", "nees", "nis",
+           "unpack_covariance", "nees", "nis", "autocorrelation", "innovation_criterion", "WHITENESS_LAGS",
            "chi2_band", "monte_carlo_consistency", "compute", "entries"]

@@ -8,8 +8,14 @@
   contract (docs/estimator_contract.md) on its modelDescription
   (:func:`orchestration.contract.check_estimator` without running it), else the study stops
   before any run with one line naming what is missing.
-* The truth is ``--truth`` (default ``plant.p_tool``, the plant's tool position, as the contract
-  names it; a recorded log's truth column e.g. ``log.p_tool``).
+* The judge of the position error (``--against``, :mod:`orchestration.judge`) is by default the
+  scenario's reference measurement system, as the papers had it (the ``Tracker``: its fresh
+  samples at their stamps, its noise and clock skew included); ``--against truth`` the plant's
+  ``p_tool``; ``--truth COMP.VAR`` any variable (a recorded log's truth column e.g.
+  ``log.p_tool``). Beside a judge that is not the truth, the position error against the truth
+  (the plant's ``p_tool``) is reported too (``truth``: ``position_rmse_mean`` ...). The arm
+  estimates and the NEES are judged by the truth component (the plant, or ``--truth``'s
+  component): a tracker measures no arm angle.
 * The sweep points: the product of the ``--grid`` values, times ``--samples`` points of a Latin
   hypercube over the ``--lhs`` ranges (:class:`scipy.stats.qmc.LatinHypercube`, seeded by
   ``--lhs-seed``: the same seed gives the same points). No ``--grid`` nor ``--lhs``: one point,
@@ -70,7 +76,7 @@ CHECK_RUNS = 2
 #: the same name without ``_hat`` (the plant's outputs, a log's truth columns): (truth, unit).
 ARM_TRUTH = {s.name: (s.name.removesuffix("_hat"), s.unit) for s in OPTIONAL_OUTPUTS
              if s.name in ("q_a_hat", "dq_a_hat", "ddq_a_hat")}
-CSV_FIELDS = ("position_rmse_mean", "position_rmse_std", "max_error", "anees", "anees_band_lo",
+CSV_FIELDS = ("position_rmse_mean", "position_rmse_std", "max_error", "position_rmse_truth_mean", "anees", "anees_band_lo",
               "anees_band_hi", "anees_fraction_in_band", "anis", "anis_band_lo", "anis_band_hi",
               "anis_fraction_in_band", *(f"{est}_rmse_mean" for est in ARM_TRUTH))
 
@@ -188,8 +194,8 @@ def contract_estimators(sc: Any, names: Sequence[str]) -> dict[str, Any]:
 def _log_feeds(comp: Any, var: str) -> bool:
     """Whether a LogReplay component's column map (``output = column [unit]; ...``) feeds its
     output ``var``: it declares every contract signal, but reading one no column feeds is an error."""
-    entries = str(comp.parameters.get("columns", "")).replace("\n", ";").split(";")
-    return var in {e.partition("=")[0].strip().partition("[")[0] for e in entries if "=" in e}
+    from .judge import log_feeds
+    return log_feeds(str(comp.parameters.get("columns", "")), var)
 
 
 def arm_estimates(sc: Any, name: str, truth_comp: str) -> list[str]:
@@ -216,23 +222,24 @@ def prepare(scenario: str | Path, estimators: Sequence[str], truth: str,
 
     doc = scenario_document(scenario, overrides)
     sc = load_scenario(doc)
-    if not _variable(sc, truth):
+    if truth is not None and not _variable(sc, truth):
         raise StudyError(f"--truth {truth}: scenario '{sc.name}' has no such variable (components: "
                          f"{', '.join(sc.components)}; a recorded log's truth is e.g. log.p_tool)")
-    truth_comp = truth.partition(".")[0]
+    truth_comp = truth.partition(".")[0] if truth else None
     nis_dof = dict(nis_dof or {})
     unknown = sorted(set(nis_dof) - set(estimators))
     if unknown:
         raise StudyError(f"--nis-dof {', '.join(unknown)}: not an --estimator of the study")
     record = doc.setdefault("record", {}).setdefault("variables", [])
-    needed = [truth]
+    needed = [truth] if truth else []
     gives: dict[str, dict[str, Any]] = {}
     for name, comp in contract_estimators(sc, estimators).items():
-        has_nees = all(_variable(sc, v) for v in (f"{name}.q_a_hat", f"{name}.P_x", f"{truth_comp}.q_a"))
+        has_nees = bool(truth_comp) and all(_variable(sc, v) for v in (f"{name}.q_a_hat", f"{name}.P_x",
+                                                                          f"{truth_comp}.q_a"))
         nis_out = next((v for v in ("nis", "innovation_norm") if comp.group(v)), None)
         dof = nis_dof.get(name) or next((m.dof for m in sc.metrics if m.kind == "nis"
                                          and m.estimate == f"{name}.{nis_out}"), None)
-        arm = arm_estimates(sc, name, truth_comp)
+        arm = arm_estimates(sc, name, truth_comp) if truth_comp else []
         gives[name] = {"nees": has_nees, "nis": nis_out, "nis_dof": dof if nis_out else None, "arm": arm}
         needed.append(f"{name}.p_tool_hat")
         needed += [v for est in arm for v in (f"{name}.{est}", f"{truth_comp}.{ARM_TRUTH[est][0]}")]
@@ -298,29 +305,51 @@ def _consistency(stat: np.ndarray, dof: int | None) -> dict[str, Any]:
 
 
 def errors_over_seeds(runs: Sequence[dict[str, np.ndarray]], estimate: str, truth: str,
-                      keep: np.ndarray) -> dict[str, Any]:
+                      keep: np.ndarray | float, stamp: str | None = None) -> dict[str, Any]:
     """The RMSE (eq. 27 of the 2012 paper, :func:`~orchestration.metrics.rmse`) of ``estimate``
-    against ``truth`` over the rows ``keep`` of each run: mean and standard deviation over the
-    runs, per run, and the largest error of any run."""
-    per_seed = [rmse(r[estimate][keep], r[truth][keep]) for r in runs]
+    against ``truth`` over the rows ``keep`` of each run (or, with ``stamp``, a sampled
+    reference's stamps: its fresh samples at their stamps from the time ``keep`` on,
+    :func:`orchestration.judge.aligned`): mean and standard deviation over the runs, per run,
+    and the largest error of any run."""
+    from .judge import aligned
+    pairs = []
+    for r in runs:
+        if stamp is None:
+            pairs.append((r[estimate][keep], r[truth][keep]))
+        else:
+            t, est, ref = aligned(r["time"], r[estimate], r[truth], r[stamp])
+            pairs.append((est[t >= keep - 1e-12], ref[t >= keep - 1e-12]))
+    per_seed = [rmse(e, t) for e, t in pairs]
     return {"rmse_mean": float(np.mean(per_seed)),
             "rmse_std": float(np.std(per_seed, ddof=1)) if len(runs) > 1 else 0.0,
             "rmse_per_seed": per_seed,
-            "max_error": max(max_error(r[estimate][keep], r[truth][keep]) for r in runs)}
+            "max_error": max(max_error(e, t) for e, t in pairs)}
 
 
 def estimator_figures(runs: Sequence[dict[str, np.ndarray]], name: str, truth: str,
-                      gives: dict[str, Any], after: float) -> dict[str, Any]:
-    """RMSE over the seeds ``runs`` (mean, std, per seed), the largest error, the same for the
-    arm estimates it gives against the truth component's (``arm``), ANEES and ANIS."""
-    truth_comp = truth.partition(".")[0]
+                      gives: dict[str, Any], after: float, judged: Any = None) -> dict[str, Any]:
+    """RMSE over the seeds ``runs`` (mean, std, per seed) and the largest error against the
+    judge (``judged``, :class:`orchestration.judge.Judge`; None: ``truth``), the same against
+    ``truth`` when the judge is another (``truth``), the arm estimates it gives against the
+    truth component's (``arm``), ANEES and ANIS."""
+    truth_comp = truth.partition(".")[0] if truth else None
     keep = runs[0]["time"] >= after - 1e-12
     if not keep.any():
         raise StudyError(f"--after {after:g}: no sample left (the runs end at {runs[0]['time'][-1]:g} s)")
-    p = errors_over_seeds(runs, f"{name}.p_tool_hat", truth, keep)
+    if judged is None or judged.position == truth:
+        p, beside = errors_over_seeds(runs, f"{name}.p_tool_hat", truth, keep), None
+    elif truth is None:              # a real robot's log: its reference system, no truth
+        p, beside = errors_over_seeds(runs, f"{name}.p_tool_hat", judged.position,
+                                      keep if judged.stamp is None else after, judged.stamp), None
+    else:
+        p = errors_over_seeds(runs, f"{name}.p_tool_hat", judged.position,
+                              keep if judged.stamp is None else after, judged.stamp)
+        t = errors_over_seeds(runs, f"{name}.p_tool_hat", truth, keep)
+        beside = {"variable": truth, "position_rmse_mean": t["rmse_mean"], "position_rmse_std": t["rmse_std"],
+                  "position_rmse_per_seed": t["rmse_per_seed"], "max_error": t["max_error"]}
     out: dict[str, Any] = {
         "position_rmse_mean": p["rmse_mean"], "position_rmse_std": p["rmse_std"],
-        "position_rmse_per_seed": p["rmse_per_seed"], "max_error": p["max_error"],
+        "position_rmse_per_seed": p["rmse_per_seed"], "max_error": p["max_error"], "truth": beside,
         "arm": {est: {"truth": f"{truth_comp}.{ARM_TRUTH[est][0]}", "unit": ARM_TRUTH[est][1],
                       **errors_over_seeds(runs, f"{name}.{est}", f"{truth_comp}.{ARM_TRUTH[est][0]}", keep)}
                 for est in gives.get("arm", ())},
@@ -345,7 +374,7 @@ def estimator_figures(runs: Sequence[dict[str, np.ndarray]], name: str, truth: s
 # the study
 # ---------------------------------------------------------------------------------------------
 def run_study(scenario: str | Path, estimators: Sequence[str], out: str | Path, *,
-              truth: str = "plant.p_tool", runs: int = 1, first_seed: int = 1,
+              truth: str | None = None, against: str = "reference", runs: int = 1, first_seed: int = 1,
               grid: Sequence[str] = (), lhs: Sequence[str] = (), samples: int = 0, lhs_seed: int = 0,
               overrides: Sequence[str] = (), nis_dof: dict[str, int] | None = None, after: float = 0.0,
               workers: int | None = None, scheduler: str | None = None, progress: bool = True,
@@ -353,14 +382,33 @@ def run_study(scenario: str | Path, estimators: Sequence[str], out: str | Path, 
     """Run the study and write ``study.json``, ``study.csv`` and ``study.png`` into ``out``;
     returns what ``study.json`` holds. ``engine``: ``"batched"`` (default, :func:`_run_batched`;
     a scenario with an FMU that is not ours runs on the FMUs, with one line saying why) or
-    ``"fmu"`` (one co-simulation per run); ``"engine"`` in ``study.json`` says what ran."""
+    ``"fmu"`` (one co-simulation per run); ``"engine"`` in ``study.json`` says what ran.
+    ``against``/``truth``: the judge of the position error (:func:`orchestration.judge.judge`:
+    the scenario's reference system by default); ``truth`` (default: the plant's ``p_tool``)
+    also judges the arm estimates and the NEES, and the position beside another judge;
+    ``"against"`` and ``"judge"`` in ``study.json`` say which."""
     from .batched import not_ours
     from .scenario import load_scenario, toml_value
 
     if runs < 1:
         raise StudyError(f"--runs must be at least 1, not {runs}")
     study.check_engine(engine, check_runs, "--check-runs")
+    from .judge import JudgeError, judge, truth_components
+    from .scenario import scenario_document
+    doc0 = scenario_document(scenario, overrides)
+    try:
+        judged = judge(doc0, against, truth)
+    except JudgeError as exc:
+        raise StudyError(str(exc)) from None
+    if truth is None:                # the plant's; none in a real robot's log (its reference judges)
+        plants = truth_components(doc0)
+        if len(plants) > 1:
+            raise StudyError(f"the truth is the plant's tool position, and the scenario has {len(plants)} plants: "
+                             "name it with --truth COMP.VAR")
+        truth = f"{plants[0]}.p_tool" if plants else None
     doc, gives = prepare(scenario, estimators, truth, overrides, nis_dof)
+    record = doc["record"]["variables"]
+    record += [v for v in judged.variables if v not in record]
     points = sweep_points(grid, lhs, samples, lhs_seed)
     sets = [tuple(f"{k}={toml_value(v)}" for k, v in p.items()) for p in points]
     for point_set in sets:               # a wrong parameter stops the study before any run
@@ -380,13 +428,13 @@ def run_study(scenario: str | Path, estimators: Sequence[str], out: str | Path, 
             results = study.map_jobs(run_job, jobs, ex, desc="sweep", progress=progress, star=True)
     data: dict[str, Any] = {
         "scenario": str(scenario), "estimators": {n: {"gives": g} for n, g in gives.items()},
-        "truth": truth, "runs": runs, "seeds": seeds, "after": after, "overrides": list(overrides),
+        "against": judged.against, "judge": judged.to_json(), "truth": truth, "runs": runs, "seeds": seeds, "after": after, "overrides": list(overrides),
         "grid": grid_axes(grid), "lhs": list(lhs), "samples": samples, "lhs_seed": lhs_seed,
         "units": {"position_rmse": "m", "max_error": "m"}, "engine": engine_info, "points": []}
     for i, point in enumerate(points):
         point_runs = results[i * runs:(i + 1) * runs]
         data["points"].append({"parameters": point, "estimators": {
-            name: estimator_figures(point_runs, name, truth, gives[name], after) for name in estimators}})
+            name: estimator_figures(point_runs, name, truth, gives[name], after, judged) for name in estimators}})
     out = Path(out)
     atomic_write_json(out / "study.json", json_safe(data))
     write_table(data, out / "study.csv")
@@ -402,6 +450,7 @@ def table_rows(data: dict[str, Any]) -> list[dict[str, Any]]:
         for name, f in point["estimators"].items():
             row: dict[str, Any] = {"point": i, **point["parameters"], "estimator": name}
             row.update({k: f[k] for k in ("position_rmse_mean", "position_rmse_std", "max_error")})
+            row["position_rmse_truth_mean"] = (f.get("truth") or {}).get("position_rmse_mean", f["position_rmse_mean"])
             for kind in ("nees", "nis"):
                 c = f[kind] or {}
                 band = c.get("band_95") or (None, None)
@@ -451,7 +500,11 @@ def plot(data: dict[str, Any], path: Path) -> None:
 
 
 def format_summary(data: dict[str, Any]) -> str:
-    lines = [f"{data['scenario']}: {len(data['points'])} point(s) x {data['runs']} seed(s), truth {data['truth']}"]
+    j = data.get("judge") or {}
+    judged = (f"judged against the {data.get('against')} {j.get('variable')}"
+              + (f" at its stamps {j['stamp']}" if j.get("stamp") else "")
+              + (f" (truth {data['truth']} beside)" if data["truth"] and j.get("variable") != data["truth"] else ""))
+    lines = [f"{data['scenario']}: {len(data['points'])} point(s) x {data['runs']} seed(s), {judged}"]
     eng = data.get("engine") or {}
     if eng.get("used") == "batched":
         lines.append(f"  batched engine ({eng['groups']} group(s)); {len(eng['checked_runs'])} run(s) checked through "
@@ -463,7 +516,8 @@ def format_summary(data: dict[str, Any]) -> str:
         lines.append(f"  point {i}" + (f" ({params})" if params else ""))
         for name, f in point["estimators"].items():
             text = (f"    {name:<16} RMSE {1e3 * f['position_rmse_mean']:.4g} +- "
-                    f"{1e3 * f['position_rmse_std']:.2g} mm, max {1e3 * f['max_error']:.4g} mm")
+                    f"{1e3 * f['position_rmse_std']:.2g} mm, max {1e3 * f['max_error']:.4g} mm"
+                    + (f" (truth: RMSE {1e3 * f['truth']['position_rmse_mean']:.4g} mm)" if f.get("truth") else ""))
             for kind in ("nees", "nis"):
                 c = f[kind]
                 if c:
@@ -489,8 +543,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("scenario", help="scenario file (TOML)")
     p.add_argument("--estimator", action="append", default=[], metavar="NAME", dest="estimators",
                    help="a component meeting the estimator contract (repeatable; at least one)")
-    p.add_argument("--truth", default="plant.p_tool", metavar="COMP.VAR",
-                   help="the true tool position (default plant.p_tool)")
+    p.add_argument("--against", choices=("reference", "truth"), default="reference",
+                   help="judge of the position error: the scenario's reference system (a Tracker, default, "
+                        "as the papers) or the plant's truth p_tool (reported beside the reference)")
+    p.add_argument("--truth", default=None, metavar="COMP.VAR",
+                   help="judge against this variable instead, and take the arm truth from its component "
+                        "(e.g. log.p_tool for a recorded log)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (study.json, study.csv, study.png)")
     p.add_argument("--runs", type=int, default=1, metavar="N", help="seeds per point (default 1)")
     p.add_argument("--first-seed", type=int, default=1, help="scenario.seed of the first run (default 1)")
@@ -516,7 +574,8 @@ def register(subparsers: Any) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    data = run_study(args.scenario, args.estimators, args.out, truth=args.truth, runs=args.runs,
+    data = run_study(args.scenario, args.estimators, args.out, truth=args.truth, against=args.against,
+                     runs=args.runs,
                      first_seed=args.first_seed, grid=args.grid, lhs=args.lhs, samples=args.samples,
                      lhs_seed=args.lhs_seed, overrides=args.overrides, nis_dof=dict(args.nis_dof),
                      after=args.after, workers=args.workers, scheduler=args.scheduler,

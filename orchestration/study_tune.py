@@ -8,7 +8,17 @@ evaluated in parallel on the study executor (``workers=executor.map``): each eva
 scenario run (:func:`orchestration.study.simulate`) with the candidate as overrides
 ``component.param=value``, and its cost the RMSE (or the band-passed error) of the estimate.
 
-Guards against over-fitting (the tuner sees the truth, so it can fit the noise realisation):
+The judge (``--against``, :mod:`orchestration.judge`): by default, as the paper, the scenario's
+reference system (the ``Tracker``: its fresh samples at their stamps, its noise and clock skew
+included); ``--against truth`` the plant's ``p_tool``; ``--truth COMP.VAR`` any variable (a
+replayed log's ``log.p_tool``). ``--criterion nis`` needs no judge: the cost is the consistency
+and whiteness of the filter's innovations (:func:`orchestration.metrics.innovation_criterion`:
+``ln(ANIS/dof)^2 + sum_l rho_l^2``; Bar-Shalom, Li, Kirubarajan 2001, section 5.4.2; Mehra
+1970), for the noise parameters (Q, R) of a filter with a ``nis`` or ``innovation_norm``
+output, ``--nis-dof`` its measurement dimension. ``tune_COMPONENT.json`` says which
+(``"against"``: ``"reference"``, ``"truth"`` or ``"innovations"``, and ``"judge"``).
+
+Guards against over-fitting (the tuner sees its judge, so it can fit the noise realisation):
 
 * **held-out seeds**: the cost is the mean over the training ``seeds`` (scenario seeds: every
   sensor's noise stream changes with it); the best candidate and the scenario's own values are
@@ -40,7 +50,8 @@ CLI::
 
     flexfusion study tune SCENARIO --estimator COMPONENT [--estimator ...] --out DIR
         [--param NAME=LOW:HIGH ...] [--maxiter N] [--popsize N] [--stop-time S]
-        [--metric rmse|bandpass_mean|bandpass_max] [--seeds 1,2 --holdout-seeds 3,4]
+        [--metric rmse|bandpass_mean|bandpass_max] [--against reference|truth | --truth COMP.VAR]
+        [--criterion error|nis [--nis-dof N]] [--seeds 1,2 --holdout-seeds 3,4]
         [--apply-to OTHER_COMPONENT ...] [--engine batched|fmu] [--check-candidates N]
         [--workers K | --scheduler ADDR]
 
@@ -87,6 +98,10 @@ DEFAULT_BOUNDS: dict[str, dict[str, tuple[float, float]]] = {
 }
 
 METRICS = ("rmse", "bandpass_mean", "bandpass_max")
+#: What a candidate is judged by: its error against the judge (the reference system by default,
+#: :mod:`orchestration.judge`), or the consistency and whiteness of its innovations (no judge:
+#: :func:`orchestration.metrics.innovation_criterion`).
+CRITERIA = ("error", "nis")
 PENALTY = 1.0e3          # cost of a failed run (metres): far worse than any estimate
 #: Engines of the evaluations: the truth of each seed simulated once and every candidate
 #: replayed on it (orchestration.batched), or one co-simulation of the FMUs per candidate and seed.
@@ -107,7 +122,12 @@ class TuneResult:
     ``initial_holdout_cost`` over ``holdout_seeds`` (NaN without them); ``bounds`` the search
     ranges used, ``floors`` :func:`sensor_floors` of the scenario; ``engine`` how the candidates
     were evaluated (``used``: ``batched`` or ``fmu``; ``fallback`` why not batched; ``checked``
-    the candidates also run through the FMUs and their largest relative difference).
+    the candidates also run through the FMUs and their largest relative difference);
+    ``criterion`` ``error`` or ``nis`` (:data:`CRITERIA`), ``judge`` what the cost judged
+    (:meth:`orchestration.judge.Judge.to_json`: ``against`` ``"reference"`` by default, the
+    component and its variables; for the ``nis`` criterion ``against`` ``"innovations"``, the
+    statistic and its degrees of freedom). Costs are metres for ``error``, the dimensionless
+    :func:`~orchestration.metrics.innovation_criterion` for ``nis``.
     """
 
     component: str
@@ -127,9 +147,18 @@ class TuneResult:
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     floors: dict[str, float] = field(default_factory=dict)
     engine: dict[str, Any] = field(default_factory=dict)
+    criterion: str = "error"
+    judge: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def against(self) -> str:
+        """What the cost judged: ``"reference"``, ``"truth"``, another role, or
+        ``"innovations"`` (the ``nis`` criterion)."""
+        return str(self.judge.get("against", ""))
 
     def to_json(self) -> dict[str, Any]:
-        return {"component": self.component, "params": self.params, "cost": self.cost,
+        return {"component": self.component, "against": self.against, "judge": self.judge,
+                "criterion": self.criterion, "params": self.params, "cost": self.cost,
                 "initial_cost": self.initial_cost, "seeds": self.seeds,
                 "holdout_seeds": self.holdout_seeds, "holdout_cost": self.holdout_cost,
                 "initial_holdout_cost": self.initial_holdout_cost, "metric": self.metric,
@@ -264,6 +293,38 @@ def default_bounds(doc: dict[str, Any], component: str) -> dict[str, tuple[float
     return bounds
 
 
+def nis_output(doc: dict[str, Any], component: str, estimate: str | None, dof: int | None,
+               overrides: Sequence[str] = ()) -> tuple[str, int]:
+    """The innovation statistic of ``component`` the ``nis`` criterion judges and its degrees
+    of freedom: ``estimate`` or the component's ``nis`` (else ``innovation_norm``) output; ``dof``
+    or the ``dof`` of the scenario's ``nis`` metric of that output.
+
+    Raises
+    ------
+    StudyError
+        The component has no such output, or no degrees of freedom are known.
+    """
+    from .scenario import ScenarioError, load_scenario
+    try:
+        sc = load_scenario(doc, overrides)
+    except ScenarioError as exc:
+        raise StudyError(str(exc)) from None
+    comp = sc.components[component]
+    if estimate is None:
+        out = next((v for v in ("nis", "innovation_norm") if comp.group(v)), None)
+        if out is None:
+            raise StudyError(f"--criterion nis: '{component}' ({comp.model_identifier}) has no 'nis' or "
+                             "'innovation_norm' output (the estimator contract's innovation statistic)")
+        estimate = f"{component}.{out}"
+    if dof is None:
+        dof = next((m.dof for m in sc.metrics if m.kind == "nis" and m.estimate == estimate), None)
+    if dof is None or int(dof) < 1:
+        raise StudyError(f"--criterion nis: the degrees of freedom of {estimate} (the dimension of the "
+                         "measurement it fuses) are unknown: give --nis-dof N (e.g. 4 for the 2012 EKF "
+                         "with accelerometer: 2 motor angles, 2 accelerometer axes)")
+    return estimate, int(dof)
+
+
 # ---------------------------------------------------------------------------------------------
 # the objective (runs in the workers)
 # ---------------------------------------------------------------------------------------------
@@ -271,29 +332,77 @@ def _value_text(v: float) -> str:
     return repr(float(v))
 
 
+@dataclass(frozen=True)
+class Score:
+    """How a run is scored (picklable: it goes to the workers).
+
+    ``estimate`` the estimator's output; ``criterion`` ``"error"`` (the error of the estimate
+    against ``judge``, a variable, by ``metric``: :data:`METRICS`; with ``stamp`` only the
+    judge's fresh samples at their stamps count, :func:`orchestration.judge.aligned`) or
+    ``"nis"`` (the estimate is the filter's ``nis`` or ``innovation_norm`` output, judged by
+    :func:`orchestration.metrics.innovation_criterion` with ``dof``: no judge); ``after``
+    seconds at the start left out.
+    """
+
+    estimate: str
+    judge: str | None = None
+    stamp: str | None = None
+    metric: str = "rmse"
+    after: float = 0.5
+    criterion: str = "error"
+    dof: int | None = None
+
+    @property
+    def variables(self) -> list[str]:
+        """The variables a run must record."""
+        return list(dict.fromkeys(v for v in (self.estimate, self.judge, self.stamp) if v))
+
+    def cost(self, time: np.ndarray, values: dict[str, np.ndarray]) -> float:
+        """The cost of one run's recorded ``values`` (:data:`PENALTY` if it cannot be computed
+        or is not finite)."""
+        if self.criterion == "nis":
+            from .metrics import innovation_criterion
+            keep = np.asarray(time) >= self.after - 1e-12
+            try:
+                cost = innovation_criterion(np.asarray(values[self.estimate])[keep], int(self.dof),
+                                            squared=not self.estimate.endswith("innovation_norm"))["cost"]
+            except ValueError:
+                return PENALTY
+            return float(cost) if math.isfinite(cost) else PENALTY
+        return cost_of(time, values[self.estimate], values[self.judge], self.after, self.metric,
+                       None if self.stamp is None else values[self.stamp])
+
+
 def evaluate(doc: dict[str, Any], overrides: Sequence[str], estimate: str, truth: str,
-             after: float, metric: str) -> float:
-    """Cost of one run: the error of ``estimate`` against ``truth`` after ``after`` seconds
-    (metres); :data:`PENALTY` if the run fails or the error is not finite."""
-    run = _fmu_trajectory(doc, overrides, estimate, truth)
-    return PENALTY if run is None else cost_of(*run, after, metric)
+             after: float, metric: str, stamp: str | None = None) -> float:
+    """Cost of one run: the error of ``estimate`` against ``truth`` (its fresh samples at the
+    stamps ``stamp``, when given) after ``after`` seconds (metres); :data:`PENALTY` if the run
+    fails or the error is not finite."""
+    score = Score(estimate, truth, stamp, metric, after)
+    run = _fmu_trajectory(doc, overrides, score)
+    return PENALTY if run is None else score.cost(*run)
 
 
-def _fmu_trajectory(doc: dict[str, Any], overrides: Sequence[str], estimate: str, truth: str
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """One co-simulation of the FMUs: the recorded ``(time, estimate, truth)``; None if the run
-    fails."""
+def _fmu_trajectory(doc: dict[str, Any], overrides: Sequence[str], score: Score
+                    ) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
+    """One co-simulation of the FMUs: the recorded ``(time, {variable: values})`` of
+    ``score.variables``; None if the run fails."""
     try:
-        run = simulate(doc, overrides, variables=[estimate, truth])
+        run = simulate(doc, overrides, variables=score.variables)
     except Exception:  # noqa: BLE001 - a diverging candidate is a bad candidate, not an error
         return None
-    return run.time, run[estimate], run[truth]
+    return run.time, {v: run[v] for v in score.variables}
 
 
-def cost_of(t: np.ndarray, est: np.ndarray, tru: np.ndarray, after: float, metric: str) -> float:
+def cost_of(t: np.ndarray, est: np.ndarray, tru: np.ndarray, after: float, metric: str,
+            stamps: np.ndarray | None = None) -> float:
     """The error of ``est`` against ``tru`` (rows at the times ``t``) after ``after`` seconds, by
-    ``metric`` (:data:`METRICS`); :data:`PENALTY` if it cannot be computed or is not finite."""
+    ``metric`` (:data:`METRICS`); with ``stamps`` (a reference system's sample stamps) only its
+    fresh samples, at their stamps (:func:`orchestration.judge.aligned`); :data:`PENALTY` if it
+    cannot be computed or is not finite."""
     from . import metrics as _metrics
+    from .judge import aligned
+    t, est, tru = aligned(t, est, tru, stamps)
     keep = t >= after - 1e-12
     try:
         if metric == "rmse":
@@ -311,12 +420,11 @@ class _Objective:
     """``f(x)`` for differential evolution: decode ``x`` into overrides and run, the mean cost
     over the seeds (the scenario's own seed if none; picklable)."""
 
-    def __init__(self, doc, component, names, log_mask, base_overrides, estimate, truth, after, metric,
-                 seeds=()):
+    def __init__(self, doc, component, names, log_mask, base_overrides, score: Score, seeds=()):
         self.doc, self.component, self.names = doc, component, list(names)
         self.log_mask = list(log_mask)
         self.base_overrides = tuple(base_overrides)
-        self.estimate, self.truth, self.after, self.metric = estimate, truth, after, metric
+        self.score = score
         self.seeds = tuple(seeds)
 
     def values(self, x: Sequence[float]) -> dict[str, float]:
@@ -329,8 +437,8 @@ class _Objective:
     def cost(self, overrides: Sequence[str], seeds: Sequence[int]) -> float:
         """Mean cost of one candidate's ``overrides`` over ``seeds`` (``()``: the scenario's)."""
         runs = [list(overrides) + [f"scenario.seed={int(s)}"] for s in seeds] or [list(overrides)]
-        return float(np.mean([evaluate(self.doc, o, self.estimate, self.truth, self.after, self.metric)
-                              for o in runs]))
+        return float(np.mean([PENALTY if (run := _fmu_trajectory(self.doc, o, self.score)) is None
+                              else self.score.cost(*run) for o in runs]))
 
     def __call__(self, x: Sequence[float]) -> float:
         return self.cost(self.overrides(x), self.seeds)
@@ -348,18 +456,31 @@ def _seeded(overrides: Sequence[str], seed: int | None) -> list[str]:
     return list(overrides) + ([] if seed is None else [f"scenario.seed={int(seed)}"])
 
 
-def _trajectories(prepared: Any, res: Any, estimate: str, truth: str) -> list[tuple[np.ndarray, ...]]:
-    """Each run's ``(time, estimate, truth)`` on the batched engine, at the rows the FMU path
-    records (every ``record_every`` base steps from t = 0, :func:`orchestration.master.simulate`)."""
+def _trajectories(prepared: Any, res: Any, score: Score) -> list[tuple[np.ndarray, dict[str, np.ndarray]]]:
+    """Each run's ``(time, {variable: values})`` on the batched engine, at the rows the FMU path
+    records (every ``record_every`` base steps from t = 0, :func:`orchestration.master.simulate`);
+    a scalar as the FMU path gives it (1-D)."""
     every = prepared.scenario.record_every
     t = res.time[::every]
-    est, tru = res[estimate], res[truth]
-    return [(t, est[r if est.shape[0] > 1 else 0, ::every], tru[r if tru.shape[0] > 1 else 0, ::every])
-            for r in range(res.runs)]
+    out = []
+    for r in range(res.runs):
+        values = {}
+        for v in score.variables:
+            a = res[v][r if res[v].shape[0] > 1 else 0, ::every]
+            values[v] = a[:, 0] if prepared.wanted[v] == [v.split(".", 1)[1]] else a
+        out.append((t, values))
+    return out
 
 
-def _tape_job(doc: dict[str, Any], overrides: Sequence[str], estimate: str, truth: str, after: float,
-              metric: str) -> tuple[Any, float | str]:
+def _finite(run: tuple[np.ndarray, dict[str, np.ndarray]], score: Score) -> bool:
+    return bool(np.all(np.isfinite(run[1][score.estimate])))
+
+
+def _record(score: Score) -> dict[str, None]:
+    return {v: None for v in score.variables}
+
+
+def _tape_job(doc: dict[str, Any], overrides: Sequence[str], score: Score) -> tuple[Any, float | str]:
     """One run of the scenario's own values on the batched engine, kept as a tape (one run
     shares every component): the :class:`~orchestration.batched.Tape` and the run's cost; or
     ``(None, why)`` when the engine cannot run the scenario or its own values fail (no tape:
@@ -368,50 +489,48 @@ def _tape_job(doc: dict[str, Any], overrides: Sequence[str], estimate: str, trut
     from .batched import BatchedRuns, BatchError
     from .master import RunError
     try:
-        prepared = BatchedRuns(doc, [list(overrides)], {estimate: None, truth: None}, tape=True)
+        prepared = BatchedRuns(doc, [list(overrides)], _record(score), tape=True)
         res = prepared.run()
     except BatchError as exc:
         return None, str(exc)
     except RunError as exc:
         return None, f"the scenario's own values fail ({exc}): there is no run to replay"
-    return res.tape, cost_of(*_trajectories(prepared, res, estimate, truth)[0], after, metric)
+    return res.tape, score.cost(*_trajectories(prepared, res, score)[0])
 
 
-def _replayed(doc: dict[str, Any], tape: Any, runs: Sequence[Sequence[str]], estimate: str, truth: str
-              ) -> list[tuple[np.ndarray, ...] | None]:
-    """Each run's ``(time, estimate, truth)`` with the shared part played from ``tape``, the runs
+def _replayed(doc: dict[str, Any], tape: Any, runs: Sequence[Sequence[str]], score: Score
+              ) -> list[tuple[np.ndarray, dict[str, np.ndarray]] | None]:
+    """Each run's ``(time, {variable: values})`` with the shared part played from ``tape``, the runs
     together; None for a run that fails (a failure in a group is found by running each alone)
     or whose estimate is not finite (the master stops such a run: a non-finite output)."""
     from .batched import BatchedRuns, BatchError
     try:
-        prepared = BatchedRuns(doc, runs, {estimate: None, truth: None}, replay=tape)
-        return [tr if np.all(np.isfinite(tr[1])) else None
-                for tr in _trajectories(prepared, prepared.run(), estimate, truth)]
+        prepared = BatchedRuns(doc, runs, _record(score), replay=tape)
+        return [tr if _finite(tr, score) else None for tr in _trajectories(prepared, prepared.run(), score)]
     except BatchError:
         raise
     except Exception:  # noqa: BLE001 - a diverging or refused candidate is a bad candidate
         if len(runs) == 1:
             return [None]
-        return [tr for run in runs for tr in _replayed(doc, tape, [run], estimate, truth)]
+        return [tr for run in runs for tr in _replayed(doc, tape, [run], score)]
 
 
-def _candidates_job(doc: dict[str, Any], tape: Any, runs: Sequence[Sequence[str]], estimate: str, truth: str,
-                    after: float, metric: str, keep: Sequence[int] = ()) -> tuple[list[float], dict[int, Any]]:
+def _candidates_job(doc: dict[str, Any], tape: Any, runs: Sequence[Sequence[str]], score: Score,
+                    keep: Sequence[int] = ()) -> tuple[list[float], dict[int, Any]]:
     """The cost of each run on one seed's tape (:data:`PENALTY` if it fails), and the
     trajectories of the runs ``keep`` (to be checked against the FMUs)."""
-    trajectories = _replayed(doc, tape, runs, estimate, truth)
-    costs = [PENALTY if tr is None else cost_of(*tr, after, metric) for tr in trajectories]
+    trajectories = _replayed(doc, tape, runs, score)
+    costs = [PENALTY if tr is None else score.cost(*tr) for tr in trajectories]
     return costs, {i: trajectories[i] for i in keep}
 
 
-def checked_quantities(run: tuple | None, after: float, metric: str) -> dict[str, Any] | None:
+def checked_quantities(run: tuple | None, score: Score) -> dict[str, Any] | None:
     """What :func:`orchestration.study.check_against_fmus` compares of a candidate's run
-    ``(time, estimate, truth)`` (None: it failed) on the batched engine and through the FMUs:
-    the three and the cost."""
+    ``(time, {variable: values})`` (None: it failed) on the batched engine and through the
+    FMUs: the time, every recorded variable and the cost."""
     if run is None:
         return None
-    return {"the time": run[0], "the estimate": run[1], "the truth": run[2],
-            "the cost": cost_of(*run, after, metric)}
+    return {"the time": run[0], **{f"'{v}'": a for v, a in run[1].items()}, "the cost": score.cost(*run)}
 
 
 class _BatchedEngine:
@@ -439,8 +558,8 @@ class _BatchedEngine:
         workers = getattr(executor, "max_workers", None) or (1 if executor is None else os.cpu_count() or 1)
         self.chunks = max(1, int(workers))
         o = objective
-        done = dict(zip(seeds, self._map(_tape_job, [(o.doc, _seeded(o.base_overrides, s), o.estimate, o.truth,
-                                                      o.after, o.metric) for s in seeds])))
+        done = dict(zip(seeds, self._map(_tape_job, [(o.doc, _seeded(o.base_overrides, s), o.score)
+                                                     for s in seeds])))
         from .batched import BatchError
         for tape, why in done.values():
             if tape is None:
@@ -474,7 +593,7 @@ class _BatchedEngine:
         """
         o, n = self.objective, len(candidates)
         n_check = 0 if self.checked else min(self.check, n)
-        checks = [self._submit(_fmu_trajectory, o.doc, _seeded(candidates[i], seeds[0]), o.estimate, o.truth)
+        checks = [self._submit(_fmu_trajectory, o.doc, _seeded(candidates[i], seeds[0]), o.score)
                   for i in range(n_check)]
         parts, jobs = [], []
         for s in seeds:
@@ -482,8 +601,7 @@ class _BatchedEngine:
             for chunk in np.array_split(np.arange(n), min(self.chunks, n)):
                 keep = [j for j, i in enumerate(chunk) if i < n_check and s == seeds[0]]
                 parts.append((s, chunk))
-                jobs.append((o.doc, self.tapes[s], [runs[i] for i in chunk], o.estimate, o.truth, o.after,
-                             o.metric, keep))
+                jobs.append((o.doc, self.tapes[s], [runs[i] for i in chunk], o.score, keep))
         try:
             done = self._map(_candidates_job, jobs)
         except Exception as exc:  # noqa: BLE001 - a BatchError in a job, named by map_jobs
@@ -498,8 +616,8 @@ class _BatchedEngine:
             own = list(candidates[i][len(o.base_overrides):])
             seed = "the scenario's seed" if seeds[0] is None else f"seed {seeds[0]}"
             what = f"candidate {i + 1} ({', '.join(c.split('.', 1)[1] for c in own)}) on {seed}"
-            d = check_against_fmus(checked_quantities(kept[i], o.after, o.metric),
-                                   checked_quantities(f.result(), o.after, o.metric), what)
+            d = check_against_fmus(checked_quantities(kept[i], o.score),
+                                   checked_quantities(f.result(), o.score), what)
             self.checked.append({"candidate": i + 1, "overrides": own, "seed": seeds[0],
                                  "max_relative_difference": d})
         return [float(np.mean([per_seed[s][i] for s in seeds])) for i in range(n)]
@@ -531,13 +649,15 @@ class _RecordingMap:
 
 
 def tune(scenario: str | Path | dict[str, Any], component: str,
-         bounds: dict[str, tuple[float, float]] | None = None, *, truth: str = "plant.p_tool",
+         bounds: dict[str, tuple[float, float]] | None = None, *, truth: str | None = None,
+         against: str = "reference", criterion: str = "error", nis_dof: int | None = None,
          estimate: str | None = None, after: float = 0.5, log_scale: bool = True,
          maxiter: int = 10, popsize: int = 4, seed: int = 0, executor: Executor | None = None,
          progress: bool = True, overrides: Sequence[str] = (), metric: str = "rmse",
          tol: float = 0.01, seeds: Sequence[int] = (), holdout_seeds: Sequence[int] = (),
          engine: str = "batched", check_candidates: int = CHECK_CANDIDATES) -> TuneResult:
-    """Minimise the estimation error of ``component`` over ``bounds`` (section III-C).
+    """Minimise the estimation error of ``component`` over ``bounds`` (section III-C), judged
+    by the scenario's reference system by default; or its innovation criterion (no judge).
 
     Parameters
     ----------
@@ -549,8 +669,19 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
     bounds
         ``{parameter: (low, high)}``; a vector element as ``name[i]``. Default: the FMU type's
         :data:`DEFAULT_BOUNDS`.
-    truth, estimate
-        Recorded variables compared (default estimate ``f"{component}.p_tool_hat"``).
+    truth, against
+        What the estimate is judged against (:func:`orchestration.judge.judge`): ``against``
+        ``"reference"`` (default: the scenario's reference system, the Tracker, its fresh
+        samples at their stamps) or ``"truth"`` (the plant's ``p_tool``); an explicit ``truth``
+        variable ``comp.var`` instead (its component's role is then ``against``).
+    criterion
+        ``"error"`` (default): the error against the judge by ``metric``; ``"nis"``: no judge,
+        the filter's innovations (:func:`orchestration.metrics.innovation_criterion` of its
+        ``nis`` or ``innovation_norm`` output, ``nis_dof`` degrees of freedom, default: from
+        the scenario's ``nis`` metric of that output).
+    estimate
+        Recorded variable compared (default ``f"{component}.p_tool_hat"``; with the ``nis``
+        criterion the component's ``nis`` or ``innovation_norm``).
     after
         Seconds at the start left out of the cost.
     log_scale
@@ -593,15 +724,25 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
 
     if metric not in METRICS:
         raise StudyError(f"unknown tuning metric {metric!r} (one of {', '.join(METRICS)})")
+    if criterion not in CRITERIA:
+        raise StudyError(f"unknown tuning criterion {criterion!r} (one of {', '.join(CRITERIA)})")
     check_engine(engine, check_candidates, "--check-candidates")
     if set(seeds) & set(holdout_seeds):
         raise StudyError(f"held-out seeds {sorted(set(seeds) & set(holdout_seeds))} are also "
                          "training seeds: a held-out cost must come from noise the tuner never saw")
     doc = load_document(scenario)
     fmu_type(doc, component)
+    judged = None
+    if criterion == "error":
+        from .judge import JudgeError, judge
+        try:
+            judged = judge(doc, against, truth)
+        except JudgeError as exc:
+            raise StudyError(str(exc)) from None
     if estimate is None:        # any estimator meeting the contract, as in every generic study
         from .study_sweep import prepare
-        prepare(doc, [component], truth, overrides)
+        if judged is not None:
+            prepare(doc, [component], judged.position, overrides)
     if bounds is None:
         bounds = default_bounds(doc, component)
     if not bounds:
@@ -615,12 +756,16 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
         lg = bool(log_scale and lo > 0)
         log_mask.append(lg)
         de_bounds.append((math.log10(lo), math.log10(hi)) if lg else (lo, hi))
-    estimate = estimate or f"{component}.p_tool_hat"
-    small = prune(doc, [estimate, truth])
+    if criterion == "nis":
+        estimate, nis_dof = nis_output(doc, component, estimate, nis_dof, overrides)
+        score = Score(estimate, None, None, metric, after, "nis", nis_dof)
+    else:
+        estimate = estimate or f"{component}.p_tool_hat"
+        score = Score(estimate, judged.position, judged.stamp, metric, after)
+    small = prune(doc, score.variables)
     if component not in small["components"]:
         raise StudyError(f"the estimate '{estimate}' is not an output of '{component}'")
-    objective = _Objective(small, component, names, log_mask, overrides, estimate, truth, after, metric,
-                           seeds)
+    objective = _Objective(small, component, names, log_mask, overrides, score, seeds)
     # a parameter name or value the FMU rejects fails here, once, with the scenario's message
     # (in the workers it would only make every candidate cost the penalty)
     from .scenario import load_scenario
@@ -683,7 +828,9 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
                       message=str(res.message), initial_cost=costs[0], seeds=[int(s) for s in seeds],
                       holdout_seeds=[int(s) for s in holdout_seeds], holdout_cost=costs[1],
                       initial_holdout_cost=costs[2], bounds={n: tuple(bounds[n]) for n in names},
-                      floors=sensor_floors(doc), engine=engine_info)
+                      floors=sensor_floors(doc), engine=engine_info, criterion=criterion,
+                      judge=judged.to_json() if judged else {"against": "innovations", "estimate": estimate,
+                                                             "dof": nis_dof})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -754,6 +901,16 @@ def _mm(v: float) -> str:
     return f"{v * 1e3:.4g} mm"
 
 
+def judged_by(res: TuneResult) -> str:
+    """What a tuning's cost judged, in words: ``rmse against the reference tracker.p_tool_meas
+    (at its stamps tracker.t_meas)``, or the innovation criterion of the statistic."""
+    j = res.judge
+    if res.criterion == "nis":
+        return f"innovation criterion of {j['estimate']} ({j['dof']} dof)"
+    return (f"{res.metric} against the {j['against']} {j['variable']}"
+            + (f" (at its stamps {j['stamp']})" if j.get("stamp") else ""))
+
+
 def main(args: argparse.Namespace) -> int:
     bounds = dict(parse_param(t) for t in args.param) if args.param else None
     if args.apply_to and len(args.estimator) > 1:
@@ -766,28 +923,34 @@ def main(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     with open_executor(args.workers, args.scheduler) as ex:
         for component in args.estimator:
-            res = tune(args.scenario, component, bounds, truth=args.truth, estimate=args.estimate,
+            res = tune(args.scenario, component, bounds, truth=args.truth, against=args.against,
+                       criterion=args.criterion, nis_dof=args.nis_dof, estimate=args.estimate,
                        after=args.after, log_scale=not args.linear, maxiter=args.maxiter,
                        popsize=args.popsize, seed=args.seed, executor=ex, progress=not args.no_progress,
                        overrides=overrides, metric=args.metric, seeds=seeds, holdout_seeds=holdout,
                        engine=args.engine, check_candidates=args.check_candidates)
-            comment = (f"tuned by: flexfusion study tune {args.scenario} --estimator {component} "
-                       f"--metric {res.metric} --maxiter {args.maxiter} --popsize {args.popsize}"
+            fmt = _mm if res.criterion == "error" else (lambda v: f"{v:.4g}")
+            comment = (f"tuned by: flexfusion study tune {args.scenario} --estimator {component}"
+                       + (f" --criterion nis --nis-dof {res.judge['dof']}" if res.criterion == "nis" else
+                          f" --metric {res.metric}" + (f" --truth {args.truth}" if args.truth else
+                                                       f" --against {args.against}"))
+                       + f" --maxiter {args.maxiter} --popsize {args.popsize}"
                        + (f" --seed {args.seed}" if args.seed else "")
                        + "".join(f" --param {t}" for t in args.param or ())
                        + "".join(f" --set {t}" for t in args.set or ())
                        + (f" --stop-time {args.stop_time}" if args.stop_time is not None else "")
                        + (f" --seeds {args.seeds}" if seeds else "")
                        + (f" --holdout-seeds {args.holdout_seeds}" if holdout else "")
-                       + f"\ncost {_mm(res.cost)} on the training seeds (scenario's values "
-                       f"{_mm(res.initial_cost)}), held out {_mm(res.holdout_cost)} (scenario's values "
-                       f"{_mm(res.initial_holdout_cost)}); {res.n_evals} candidates, {res.wall_time:.0f} s")
+                       + f"\ncost {fmt(res.cost)} on the training seeds (scenario's values "
+                       f"{fmt(res.initial_cost)}), held out {fmt(res.holdout_cost)} (scenario's values "
+                       f"{fmt(res.initial_holdout_cost)}), {judged_by(res)}; {res.n_evals} candidates, "
+                       f"{res.wall_time:.0f} s")
             inc = write_include(out / f"tuned_{component}.toml", [component] + list(args.apply_to or []),
                                 res.params, comment)
             (out / f"tune_{component}.json").write_text(json.dumps(res.to_json(), indent=1))
-            print(f"{component}: cost {_mm(res.cost)} ({res.metric}; scenario's values {_mm(res.initial_cost)}), "
-                  f"held out {_mm(res.holdout_cost)} (scenario's values {_mm(res.initial_holdout_cost)}) "
-                  f"after {res.n_evals} candidates in {res.wall_time:.1f} s; {res.failed} failed")
+            print(f"{component}: cost {fmt(res.cost)} ({judged_by(res)}; scenario's values "
+                  f"{fmt(res.initial_cost)}), held out {fmt(res.holdout_cost)} (scenario's values "
+                  f"{fmt(res.initial_holdout_cost)}) after {res.n_evals} candidates in {res.wall_time:.1f} s; {res.failed} failed")
             if res.engine.get("checked"):
                 worst = max(c["max_relative_difference"] for c in res.engine["checked"])
                 print(f"  batched engine; {len(res.engine['checked'])} candidates checked through the FMUs: "
@@ -814,7 +977,17 @@ def register(subparsers: Any) -> None:
     p.add_argument("--popsize", type=int, default=4, help="population per parameter (default 4)")
     p.add_argument("--seed", type=int, default=0, help="optimiser seed")
     p.add_argument("--metric", choices=METRICS, default="rmse", help="cost (default rmse)")
-    p.add_argument("--truth", default="plant.p_tool", help="truth variable")
+    p.add_argument("--against", choices=("reference", "truth"), default="reference",
+                   help="judge of the error: the scenario's reference system (a Tracker, default: as "
+                        "the papers tuned) or the plant's truth p_tool")
+    p.add_argument("--truth", default=None, metavar="COMP.VAR",
+                   help="judge against this variable instead (e.g. log.p_tool)")
+    p.add_argument("--criterion", choices=CRITERIA, default="error",
+                   help="error (against the judge, by --metric; default) or nis: no judge, the "
+                        "innovations' consistency (ANIS against its chi-square mean) and whiteness")
+    p.add_argument("--nis-dof", type=int, default=None, metavar="N",
+                   help="degrees of freedom of the NIS for --criterion nis (default: the scenario's "
+                        "nis metric of that output)")
     p.add_argument("--estimate", default=None, help="estimate variable (default COMPONENT.p_tool_hat)")
     p.add_argument("--after", type=float, default=0.5, help="seconds left out at the start")
     p.add_argument("--stop-time", type=float, default=None, help="shorter runs while tuning (s)")
@@ -835,6 +1008,6 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=main)
 
 
-__all__ = ["tune", "TuneResult", "write_include", "evaluate", "cost_of", "checked_quantities", "ENGINES",
+__all__ = ["tune", "TuneResult", "Score", "CRITERIA", "nis_output", "judged_by", "write_include", "evaluate", "cost_of", "checked_quantities", "ENGINES",
            "CHECK_CANDIDATES", "CHECK_RTOL", "prune", "load_document",
            "default_bounds", "sensor_floors", "parameter_value", "parse_seeds", "DEFAULT_BOUNDS", "register", "PENALTY"]

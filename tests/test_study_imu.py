@@ -39,6 +39,23 @@ def test_paper_values_in_the_code_are_the_papers_table1():
         assert study_imu.PAPER_TABLE1[path] == pytest.approx(expected, rel=1e-12)
 
 
+def test_table1_against_a_sampled_skewed_reference():
+    """Against a judge with stamps only its fresh samples count, at their stamps: a tracker at
+    half the record's rate that is exactly the estimate delayed by one of its samples gives the
+    RMSE of that delay, not of the hold."""
+    from orchestration.judge import Judge
+    t = np.arange(0.0, 2.0, 0.001)
+    p = np.column_stack([0.1 * t, 0.05 * t])             # 0.1118 m/s
+    stamp = np.floor(t / 0.002 + 1e-9) * 0.002           # 500 Hz, held
+    meas = np.column_stack([0.1 * (stamp - 0.002), 0.05 * (stamp - 0.002)])   # 2 ms behind
+    run = {"time": t, "tracker.p_tool_meas": meas, "tracker.t_meas": stamp, "plant.p_tool": p,
+           **{v: p for v in study_imu.ESTIMATES.values()}}
+    j = Judge("reference", "tracker", "tracker.p_tool_meas", "tracker.t_meas", "Tracker")
+    table = study_imu.table1({"iso": run}, judge=j)
+    assert_allclose(table["iso"]["ekf"], 0.002 * np.hypot(0.1, 0.05), rtol=1e-9)
+    assert_allclose(study_imu.table1({"iso": run})["iso"]["ekf"], 0.0, atol=1e-15)
+
+
 def test_table1_and_findings_from_series():
     table = study_imu.table1({"iso": fake_run(), "square": fake_run(fk=0.8e-3, cf_paper=0.82e-3, ekf=0.9e-3)})
     assert_allclose(table["iso"]["fk"], 1e-3, rtol=1e-12)
@@ -88,8 +105,14 @@ def test_short_study_run(fmu_dir, tmp_path, monkeypatch):
     assert saved["paper_table1"] == study_imu.PAPER_TABLE1
     assert saved["wall_time"]["workers"] == 2 and saved["wall_time"]["total_s"] > 0
     assert len(saved["findings"]) == 6
-    # the scenario's own metrics are the study's numbers
-    assert_allclose(res["metrics"]["iso"]["cf_rmse"], res["table1"]["iso"]["cf"], rtol=1e-9)
+    # judged by the reference system (the scenarios' tracker) by default, the truth beside it
+    assert saved["against"] == "reference"
+    assert saved["judge"] == {"against": "reference", "component": "tracker", "fmu": "Tracker",
+                              "variable": "tracker.p_tool_meas", "stamp": "tracker.t_meas"}
+    assert list(saved["table1_truth"]["iso"]) == list(study_imu.ESTIMATES)
+    assert saved["table1"]["iso"]["ekf"] != saved["table1_truth"]["iso"]["ekf"]
+    # the scenario's own metrics (against the truth) are the study's truth column
+    assert_allclose(res["metrics"]["iso"]["cf_rmse"], res["table1_truth"]["iso"]["cf"], rtol=1e-9)
 
 
 def test_tuning_goes_through_the_shared_tuner(fmu_dir, tmp_path, monkeypatch):
@@ -103,6 +126,7 @@ def test_tuning_goes_through_the_shared_tuner(fmu_dir, tmp_path, monkeypatch):
     for name, (lo, hi) in study_imu.CF_SAME_BOUNDS.items():
         assert lo <= p[name] <= hi
     assert res["seeds"] == [2] and res["holdout_seeds"] == [3]
+    assert res["cf_same"]["against"] == "reference" and res["cf_same"]["judge"]["component"] == "tracker"
     assert 0 < res["cf_same"]["holdout_rmse"] < 0.01
     import tomllib
     doc = tomllib.loads((tmp_path / "imu2019_tuned.toml").read_text())
@@ -131,6 +155,7 @@ def test_cli_tunes_several_estimators_in_one_call(fmu_dir, tmp_path, monkeypatch
         for name, value in res["params"].items():
             assert bounds[name][0] <= value <= bounds[name][1], (comp, name)
         assert res["seeds"] == [2] and res["holdout_seeds"] == [3] and res["failed"] == 0
+        assert res["against"] == "reference" and res["judge"]["component"] == "tracker"   # the default judge
         assert res["n_evals"] == len(res["history"]) == 2 * 5       # scipy's smallest population: 5
         assert 0 < res["cost"] < 0.01 and 0 < res["holdout_cost"] < 0.01
         assert res["cost"] == pytest.approx(min(h["cost"] for h in res["history"]))

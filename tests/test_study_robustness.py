@@ -28,7 +28,8 @@ def test_jobs_give_only_the_estimators_the_model_errors(fmu_env) -> None:
     for (doc, overrides, variables), (key, _, _, error) in zip(jobs, sr.CASES):
         est = sr.estimators(doc)
         assert "rigid" in est and "observer" in est and len(est) == 7
-        assert variables[:8] == ["plant.p_tool"] + [f"{c}.p_tool_hat" for c in est]
+        assert variables[:10] == (["plant.p_tool", "tracker.p_tool_meas", "tracker.t_meas"]   # truth, judge
+                                  + [f"{c}.p_tool_hat" for c in est])
         assert {"ekf_motor.q_a_hat", "ekf_motor.ddq_a_hat", "observer.dq_a_hat", "rigid.q_a_hat",
                 "plant.q_a", "plant.dq_a", "plant.ddq_a"} <= set(variables[8:])
         assert overrides == ["scenario.stop_time=1.0"]
@@ -171,6 +172,14 @@ def test_short_robustness_table(fmu_env, tmp_path) -> None:
     assert "(0.221)" in md and "Model errors" in md and "Findings" in md
     arm = [case["arm_errors"] for case in js["cases"].values()]
     assert set(arm[0]["EKF Motor"]) == {"q_a_hat", "dq_a_hat", "ddq_a_hat"} and set(arm[0]["Rigid kinematics"]) == {"q_a_hat"}
+    # judged by the reference system (the tracker) by default; the truth's statistics beside
+    assert js["against"] == "reference"
+    assert js["judge"] == {"against": "reference", "component": "tracker", "fmu": "Tracker",
+                           "variable": "tracker.p_tool_meas", "stamp": "tracker.t_meas"}
+    assert "against the reference system" in md and "against the plant's truth" in md
+    for case in js["cases"].values():
+        assert case["columns"] != case["columns_truth"]
+        assert set(case["columns"]) == set(case["columns_truth"])
     assert_same_document(comparable(tmp_path / "table.json"), json.loads(REFERENCE.read_text())["table"], STUDY_RTOL,
                          {"band_max": "all_max", "band_mean": "all_max"})
 
@@ -236,10 +245,18 @@ def test_a_third_party_estimator_beside_ours(fmu_env, toy_scenarios, tmp_path, c
         assert case["arm_errors"]["toy"] == {} and set(case["arm_errors"]["EKF Motor"]) == {"q_a_hat", "dq_a_hat", "ddq_a_hat"}
     assert cases["model_errors"]["columns"]["EKF Motor"] != cases["nominal"]["columns"]["EKF Motor"]
     doc = scenario_document(toy_scenarios["ok"])
-    doc["record"]["variables"] = ["plant.p_tool", "plant.q_a", "toy.p_tool_hat", "ekf_motor.q_a_hat"]
+    doc["record"]["variables"] = ["plant.p_tool", "plant.q_a", "toy.p_tool_hat", "ekf_motor.q_a_hat",
+                                  "tracker.p_tool_meas", "tracker.t_meas"]
     r = study.simulate(doc, ["scenario.stop_time=0.7"])
     keep = r.time >= 0.5 - 1e-12
     e = np.linalg.norm(r["toy.p_tool_hat"] - r["plant.p_tool"], axis=1)[keep]
+    assert_allclose([cases["nominal"]["columns_truth"]["toy"][k] for k in ("all_max", "all_mean")], [e.max(), e.mean()],
+                    rtol=1e-12)
+    # the judged column: against the tracker's fresh samples at their stamps
+    from orchestration.metrics import at_sample_times
+    t, est, ref = at_sample_times(r.time, r["toy.p_tool_hat"], r["tracker.p_tool_meas"], r["tracker.t_meas"])
+    e = np.linalg.norm(est - ref, axis=1)[t >= 0.5 - 1e-12]
+    assert js["against"] == "reference"
     assert_allclose([cases["nominal"]["columns"]["toy"][k] for k in ("all_max", "all_mean")], [e.max(), e.mean()],
                     rtol=1e-12)
     q = r["ekf_motor.q_a_hat"][keep] - r["plant.q_a"][keep]

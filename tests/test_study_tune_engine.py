@@ -29,7 +29,8 @@ EST, TRUTH, AFTER, METRIC = "observer.p_tool_hat", "plant.p_tool", 0.1, "bandpas
 
 def _objective(seeds=(2,)) -> st._Objective:
     doc = st.prune(st.load_document(P1), [EST, TRUTH])
-    return st._Objective(doc, "observer", list(BOUNDS), [False, False], SHORT, EST, TRUTH, AFTER, METRIC, seeds)
+    return st._Objective(doc, "observer", list(BOUNDS), [False, False], SHORT, st.Score(EST, TRUTH, None, METRIC, AFTER),
+                         seeds)
 
 
 def test_batched_candidates_equal_the_fmus():
@@ -59,12 +60,12 @@ def test_the_check_stops_the_tuning_on_a_difference(monkeypatch):
 
     def off(*args):
         out = replayed(*args)
-        t, est, tru = out[0]
-        out[0] = (t, est * (1 + 1e-9), tru)
+        t, values = out[0]
+        out[0] = (t, {**values, EST: values[EST] * (1 + 1e-9)})
         return out
 
     monkeypatch.setattr(st, "_replayed", off)
-    with pytest.raises(StudyError, match=r"candidate 1 \(pole_freq\[1\]=.*\) on seed 2: the estimate "
+    with pytest.raises(StudyError, match=r"candidate 1 \(pole_freq\[1\]=.*\) on seed 2: 'observer.p_tool_hat' "
                                          r"differs by 1e-09 relative .*--engine fmu"):
         st.tune(P1, "observer", BOUNDS, after=AFTER, metric=METRIC, overrides=SHORT, maxiter=1, popsize=2,
                 seeds=[2], check_candidates=1, progress=False)
@@ -90,6 +91,62 @@ def test_both_engines_tune_to_the_same_result(tmp_path):
     for key in ("cost", "initial_cost", "holdout_cost", "initial_holdout_cost"):
         assert_allclose(getattr(fast, key), getattr(ref, key), rtol=1e-12, err_msg=key)
     assert np.isfinite(fast.holdout_cost) and fast.cost <= fast.initial_cost
+    # judged by the reference system by default (the scenario's tracker, at its stamps)
+    assert fast.against == ref.against == "reference"
+    assert fast.judge == {"against": "reference", "component": "tracker", "fmu": "Tracker",
+                          "variable": "tracker.p_tool_meas", "stamp": "tracker.t_meas"}
+
+
+def test_tuning_is_judged_by_the_reference_by_default_and_the_truth_on_request(tmp_path):
+    """The default cost is the error against the tracker's fresh samples at their stamps
+    (evaluated here independently from a run), the JSON says "against": "reference" and names
+    the component; --against truth judges against plant.p_tool, and says so."""
+    kw = dict(after=AFTER, metric="rmse", overrides=SHORT, maxiter=1, popsize=2, seed=1, progress=False,
+              engine="fmu")
+    bounds = {"pole_freq[1]": BOUNDS["pole_freq[1]"]}
+    res = st.tune(P1, "observer", bounds, **kw)
+    data = res.to_json()
+    assert data["against"] == "reference" and data["judge"]["component"] == "tracker"
+    assert data["criterion"] == "error"
+    doc = st.prune(st.load_document(P1), [EST, "tracker.p_tool_meas", "tracker.t_meas"])
+    own = st.evaluate(doc, SHORT, EST, "tracker.p_tool_meas", AFTER, "rmse", stamp="tracker.t_meas")
+    assert_allclose(res.initial_cost, own, rtol=1e-12)
+    from orchestration.study import simulate
+    from orchestration.metrics import at_sample_times, rmse
+    run = simulate(doc, SHORT)
+    t, est, ref = at_sample_times(run.time, run[EST], run["tracker.p_tool_meas"], run["tracker.t_meas"])
+    assert len(t) == len(np.unique(run["tracker.t_meas"])) < len(run.time)   # 1 kHz samples, 2 kHz rows
+    keep = t >= AFTER - 1e-12
+    assert_allclose(own, rmse(est[keep], ref[keep]), rtol=1e-12)
+    truth = st.tune(P1, "observer", bounds, against="truth", **kw)
+    assert truth.to_json()["against"] == "truth" and truth.judge["variable"] == "plant.p_tool"
+    assert_allclose(truth.initial_cost, st.evaluate(st.prune(st.load_document(P1), [EST, TRUTH]), SHORT, EST,
+                                                    TRUTH, AFTER, "rmse"), rtol=1e-12)
+    assert truth.initial_cost != res.initial_cost      # two judges (the tracker's noise and skew: either sign)
+    with pytest.raises(StudyError, match="no reference measurement system"):
+        st.tune(REPO / "orchestration" / "scenarios" / "axelsson2012.toml", "ekf_acc",
+                {"q_jerk": (1.0, 10.0)}, **kw)
+
+
+def test_the_nis_criterion_in_the_tuner():
+    """--criterion nis: no judge; the cost of a candidate is the innovation criterion of its
+    innovation_norm (EKF Motor: 2 motor angles, dof 2), evaluated here independently."""
+    kw = dict(after=AFTER, overrides=SHORT, maxiter=1, popsize=2, seed=1, progress=False)
+    res = st.tune(P1, "ekf_motor", {"lambda1": (0.1, 10.0)}, criterion="nis", nis_dof=2, **kw)
+    assert res.against == "innovations" and res.judge == {"against": "innovations",
+                                                          "estimate": "ekf_motor.innovation_norm", "dof": 2}
+    assert res.engine["used"] == "batched" and len(res.engine["checked"]) == 2
+    from orchestration.metrics import innovation_criterion
+    from orchestration.study import simulate
+    doc = st.prune(st.load_document(P1), ["ekf_motor.innovation_norm"])
+    run = simulate(doc, SHORT + [f"ekf_motor.lambda1={res.params['lambda1']!r}"])
+    keep = run.time >= AFTER - 1e-12
+    expected = innovation_criterion(run["ekf_motor.innovation_norm"][keep], 2, squared=False)["cost"]
+    assert_allclose(res.cost, expected, rtol=1e-9)
+    with pytest.raises(StudyError, match="--nis-dof"):
+        st.tune(P1, "ekf_motor", {"lambda1": (0.1, 10.0)}, criterion="nis", **kw)
+    with pytest.raises(StudyError, match="no 'nis' or 'innovation_norm'"):
+        st.tune(P1, "observer", {"pole_freq[1]": (5.0, 40.0)}, criterion="nis", nis_dof=2, **kw)
 
 
 @pytest.fixture(scope="module")

@@ -68,4 +68,14 @@ TRUTH: tuple[Signal, ...] = (
     Signal("p_tool", 2, "m", "true tool position, world x and z (for metrics only)"),
 )
 
-__all__ = ["Signal", "INPUTS", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "TRUTH"]
+#: What a recorded log's reference measurement system (the papers' laser tracker) gives besides
+#: the measurements (for metrics only: the judge of a study, never an estimator's input): the
+#: Tracker's measured position, and its sample stamps under their own name (``t_meas`` is the
+#: sensors').
+REFERENCE: tuple[Signal, ...] = (
+    Signal("p_tool_meas", 2, "m", "tool position measured by the reference system (laser tracker), "
+           "world x and z (for metrics only)"),
+    Signal("t_tool_meas", None, "s", "time stamp of the reference system's held sample (for metrics only)"),
+)
+
+__all__ = ["Signal", "INPUTS", "REQUIRED_OUTPUTS", "OPTIONAL_OUTPUTS", "TRUTH", "REFERENCE"]

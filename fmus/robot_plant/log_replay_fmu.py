@@ -12,14 +12,17 @@ from fmus.common.sample_time import UNSTAMPED
 from fmus.robot_plant.log_replay_model import LogReplayParameters, RecordedLog
 
 #: The outputs: every input an estimator may take (so a log plugs into any estimator that meets
-#: the contract) and the truth a log recorded in a simulation carries, for metrics.
-SIGNALS = contract.INPUTS + contract.TRUTH
+#: the contract), the truth a log recorded in a simulation carries and a reference system's
+#: measurement (a real robot's laser tracker), for metrics.
+SIGNALS = contract.INPUTS + contract.TRUTH + contract.REFERENCE
 
 
 class LogReplay(FlexFusionSlave):
     """The columns of a recorded log (CSV or HDF5) as outputs, named as the estimator contract's
     inputs (``q_m_meas``, ``acc_s``, ``dddq_a_ref``, ..., ``t_meas``) and the plant's truth
-    (``q_a``, ``p_tool``, ...); the parameter ``columns`` says which column feeds which output.
+    (``q_a``, ``p_tool``, ...) and a reference system's measurement (``p_tool_meas`` with its
+    stamps ``t_tool_meas``, the judge of a study); the parameter ``columns`` says which column
+    feeds which output.
 
     The outputs at ``t + dt`` are the log at ``t + dt`` (no inputs, no direct feedthrough), after
     initialisation the log at the start time. ``t_meas`` is the time the held values were

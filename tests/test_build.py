@@ -217,3 +217,14 @@ def test_kernels_are_reused_when_only_other_modules_changed(every_fmu, tmp_path,
             return name.split("/")[1], z.read(name)
     (new_package, new_module), (old_package, old_module) = compiled(fmu), compiled(every_fmu["Encoder"])
     assert new_package != old_package and new_module == old_module
+
+
+def test_the_staged_package_and_the_working_tree_have_one_kernel_key(tmp_path) -> None:
+    """The manifest records the working tree's kernel key; the staged package (imports
+    rewritten to ``fmus_<hash>``) is compiled and cached under its own: they must be one."""
+    from orchestration import build
+    package = build._stage_package(tmp_path)
+    assert package.name != "fmus"
+    assert build.kernel_digest(package) == build.kernel_digest(build.FMU_SOURCES)
+    assert ([p.relative_to(package) for p in build.kernel_sources(package)]
+            == [p.relative_to(build.FMU_SOURCES) for p in build.kernel_sources(build.FMU_SOURCES)])

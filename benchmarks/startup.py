@@ -38,6 +38,7 @@ PHASES = ("import", "scenario", "extract", "instantiate", "setup", "first step")
 def measure(numba_outside: bool) -> dict[str, tuple[float, float]]:
     """CPU and wall seconds of each phase in this (fresh) process."""
     if numba_outside:
+        import fmus.common.dynamics  # noqa: F401 - kernels first: they name numba's cache folder (fmus.common.jit)
         import numba
         numba.njit("float64(float64)")(lambda x: x + 1.0)
     spent: dict[str, list[float]] = {p: [0.0, 0.0] for p in PHASES}

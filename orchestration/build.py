@@ -21,12 +21,21 @@ whatever time the host's extraction gives the files: a fresh extraction folder n
 compilation (about 0.1 s for the flagship's seven FMUs). Another Python version ignores it.
 
 Compiled kernels: the package's numba kernels that Python calls (``@kernel(aot=...)``,
-:mod:`fmus.common.jit`) are compiled ahead of time, once per build, into one extension module
-of the vendored package (``fmus_<hash>/_compiled.<EXT_SUFFIX>``, the same file in every FMU), so
-an FMU's process never imports numba nor compiles (:func:`compile_kernels`). It is kept in
-``build/aot`` under a key of the sources and the toolchain and reused by the next build of the
-same sources. If that compilation fails (or with ``FLEXFUSION_NO_AOT=1``) the build says why
-and goes on: its FMUs compile their kernels with numba at run time, as the working tree does.
+:mod:`fmus.common.jit`) are compiled ahead of time into one extension module of the vendored
+package (``fmus_<hash>/_compiled.<EXT_SUFFIX>``, the same file in every FMU), so an FMU's
+process never imports numba nor compiles (:func:`compile_kernels`). It is kept in ``build/aot``
+under a key of the sources it is made of (:func:`kernel_sources`: the modules with kernels and
+what they import from the package, not the whole package) and of the toolchain, and reused by
+every build of the same kernels: the next ``flexfusion build``, the test suite's build
+(tests/conftest.py), another package name. If that compilation fails (or with
+``FLEXFUSION_NO_AOT=1``) the build says why and goes on: its FMUs compile their kernels with
+numba at run time, as the working tree does.
+
+Incremental: the destination folder keeps a manifest (:data:`MANIFEST`) of what each FMU was
+made of (its script, the vendored package, the compiled kernels, the native FMI layer, this
+build script and the tools' versions, each by content) and of the FMU file's own hash; an FMU
+whose parts and file are unchanged is not built again, and the build says why it rebuilds the
+others (:func:`build_all`). Nothing changed: one line, in about a second.
 """
 from __future__ import annotations
 
@@ -48,12 +57,18 @@ from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
+import ast
+import json
+
 from fmus.common.jit import BUNDLE_ID_FILE, COMPILED_MODULE, package_digest, package_sources
 
 REPO = Path(__file__).resolve().parent.parent
 FMU_SOURCES = REPO / "fmus"
 DEFAULT_DEST = REPO / "dist" / "fmus"
 AOT_CACHE = REPO / "build" / "aot"
+MANIFEST = ".flexfusion-build.json"        # in the destination folder (build_all)
+# the sources of the build itself: a change rebuilds every FMU
+BUILD_SCRIPTS = [REPO / "orchestration" / "build.py", REPO / "orchestration" / "native.py"]
 # What the FMUs import besides the standard library and the bundled `fmus` package.
 FMU_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11", "numba>=0.60"]
 # What one feature imports when it is used (pyproject's optional dependencies).
@@ -92,47 +107,121 @@ def _stage_package(stage: Path) -> Path:
     return target
 
 
+def kernel_sources(package: Path) -> list[Path]:
+    """The sources below the package folder ``package`` that its compiled kernels are made of:
+    every module with a kernel (``@kernel``), each module of the package they import,
+    transitively (``import``/``from ... import``, absolute or relative, at any depth of the
+    code), and the ``__init__.py`` of every package on the way; sorted. A kernel's globals and
+    callees come from these modules only (numba freezes them when it compiles); kernels raise
+    only built-in exceptions (tests/test_aot.py), so nothing of the package's name is compiled
+    in."""
+    sources = {".".join(f.relative_to(package.parent).with_suffix("").parts).removesuffix(".__init__"): f
+               for f in package_sources(package)}
+    todo = [m for m, f in sources.items() if "@kernel" in f.read_text()]
+    seen: set[str] = set()
+    while todo:
+        module = todo.pop()
+        if module in seen or module not in sources:
+            continue
+        seen.add(module)
+        parts = module.split(".")
+        todo.extend(".".join(parts[:i]) for i in range(1, len(parts)))      # its packages
+        own = parts if sources[module].name == "__init__.py" else parts[:-1]
+        for node in ast.walk(ast.parse(sources[module].read_text())):
+            if isinstance(node, ast.Import):
+                todo.extend(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                base = ".".join([*own[:len(own) - node.level + 1], *([node.module] if node.module else [])]
+                                ) if node.level else node.module or ""
+                todo.append(base)
+                todo.extend(f"{base}.{a.name}" for a in node.names)
+    return sorted(sources[m] for m in seen)
+
+
+def kernel_digest(package: Path) -> str:
+    """SHA-256 (hex) of :func:`kernel_sources` of ``package``: each one's path and text, the
+    package's name read as ``fmus`` (the working tree and every vendored copy of the same
+    sources have one digest)."""
+    name = re.compile(rf"\b{re.escape(package.name)}\b")
+    digest = hashlib.sha256()
+    for f in kernel_sources(package):
+        digest.update(f.relative_to(package).as_posix().encode() + b"\0"
+                      + name.sub("fmus", f.read_text()).encode() + b"\0")
+    return digest.hexdigest()
+
+
+def kernels_key(package: Path) -> str | None:
+    """The key of ``package``'s compiled kernels in the cache (:func:`kernel_digest`, the numba
+    and llvmlite versions, the Python version, the extension suffix and ``$CC``), or None with
+    ``FLEXFUSION_NO_AOT`` set."""
+    if os.environ.get("FLEXFUSION_NO_AOT"):
+        return None
+    key = "\0".join([kernel_digest(package), *(importlib.metadata.version(d) for d in ("numba", "llvmlite")),
+                     sys.version, sysconfig.get_config_var("EXT_SUFFIX"), os.environ.get("CC", "")])
+    return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
+_AOT_SIGNATURE = re.compile(r"@kernel\(\s*aot=")
+
+
 def compile_kernels(package: Path, cache: Path = AOT_CACHE, quiet: bool = False) -> Path | None:
     """Compile the staged ``package``'s kernels ahead of time into its folder (see the module
     docstring), or copy them from ``cache``; None, with the reason on stderr, when they cannot
     be compiled (then the FMUs compile them just in time).
 
     The compilation runs in a process of its own (the staged package in just-in-time mode:
-    :func:`fmus.common.jit.compile_package`); the cache key is the package's bundle id, the
-    numba and llvmlite versions, the Python ABI and the C compiler (``CC``).
+    :func:`fmus.common.jit.compile_package`); the cache key is :func:`kernels_key`. Unless
+    ``quiet``, it says what it compiles and how long the last compilation took (kept in
+    ``cache``), then how long this one took.
     """
     module = COMPILED_MODULE + sysconfig.get_config_var("EXT_SUFFIX")
-    if os.environ.get("FLEXFUSION_NO_AOT"):
+    key = kernels_key(package)
+    if key is None:
         reason = "FLEXFUSION_NO_AOT is set"
     else:
-        key = "\0".join([(package / BUNDLE_ID_FILE).read_text().strip(), package.name,
-                         *(importlib.metadata.version(d) for d in ("numba", "llvmlite")),
-                         sys.version, module, os.environ.get("CC", "")])
-        target = cache / hashlib.sha256(key.encode()).hexdigest()[:16] / module
+        target = cache / key / module
         t0 = time.perf_counter()
         if not target.is_file():
+            if not quiet:
+                n = sum(len(_AOT_SIGNATURE.findall(f.read_text())) for f in kernel_sources(package))
+                last = cache / "last_compile_s"
+                took = (f"the last compilation took {float(last.read_text()):.0f} s" if last.is_file()
+                        else "about 1-2 min on an idle machine, several under load")
+                print(f"  compiling {n} kernels ahead of time (numba.pycc; {took}) ...", flush=True)
             target.parent.mkdir(parents=True, exist_ok=True)
             with tempfile.TemporaryDirectory(dir=target.parent) as out:
                 code = (f"from pathlib import Path; from {package.name}.common import jit; "
                         f"jit.compile_package(Path({out!r}))")
-                # a numba cache of its own: callees are linked in from their LLVM IR, never
-                # from a JIT run's cached machine code
-                env = {**os.environ, "PYTHONPATH": str(package.parent), "FLEXFUSION_CACHE_DIR": out}
+                # a numba cache of its own (numba's NUMBA_CACHE_DIR: nothing written into the
+                # staged package): callees are linked in from their LLVM IR, never from a JIT
+                # run's cached machine code
+                env = {**os.environ, "PYTHONPATH": str(package.parent), "FLEXFUSION_CACHE_DIR": out,
+                       "NUMBA_CACHE_DIR": out}
                 env.pop("NUMBA_DISABLE_JIT", None)
                 done = subprocess.run([sys.executable, "-c", code], cwd=package.parent, env=env,
                                       capture_output=True, text=True)
                 if done.returncode == 0:
                     os.replace(Path(out) / module, target)      # atomic: builds in parallel
+                    _write_atomically(cache / "last_compile_s", f"{time.perf_counter() - t0:.1f}\n")
+            if not quiet and target.is_file():
+                print(f"  compiled the kernels ({module}) in {time.perf_counter() - t0:.1f} s")
+        elif not quiet:
+            print(f"  kernels unchanged: {module} from {_shown(target.parent)}")
         if target.is_file():
             shutil.copy2(target, package / module)
-            if not quiet:
-                print(f"  compiled kernels ({module}) {time.perf_counter() - t0:5.2f} s")
             return package / module
         lines = (done.stderr or done.stdout).strip().splitlines()
         reason = f"compilation failed: {lines[-1] if lines else f'exit status {done.returncode}'}"
     print(f"flexfusion build: no ahead-of-time kernels ({reason}); the FMUs compile their kernels "
           "with numba when they run", file=sys.stderr)
     return None
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=".tmp", dir=path.parent)
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
 
 
 def _vendored(source: str, package: str) -> str:
@@ -235,10 +324,17 @@ def validate_fmu(path: Path) -> list[str]:
 def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: bool = False,
               scripts: list[Path] | None = None) -> list[Path]:
     """Build (and validate) every FMU, or those whose script stem or class is in ``only``
-    (a name that is neither is an error, before anything is built).
+    (a name that is neither is an error, before anything is built); an FMU whose parts are
+    unchanged since it was built into ``dest`` is kept (the module docstring). Unless
+    ``quiet``, says what it builds and why, or that nothing changed.
 
     ``scripts`` replaces the FMU scripts found below ``fmus/`` (e.g. the test toys in
     ``tests/fmus``); they still bundle the ``fmus`` package.
+
+    Returns
+    -------
+    list of Path
+        Every selected FMU, built now or kept, in the order of the scripts.
 
     Raises
     ------
@@ -246,6 +342,7 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
         Naming every FMU that failed to build or validate, with the reason.
     """
     from orchestration import native   # our FMI layer replaces pythonfmu's binary (native/README.md)
+    t_start = time.perf_counter()
     scripts = fmu_scripts() if scripts is None else [Path(p) for p in scripts]
     classes = {p: _CLASS.findall(p.read_text()) for p in scripts}
     names = {p: {p.stem, *classes[p]} for p in scripts}
@@ -253,18 +350,36 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     if unknown:
         known = sorted(c for cs in classes.values() for c in cs)
         raise BuildError(f"no FMU named {', '.join(unknown)} (known: {', '.join(known)})")
+    selected = [p for p in scripts if not only or set(only) & names[p]]
     library = native.build_library()
     dest.mkdir(parents=True, exist_ok=True)
-    built: list[Path] = []
+    manifest = _read_manifest(dest)
+    common = {"build": _digest(*BUILD_SCRIPTS), "tools": _tools(), "native": library.parent.name,
+              "package": package_digest(FMU_SOURCES), "kernels": kernels_key(FMU_SOURCES) or "none"}
+    parts = {p: {**common, "script": _digest(p)} for p in selected}
+    kept: dict[Path, Path] = {}
+    reasons: dict[Path, str] = {}
+    for p in selected:
+        reason = _stale(dest, manifest.get(str(p.resolve())), parts[p])
+        if reason is None:
+            kept[p] = dest / manifest[str(p.resolve())]["fmu"]
+        else:
+            reasons[p] = reason
+    if not reasons:
+        if not quiet:
+            print(f"nothing changed: {len(kept)} FMUs up to date in {dest} "
+                  f"({time.perf_counter() - t_start:.1f} s)")
+        return [kept[p] for p in selected]
+    if not quiet and kept:
+        print(f"  {len(kept)} FMUs up to date, {len(reasons)} to build")
+    built: dict[Path, Path] = {}
     failures: list[str] = []
     with tempfile.TemporaryDirectory(prefix="flexfusion_stage_") as tmp, ExitStack() as stack:
         stage = Path(tmp)
         package = _stage_package(stage)
-        compile_kernels(package, quiet=quiet)
+        aot = compile_kernels(package, quiet=quiet) is not None
         FmuBuilder = stack.enter_context(_installed_builder(package.name))  # noqa: N806 - a class
-        for script in scripts:
-            if only and not set(only) & names[script]:
-                continue
+        for script in reasons:
             t0 = time.perf_counter()
             try:
                 fmu = FmuBuilder.build_FMU(_stage_script(script, package), dest=dest,
@@ -278,13 +393,63 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
             problems = validate_fmu(Path(fmu))
             if problems:
                 failures.append(f"{Path(fmu).name}: fmpy validate: " + "; ".join(problems))
-            built.append(Path(fmu))
+            elif aot or common["kernels"] == "none":      # a failed compilation is tried again
+                manifest[str(script.resolve())] = {"fmu": Path(fmu).name, "sha256": _digest(Path(fmu)),
+                                                   "parts": parts[script]}
+            built[script] = Path(fmu)
             if not quiet:
                 status = "INVALID" if problems else "ok"
-                print(f"  {Path(fmu).name:<28} {status:<8} {time.perf_counter() - t0:5.2f} s")
+                print(f"  {Path(fmu).name:<28} {status:<8} {time.perf_counter() - t0:5.2f} s   ({reasons[script]})")
+    _write_atomically(dest / MANIFEST, json.dumps(manifest, indent=1, sort_keys=True) + "\n")
+    if not quiet and not failures:
+        print(f"built and validated {len(built)} FMUs, {len(kept)} kept, in {dest} "
+              f"({time.perf_counter() - t_start:.1f} s)")
     if failures:
         raise BuildError("FMU build failed:\n  " + "\n  ".join(failures))
-    return built
+    return [built.get(p) or kept[p] for p in selected]
+
+
+_CHANGED = {"script": "its script changed", "package": "the fmus package changed",
+            "kernels": "the compiled kernels changed", "native": "the native FMI layer changed",
+            "build": "the build script changed", "tools": "pythonfmu or Python changed"}
+
+
+def _stale(dest: Path, entry: dict | None, parts: dict[str, str]) -> str | None:
+    """Why the FMU of the manifest's ``entry`` must be built again for ``parts``, or None."""
+    if entry is None:
+        return "new"
+    for part, why in _CHANGED.items():
+        if entry["parts"].get(part) != parts[part]:
+            return why
+    try:
+        if _digest(dest / entry["fmu"]) == entry["sha256"]:
+            return None
+    except OSError:
+        return "its file is missing"
+    return "its file was changed"
+
+
+def _read_manifest(dest: Path) -> dict[str, dict]:
+    """The build manifest of ``dest`` (script path -> FMU file, its hash, its parts); empty
+    when there is none or it does not read (everything is built again)."""
+    try:
+        manifest = json.loads((dest / MANIFEST).read_text())
+        return manifest if isinstance(manifest, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def _digest(*files: Path) -> str:
+    digest = hashlib.sha256()
+    for f in files:
+        digest.update(f.read_bytes())
+    return digest.hexdigest()
+
+
+def _tools() -> str:
+    """The versions of what makes an FMU besides our sources: pythonfmu's builder, the Python
+    of the bytecode (:func:`add_bytecode`)."""
+    return f"pythonfmu {importlib.metadata.version('pythonfmu')}; {sys.implementation.cache_tag}"
 
 
 def _shown(script: Path) -> str:
@@ -300,11 +465,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("only", nargs="*", help="build only these FMUs (class or script name)")
     args = parser.parse_args(argv)
     try:
-        built = build_all(args.dest, args.only or None)
+        build_all(args.dest, args.only or None)       # it says what it did
     except BuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"built and validated {len(built)} FMUs in {args.dest}")
     return 0
 
 

@@ -222,6 +222,11 @@ class ProcessPool(Executor):
     The fork server may be older than this process's settings: the ``FLEXFUSION_*`` environment
     is passed on. Workers ignore SIGINT: a Ctrl-C reaches the whole process group, and it is
     this process that ends the study (and terminates them).
+
+    Its workers are found through public APIs (``ProcessPoolExecutor`` has no way to end them
+    before Python 3.14's ``terminate_workers``): the children of this process that
+    ``multiprocessing.active_children`` lists and that were not there when the pool was made;
+    the study process starts no other processes while its pool lives.
     """
 
     def __init__(self, workers: int) -> None:
@@ -229,6 +234,7 @@ class ProcessPool(Executor):
         self._pool = self._new()
 
     def _new(self) -> ProcessPoolExecutor:
+        self._before = {p.pid for p in multiprocessing.active_children()}    # not the pool's
         return ProcessPoolExecutor(max_workers=self.max_workers,
                                    mp_context=multiprocessing.get_context("forkserver"),
                                    initializer=_init_worker, initargs=(_flexfusion_environment(),))
@@ -243,12 +249,16 @@ class ProcessPool(Executor):
 
     def terminate(self) -> None:
         """Kill the workers (their running jobs are lost) and cancel the queued jobs."""
-        for proc in list((self._pool._processes or {}).values()):   # no public API before 3.14
+        for proc in self.workers():
             proc.terminate()
         self._pool.shutdown(wait=True, cancel_futures=True)
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
         self._pool.shutdown(wait=wait, cancel_futures=cancel_futures)
+
+    def workers(self) -> list[multiprocessing.Process]:
+        """The pool's live worker processes (see the class docstring)."""
+        return [p for p in multiprocessing.active_children() if p.pid not in self._before]
 
 
 def _flexfusion_environment() -> dict[str, str]:

@@ -5,7 +5,10 @@ last. What an FMU contains depends on ``fmus/``, ``orchestration/build.py``, the
 library (``orchestration/native``) and the installed pythonfmu, so no cheap check proves a
 ``dist/fmus`` current, and a stale one would test old code without a word. The run builds every
 FMU once, when the first test needs one (4-8 s here, 19 FMUs), into its own
-temporary folder; a test run that needs no FMU builds nothing. ``FLEXFUSION_FMU_DIR`` points at
+temporary folder; a test run that needs no FMU builds nothing. Its compiled kernels are those
+``flexfusion build`` compiled (``build/aot``, keyed by the sources they are made of:
+orchestration/build.py), so ``make demo`` then ``make test`` compiles them once; either
+compiles them when its sources changed since, so a test never runs stale kernels. ``FLEXFUSION_FMU_DIR`` points at
 a folder that does not exist for the whole run, so a scenario test that forgets the
 :func:`fmu_env` fixture fails ("no FMU ...") instead of silently running ``dist/fmus``.
 """

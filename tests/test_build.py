@@ -7,6 +7,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 import zipfile
 from pathlib import Path
 
@@ -125,3 +126,105 @@ class NotCompiling(importlib.machinery.SourceFileLoader):
 
     def source_to_code(self, data, path, *, _optimize=-1):
         raise AssertionError(f"{path}: the import compiles the source")
+
+
+def test_a_second_build_in_a_row_keeps_every_fmu_says_so_and_is_quick(every_fmu, tmp_path, capsys) -> None:
+    """``flexfusion build`` into the suite's own build folder (its manifest): nothing changed,
+    one line, under 10 s (the 19 FMUs' packaging and validation is skipped, 12-88 s before);
+    every FMU file untouched."""
+    from orchestration import build
+    dest = next(iter(every_fmu.values())).parent
+    stamps = {p: p.stat().st_mtime_ns for p in dest.glob("*.fmu")}
+    capsys.readouterr()
+    t0 = time.perf_counter()
+    assert build.main(["--dest", str(dest)]) == 0
+    took = time.perf_counter() - t0
+    out = capsys.readouterr().out
+    assert out.startswith(f"nothing changed: {len(every_fmu)} FMUs up to date in {dest} (") and out.count("\n") == 1
+    assert took < 10.0
+    assert {p: p.stat().st_mtime_ns for p in dest.glob("*.fmu")} == stamps
+
+
+def test_a_build_rebuilds_only_the_fmus_whose_parts_changed_and_says_why(every_fmu, tmp_path, capsys) -> None:
+    """Toy scripts (copies): a changed script rebuilds its FMU only; an FMU file changed or
+    removed in the folder is built again; the kernels are never compiled again: the suite's
+    build compiled them (every_fmu), and every other build of the same sources reuses them."""
+    scripts = []
+    for name in ("gain_fmu.py", "mass_spring_fmu.py", "source_fmu.py"):
+        scripts.append(tmp_path / name)
+        scripts[-1].write_text((TOYS / name).read_text())
+    dest = tmp_path / "fmus"
+    first = build_all(dest, scripts=scripts)
+    out = capsys.readouterr().out
+    assert "(new)" in out and "compiling" not in out           # kernels: the suite's cache
+    assert [p.name for p in first] == ["Gain.fmu", "MassSpring.fmu", "Source.fmu"]
+    scripts[0].write_text(scripts[0].read_text() + "\n# changed\n")
+    (dest / "Source.fmu").write_bytes((dest / "Source.fmu").read_bytes() + b"\0")
+    (dest / "MassSpring.fmu").unlink()
+    again = build_all(dest, scripts=scripts)
+    out = capsys.readouterr().out
+    assert again == first
+    assert re.search(r"Gain\.fmu +ok .*\(its script changed\)", out)
+    assert re.search(r"MassSpring\.fmu +ok .*\(its file is missing\)", out)
+    assert re.search(r"Source\.fmu +ok .*\(its file was changed\)", out)
+    assert "kernels unchanged" in out
+    build_all(dest, scripts=scripts)
+    assert capsys.readouterr().out.startswith("nothing changed: 3 FMUs up to date")
+
+
+def test_kernel_sources_are_the_kernels_modules_and_what_they_import(tmp_path) -> None:
+    """The compiled kernels' key covers the modules with kernels, their imports from the
+    package (absolute, relative, inside functions; transitively) and the packages on the
+    way; nothing else."""
+    from orchestration.build import kernel_digest, kernel_sources
+    pkg = tmp_path / "fmus_x"
+    files = {"__init__.py": "", "a/__init__.py": "", "b/__init__.py": "",
+             "a/kern.py": "from . import helper\nfrom fmus_x.a.consts import C\n@kernel\ndef k(): pass\n",
+             "a/helper.py": "def f():\n    from ..b import deep\n",
+             "a/consts.py": "C = 1\n", "b/deep.py": "X = 2\n", "b/other.py": "import fmus_x.a.kern\n",
+             "a/unused.py": "Y = 3\n"}
+    for name, text in files.items():
+        (pkg / name).parent.mkdir(parents=True, exist_ok=True)
+        (pkg / name).write_text(text)
+    assert [p.relative_to(pkg).as_posix() for p in kernel_sources(pkg)] == [
+        "__init__.py", "a/__init__.py", "a/consts.py", "a/helper.py", "a/kern.py", "b/__init__.py", "b/deep.py"]
+    before = kernel_digest(pkg)
+    (pkg / "a" / "unused.py").write_text("Y = 4\n")
+    (pkg / "b" / "other.py").write_text("Z = 1\n")
+    assert kernel_digest(pkg) == before
+    (pkg / "b" / "deep.py").write_text("X = 3\n")
+    assert kernel_digest(pkg) != before
+
+
+def test_kernels_are_reused_when_only_other_modules_changed(every_fmu, tmp_path, monkeypatch, capsys) -> None:
+    """A change of a module no kernel imports (henriksson2009_model): a new package name, the
+    same compiled kernels (reused, not compiled), byte for byte."""
+    import shutil
+
+    from orchestration import build
+    sources = tmp_path / "fmus"
+    shutil.copytree(REPO / "fmus", sources, ignore=shutil.ignore_patterns("__pycache__"))
+    changed = sources / "estimators" / "henriksson2009_model.py"
+    changed.write_text(changed.read_text() + "# another build\n")
+    monkeypatch.setattr(build, "FMU_SOURCES", sources)
+    fmu, = build_all(tmp_path / "out", only=["Encoder"])
+    out = capsys.readouterr().out
+    assert "kernels unchanged" in out and "compiling" not in out
+
+    def compiled(path: Path) -> tuple[str, bytes]:
+        with zipfile.ZipFile(path) as z:
+            name = next(n for n in z.namelist() if "/_compiled." in n)
+            return name.split("/")[1], z.read(name)
+    (new_package, new_module), (old_package, old_module) = compiled(fmu), compiled(every_fmu["Encoder"])
+    assert new_package != old_package and new_module == old_module
+
+
+def test_the_staged_package_and_the_working_tree_have_one_kernel_key(tmp_path) -> None:
+    """The manifest records the working tree's kernel key; the staged package (imports
+    rewritten to ``fmus_<hash>``) is compiled and cached under its own: they must be one."""
+    from orchestration import build
+    package = build._stage_package(tmp_path)
+    assert package.name != "fmus"
+    assert build.kernel_digest(package) == build.kernel_digest(build.FMU_SOURCES)
+    assert ([p.relative_to(package) for p in build.kernel_sources(package)]
+            == [p.relative_to(build.FMU_SOURCES) for p in build.kernel_sources(build.FMU_SOURCES)])

@@ -37,10 +37,11 @@ print(json.dumps({"failures": failures, "bundles": bundles, "outputs": outputs},
 def test_every_fmu_of_two_builds_in_one_plain_fmpy_process(tmp_path_factory, monkeypatch, every_fmu) -> None:
     import orchestration.build as build
     first = list(every_fmu.values())
-    # a second build from different sources (one more comment line): a different bundle
+    # a second build from different sources (one more comment line, in a module no kernel
+    # imports): a different bundle, with the same compiled kernels (build.kernel_sources)
     sources = tmp_path_factory.mktemp("other_sources") / "fmus"
     shutil.copytree(REPO / "fmus", sources, ignore=shutil.ignore_patterns("__pycache__"))
-    init = sources / "common" / "__init__.py"
+    init = sources / "estimators" / "henriksson2009_model.py"
     init.write_text(init.read_text() + "# another build\n")
     monkeypatch.setattr(build, "FMU_SOURCES", sources)
     second = build.build_all(tmp_path_factory.mktemp("second_build"), quiet=True)

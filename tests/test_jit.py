@@ -1,4 +1,5 @@
-"""fmus/common/jit.py: numba kernels whose on-disk cache survives an FMU's extraction folder."""
+"""fmus/common/jit.py: numba's own on-disk cache for the kernels, never stale: in an FMU's
+content-named folder, and in the working tree under a folder named by the package's content."""
 from __future__ import annotations
 
 import json
@@ -34,7 +35,8 @@ sys.path.insert(0, sys.argv[1])
 from {pkg}.common import kern
 value = kern.damped(0.3, 50)
 print(json.dumps({{"value": value.hex(), "hits": sum(kern.damped.stats.cache_hits.values()),
-                  "misses": sum(kern.damped.stats.cache_misses.values())}}))
+                  "misses": sum(kern.damped.stats.cache_misses.values()),
+                  "cache": kern.damped.stats.cache_path}}))
 '''
 
 
@@ -45,49 +47,112 @@ def _bundle(where: Path, pkg: str, bundle_id: str | None, kernel_src: str = KERN
     (where / pkg / "__init__.py").write_text("")
     (common / "__init__.py").write_text("")
     shutil.copy(REPO / "fmus" / "common" / "jit.py", common / "jit.py")
+    if pkg == "fmus":           # a working tree: its own fmus.common (an FMU's jit imports ours)
+        shutil.copy(REPO / "fmus" / "common" / "disk_cache.py", common / "disk_cache.py")
     (common / "kern.py").write_text(kernel_src.format(pkg=pkg))
     if bundle_id:
         (where / pkg / jit.BUNDLE_ID_FILE).write_text(bundle_id + "\n")
     return where
 
 
-def _probe(folder: Path, pkg: str, cache: Path) -> dict:
+def _probe(folder: Path, pkg: str, cache: Path, numba_cache_dir: str | None = None,
+           numba_first: bool = False) -> dict:
     env = {**os.environ, "FLEXFUSION_CACHE_DIR": str(cache)}
     env.pop("NUMBA_DISABLE_JIT", None)
-    out = subprocess.run([sys.executable, "-c", PROBE.format(pkg=pkg), str(folder)], env=env,
+    env.pop("NUMBA_CACHE_DIR", None)              # the test runner's own (fmus.common.jit set it)
+    if numba_cache_dir:
+        env["NUMBA_CACHE_DIR"] = numba_cache_dir
+    code = ("import numba\n" if numba_first else "") + PROBE.format(pkg=pkg)
+    out = subprocess.run([sys.executable, "-c", code, str(folder)], env=env,
                          capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    result["stderr"] = out.stderr
+    return result
 
 
-def test_cache_hits_in_a_fresh_extraction_folder_and_process(tmp_path):
-    """Two extractions of one bundle in two processes: compiled once, loaded from disk after."""
+def test_an_fmu_package_hits_numbas_own_cache_in_its_folder_across_processes(tmp_path):
+    """An FMU's package (BUNDLE_ID) with numba's own cache (``__pycache__`` beside it): compiled
+    in the first process, loaded from disk in the next; through a symbolic link (the FMU
+    store's folders link to one shared package) too. Another extraction folder of the same
+    package compiles again (numba's cache follows the folder: a host extracting afresh in
+    each process compiles in each)."""
+    folder = _bundle(tmp_path / "x1", "fmus_abc", "ab" * 32)
+    first = _probe(folder, "fmus_abc", tmp_path / "cache")
+    second = _probe(folder, "fmus_abc", tmp_path / "cache")
+    (tmp_path / "fmu2").mkdir()
+    os.symlink(folder / "fmus_abc", tmp_path / "fmu2" / "fmus_abc", target_is_directory=True)
+    linked = _probe(tmp_path / "fmu2", "fmus_abc", tmp_path / "cache")
+    elsewhere = _probe(_bundle(tmp_path / "x2", "fmus_abc", "ab" * 32), "fmus_abc", tmp_path / "cache")
+    assert (first["misses"], first["hits"]) == (1, 0)
+    assert (second["misses"], second["hits"]) == (0, 1)
+    assert (linked["misses"], linked["hits"]) == (0, 1)
+    assert (elsewhere["misses"], elsewhere["hits"]) == (1, 0)
+    assert first["value"] == second["value"] == linked["value"] == elsewhere["value"]
+    assert any((folder / "fmus_abc" / "common" / "__pycache__").glob("kern.damped-*.nbi"))
+    assert not (tmp_path / "cache").exists()          # nothing under the working tree's folders
+
+
+CALLER = '''
+from {pkg}.common.jit import kernel
+from {pkg}.common.callee import inner
+
+@kernel
+def damped(x, n):
+    s = 0.0
+    for i in range(n):
+        s = s * 0.5 + inner(x, i)
+    return s
+'''
+
+CALLEE = '''
+import math
+from {pkg}.common.jit import kernel
+
+@kernel
+def inner(x, i):
+    return math.tanh(x * i)
+'''
+
+
+def test_the_working_tree_never_loads_a_kernel_whose_callee_changed(tmp_path):
+    """numba's own check covers only the kernel's file: with a callee in another module
+    changed, it would load the old machine code. The working tree's cache folder is named by
+    the whole package (NUMBA_CACHE_DIR): the changed callee compiles anew, and the old
+    package's kernels are found again when it comes back."""
+    tree = _bundle(tmp_path / "tree", "fmus", None, CALLER)
+    callee = tree / "fmus" / "common" / "callee.py"
+    callee.write_text(CALLEE.format(pkg="fmus"))
     cache = tmp_path / "cache"
-    first = _probe(_bundle(tmp_path / "x1", "fmus_abc", "ab" * 32), "fmus_abc", cache)
-    second = _probe(_bundle(tmp_path / "x2", "fmus_abc", "ab" * 32), "fmus_abc", cache)
-    assert first["misses"] == 1 and first["hits"] == 0
-    assert second["hits"] == 1 and second["misses"] == 0
-    assert second["value"] == first["value"]
-    assert list((cache / "numba").iterdir()) == [cache / "numba" / ("ab" * 8 + "-fmus_abc")]
+    before = _probe(tree, "fmus", cache)
+    callee.write_text(CALLEE.format(pkg="fmus").replace("x * i", "x * i * 0.5"))
+    after = _probe(tree, "fmus", cache)
+    s = 0.0
+    import math
+    for i in range(50):
+        s = s * 0.5 + math.tanh(0.3 * i * 0.5)
+    assert (before["misses"], after["misses"], after["hits"]) == (1, 1, 0)
+    assert after["value"] == s.hex() != before["value"]
+    callee.write_text(CALLEE.format(pkg="fmus"))
+    back = _probe(tree, "fmus", cache)
+    assert (back["hits"], back["value"]) == (1, before["value"])
+    assert len(list((cache / "numba").iterdir())) == 2
 
 
-def test_changed_sources_never_load_a_stale_kernel(tmp_path):
-    """Another bundle id (any source changed) compiles anew, in its own folder."""
-    cache = tmp_path / "cache"
-    _probe(_bundle(tmp_path / "x1", "fmus_abc", "ab" * 32), "fmus_abc", cache)
-    changed = KERNEL.replace("0.5", "0.25")
-    other = _probe(_bundle(tmp_path / "x2", "fmus_abc", "cd" * 32, changed), "fmus_abc", cache)
-    assert other["misses"] == 1 and other["hits"] == 0
-    assert sorted(p.name for p in (cache / "numba").iterdir()) == ["ab" * 8 + "-fmus_abc", "cd" * 8 + "-fmus_abc"]
-
-
-def test_the_working_tree_and_an_fmu_of_the_same_sources_keep_apart(tmp_path):
-    """One bundle id, two packages (``fmus`` and an FMU's ``fmus_<hash>`` with its imports
-    rewritten): each keeps its own compiled copy instead of overwriting the other's."""
-    cache = tmp_path / "cache"
-    for pkg in ("fmus_abc", "fmus_abd", "fmus_abc"):
-        _probe(_bundle(tmp_path / f"x-{pkg}-{len(list(tmp_path.iterdir()))}", pkg, "ab" * 32), pkg, cache)
-    again = _probe(_bundle(tmp_path / "last", "fmus_abd", "ab" * 32), "fmus_abd", cache)
-    assert again["hits"] == 1 and again["misses"] == 0
+def test_the_working_tree_compiles_uncached_where_numba_is_configured_elsewhere(tmp_path):
+    """numba imported before the kernels, or the user's own NUMBA_CACHE_DIR: no folder named by
+    the package's content can be given to numba, so the kernels compile without a cache (right,
+    slower), and one warning says why."""
+    tree = _bundle(tmp_path / "tree", "fmus", None)
+    imported = _probe(tree, "fmus", tmp_path / "cache", numba_first=True)
+    users = _probe(tree, "fmus", tmp_path / "cache", numba_cache_dir=str(tmp_path / "mine"))
+    for got, cause in ((imported, "numba was imported before"), (users, "NUMBA_CACHE_DIR is set")):
+        assert got["cache"] is None and got["hits"] == 0
+        assert cause in got["stderr"] and "compiled without numba's cache" in got["stderr"]
+    assert imported["value"] == users["value"]
+    assert not (tmp_path / "mine").exists()
+    other_tree = _probe(tree, "fmus", tmp_path / "cache", numba_cache_dir=str(tmp_path / "x" / ("ab" * 8 + "-fmus")))
+    assert other_tree["cache"].startswith(str(tmp_path / "cache" / "numba"))
+    assert "without numba's cache" not in other_tree["stderr"]
 
 
 def test_kernel_rounds_as_plain_python(tmp_path):
@@ -110,7 +175,8 @@ def test_unwritable_cache_falls_back_to_the_temporary_folder(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")          # a file where the cache folder should be: not writable
     env = {**os.environ, "FLEXFUSION_CACHE_DIR": str(blocker), "PYTHONPATH": str(REPO)}
-    code = "from fmus.common import jit; print(jit._kernel_cache_dir())"
+    env.pop("NUMBA_CACHE_DIR", None)
+    code = "import os; from fmus.common import jit; jit._cached(); print(os.environ['NUMBA_CACHE_DIR'])"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert "flexfusion-numba-" in out.stdout and str(blocker) not in out.stdout
 

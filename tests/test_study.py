@@ -330,3 +330,29 @@ def test_a_dask_cluster_recovers_a_killed_worker_and_the_folder_keeps_every_run(
     with study.StudyFolder(out, resume=True), study.open_executor(workers=1) as ex:
         assert study.map_jobs(_square_logged, jobs, ex, star=True, progress=False) == [0, 1, 4, 9]
     assert _ran(log) == []
+
+
+def test_process_pool_terminate_ends_its_busy_workers_and_only_them():
+    """``ProcessPool.terminate`` (public APIs: the children started since the pool was made)
+    ends workers in the middle of a long job at once; a child this process started before the
+    pool lives on."""
+    import multiprocessing
+    other = multiprocessing.get_context("spawn").Process(target=time.sleep, args=(60,))
+    other.start()
+    pool = study.ProcessPool(2)
+    try:
+        jobs = [pool.submit(time.sleep, 60) for _ in range(2)]
+        deadline = time.monotonic() + 60
+        while len(pool.workers()) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        workers = pool.workers()
+        assert len(workers) == 2 and other.pid not in {w.pid for w in workers}
+        t0 = time.monotonic()
+        pool.terminate()
+        assert time.monotonic() - t0 < 30               # not the 60 s of the jobs
+        assert not any(w.is_alive() for w in workers)
+        assert all(j.done() for j in jobs)
+        assert other.is_alive()
+    finally:
+        other.terminate()
+        other.join()

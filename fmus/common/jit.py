@@ -17,20 +17,25 @@ signature, a compiled kernel raises TypeError (the JIT would compile another ver
 pass one type (e.g. ``np.ascontiguousarray(x, float)``, ``float(v)``, ``tuple(s)``).
 
 Just in time (the working tree, studies, an FMU built with ``FLEXFUSION_NO_AOT=1`` or without the
-module for this Python, which then says so once): ``numba.njit`` with caching. numba's own
-cache keys a function by the folder of its source file, so a kernel inside an FMU, which every
-host extracts to a fresh folder, would be compiled again in every process (about a second per
-kernel). Here the cache folder is keyed by the *content* of
-the package instead: the bundle id that ``orchestration/build.py`` writes into every FMU
-(``BUNDLE_ID``: the hash of all of the package's sources), or the same hash computed over the
-working tree's ``fmus``. So every FMU of one build, every process, and the working tree with the
-same sources share one compiled copy, and any change of any source (a kernel, or a function it
-calls in another module) gives a new folder: nothing stale is ever loaded.
+module for this Python, which then says so once): ``numba.njit(cache=True)``, numba's public
+on-disk cache, which finds a kernel again by its source file's folder and content. Two rules
+keep it from ever loading a stale kernel, since a cached kernel has its callees in other
+modules compiled in and numba's check covers only its own file (a changed callee is not seen):
 
-Where the cache lives: ``$FLEXFUSION_CACHE_DIR``, else ``$XDG_CACHE_HOME/flexfusion``, else
-``~/.cache/flexfusion``, under ``numba/<16 hex of the bundle id>-<package name>/``; if that cannot be written,
-a folder in the system's temporary directory. ``NUMBA_DISABLE_JIT=1`` runs the kernels as plain
-Python (numba's own switch), for debugging.
+* in an FMU's package (a ``BUNDLE_ID`` file: ``orchestration/build.py``), numba's default
+  place, ``__pycache__`` beside the sources. The FMU store extracts a package to a folder named
+  by its content (shared by every FMU and process that bundles it), so a changed package is
+  another folder: compiled once per package content (measured in ARCHITECTURE.md). A host
+  that extracts each FMU afresh compiles in each process (the ahead-of-time module saves it);
+* in the working tree, numba's ``NUMBA_CACHE_DIR`` names a folder of the whole package's
+  content, ``<cache root>/numba/<16 hex of the bundle id>-fmus`` (the root of
+  :mod:`fmus.common.disk_cache`; a folder of the system's temporary directory if that cannot
+  be written): any source changed, another folder. It is set for the process (and its
+  children) when numba is not imported yet and the variable is unset or another FlexFusion
+  tree's; otherwise (numba imported first, or ``NUMBA_CACHE_DIR`` the user's) the kernels are
+  compiled without a cache, with one warning naming the cause.
+
+``NUMBA_DISABLE_JIT=1`` runs the kernels as plain Python (numba's own switch), for debugging.
 
 Kernels are compiled without ``fastmath``: floating point is evaluated in source order with no
 contraction into fused multiply-adds, so a scalar kernel rounds as the same Python code does.
@@ -42,6 +47,8 @@ import hashlib
 import importlib
 import logging
 import os
+import re
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any, Callable
@@ -82,10 +89,11 @@ def bundle_id() -> str:
 
 
 def cache_dir() -> Path:
-    """The folder holding the compiled kernels of this package's sources (see the module doc)."""
-    # the package's name too: an FMU's copy (``fmus_<hash>``, imports rewritten) and the working
-    # tree (``fmus``) have one bundle id but different source files
+    """The working tree's folder of compiled kernels, named by its sources (module docstring)."""
     return cache_root() / "numba" / f"{bundle_id()[:16]}-{PACKAGE.name}"
+
+
+_OURS = re.compile(r"[0-9a-f]{16}-\w+")        # the name of a cache_dir(), of any tree
 
 
 def _writable(path: Path) -> bool:
@@ -108,38 +116,25 @@ def _kernel_cache_dir() -> Path:
 
 
 @functools.lru_cache(maxsize=None)
-def _register_locator() -> None:
-    """Put a cache locator for this package's kernels in front of numba's own ones.
-
-    numba picks the first locator class whose ``from_function`` accepts a function; ours
-    accepts only functions defined in a file of this package, so other numba users in the same
-    process (a host's own code) keep numba's default behaviour.
-    """
-    from numba.core import caching
-    impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl      # public from numba 0.61
-
-    class BundleLocator(caching.UserProvidedCacheLocator):
-        """The cache of one kernel: in the bundle's folder, one subfolder per source module.
-        numba's source stamp (the SHA-256 of the file's content) guards each entry too."""
-
-        def __init__(self, py_func: Any, py_file: str):
-            self._py_file = py_file
-            self._lineno = py_func.__code__.co_firstlineno
-            self._cache_path = str(_kernel_cache_dir() / Path(py_file).resolve().relative_to(PACKAGE).with_suffix(""))
-
-        def get_cache_path(self) -> str:
-            return self._cache_path
-
-        @classmethod
-        def from_function(cls, py_func: Any, py_file: str) -> Any:
-            try:
-                Path(py_file).resolve().relative_to(PACKAGE)
-            except (ValueError, OSError):
-                return None
-            # the source-file mixin's constructor-and-check (the user-dir base asks for NUMBA_CACHE_DIR)
-            return super(caching.UserProvidedCacheLocator, cls).from_function(py_func, py_file)
-
-    impl._locator_classes.insert(0, BundleLocator)
+def _cached() -> bool:
+    """Whether this package's kernels use numba's on-disk cache; sets the working tree's
+    ``NUMBA_CACHE_DIR`` first (the rules of the module docstring)."""
+    if (PACKAGE / BUNDLE_ID_FILE).is_file():
+        return True                          # an FMU's package: in its content-named folder
+    wanted = str(_kernel_cache_dir())
+    current = os.environ.get("NUMBA_CACHE_DIR", "")
+    if "numba" not in sys.modules and (not current or _OURS.fullmatch(Path(current).name)):
+        os.environ["NUMBA_CACHE_DIR"] = wanted
+        return True
+    import numba
+    if numba.config.CACHE_DIR == wanted:
+        return True
+    cause = (f"NUMBA_CACHE_DIR is set ({current})" if current
+             else "numba was imported before fmus.common.jit")
+    logging.getLogger(__name__).warning(
+        "%s: the kernels of %s are compiled without numba's cache (a cache must be named by the "
+        "package's content: %s)", cause, PACKAGE.name, wanted)
+    return False
 
 
 def export_name(function: Callable) -> str:
@@ -188,7 +183,7 @@ class PythonKernel:
 
 
 def kernel(function: Callable | None = None, *, aot: str | None = None, **options: Any) -> Any:
-    """``numba.njit`` with the on-disk cache of this module; ``@kernel`` or ``@kernel(...)``.
+    """``numba.njit`` with numba's on-disk cache (module docstring); ``@kernel`` or ``@kernel(...)``.
 
     ``function`` is the kernel (or None when options are given); ``options`` go to
     ``numba.njit`` (``cache=True`` is implied; ``fastmath`` stays off). A function with no source
@@ -207,9 +202,8 @@ def kernel(function: Callable | None = None, *, aot: str | None = None, **option
         compiled = compiled_module()
         if compiled is not None:
             return getattr(compiled, export_name(fn)) if aot else PythonKernel(fn)
+        cache = os.path.isfile(fn.__code__.co_filename) and _cached()
         import numba
-        _register_locator()
-        cache = os.path.isfile(fn.__code__.co_filename)
         dispatcher = numba.njit(cache=cache, **options)(fn)
         dispatcher.aot_signature = aot
         return dispatcher
@@ -237,6 +231,7 @@ def compile_package(output_dir: Path | None = None) -> list[str]:
     assert compiled_module() is None, "compile_package needs the just-in-time kernels"
     cc = CC(COMPILED_MODULE, source_module=__name__)
     cc.output_dir = str(output_dir or PACKAGE)
+    exported: list[str] = []
     for source in package_sources(PACKAGE):
         if "@kernel" not in source.read_text():
             continue
@@ -245,6 +240,7 @@ def compile_package(output_dir: Path | None = None) -> list[str]:
         for value in vars(module).values():
             if (isinstance(value, CPUDispatcher) and getattr(value, "aot_signature", None)
                     and value.py_func.__module__ == module.__name__):
-                cc.export(export_name(value.py_func), value.aot_signature)(value.py_func)
+                exported.append(export_name(value.py_func))
+                cc.export(exported[-1], value.aot_signature)(value.py_func)
     cc.compile()
-    return sorted(entry.symbol for entry in cc._export_entries)
+    return sorted(exported)

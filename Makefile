@@ -12,7 +12,7 @@ all: demo
 $(STAMP): pyproject.toml requirements.lock
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -c requirements.lock -e '.[dask,cosim,test,replay]'
+	$(BIN)/pip install -q -c requirements.lock -e '.[dask,cosim,test,replay,bench]'
 	touch $@
 
 env: $(STAMP)

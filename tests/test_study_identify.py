@@ -57,8 +57,11 @@ def test_cli_identifies_the_ideal_plant_and_writes_the_report_and_include(tmp_pa
         assert abs(p["relative_error"]) < 0.01, name
         assert p["biased"] is False and "std" in p and "reason" in p
     assert rep["fixed"]["m1"]["reason"].startswith("fixed at the nominal")
+    assert "delta" not in rep["fixed"] and "w_c" not in rep["fixed"]      # fitted, not held at the plant's
+    assert set(rep["fixed"]) == set(ident.FIXED) == set(ident.FIXED_REASONS)
     # the study's criterion: the calibration of an ideal accelerometer is estimated as ideal
-    assert rep["criterion"] == {"prefilter": 25.0, "prefilter_order": 4, "acc_calibration": True}
+    assert rep["criterion"] == {"prefilter": 25.0, "prefilter_order": 4, "acc_calibration": True,
+                                "initial_state": True}
     cal = rep["acc_calibration"]
     assert abs(cal["scale_x"]) < 1e-4 and abs(cal["scale_z"]) < 1e-4 and max(map(abs, cal["bias"])) < 1e-3
     doc = tomllib.loads(inc.read_text())
@@ -190,13 +193,19 @@ def test_report_says_which_estimates_are_biased_and_why():
     values = dict(zip(ident.NAMES, ident.parameter_values(true)))
     std = {n: 1e-3 * v for n, v in values.items()}
     values["k_lo[1]"] *= 1.01                                   # 10 std off
-    values["d[2]"] *= 1.002                                     # 2 std off: not biased
+    values["d[2]"] *= 1.0015                                    # 1.5 std off: not biased, covered
     std["f_v[1]"] = float("inf")
     fit = ident.Fit(ident.robot_from_values(list(values.values()), true), values, std, 1.0, 1.0, 100, 3, True, "")
     rep = study_identify.report(fit, true, ideal=False)
     assert rep["biased"] == ["k_lo[1]"] and rep["plant"]["unmodelled_dynamics"] is True
     assert "dynamics the model lacks" in rep["parameters"]["k_lo[1]"]["reason"]
-    assert_allclose(rep["parameters"]["k_lo[1]"]["error_in_std"], 10.0, rtol=1e-6)
+    # the error in std of log(value) (the fit runs in log space): log(1.01) / (1e-3 / 1.01)
+    assert_allclose(rep["parameters"]["k_lo[1]"]["error_in_std"], np.log(1.01) * 1.01e3, rtol=1e-12)
+    assert rep["parameters"]["k_lo[1]"]["covers_true"] is False and rep["parameters"]["d[2]"]["covers_true"] is True
+    lo, hi = rep["parameters"]["d[2]"]["interval95"]
+    assert_allclose(np.log(hi / lo) / 2, 1.959963984540054 * 1e-3 / 1.0015, rtol=1e-12)
+    assert rep["uncertainty"]["coverage"]["true"]["not_covered"] == ["k_lo[1]"]
+    assert rep["uncertainty"]["coverage"]["true"]["of"] == len(ident.NAMES) - 1
     assert rep["parameters"]["d[2]"]["biased"] is False
     assert rep["parameters"]["f_v[1]"]["std"] is None and "not determined" in rep["parameters"]["f_v[1]"]["reason"]
     json.dumps(rep)                                              # JSON-able (no inf, no numpy types)

@@ -18,8 +18,12 @@ separate identification procedure"; Wernholt & Moberg 2008), the study
    read: the fit assumes the nominal mounting (identity);
 3. reports the fitted values beside the plant's true ones (read from the scenario: the
    simulation's privilege, used for the report only, never in the fit), with one standard
-   deviation from ``s^2 (J^T J)^-1`` and whether each is biased (error beyond 3 std), in
-   ``identify.json``;
+   deviation and a 95 % interval from the autocorrelation-consistent covariance
+   (:mod:`orchestration.identification`, *Uncertainty*; the former white-residual one beside it
+   as ``std_white``), whether each interval covers the true value and whether each estimate is
+   biased (error beyond 3 std), in ``identify.json``; with ``--effective`` also the effective
+   values the reduced model reaches on this plant (the fitted values of a noise-free, long
+   identification run with ``--noise-free``) and whether each interval covers them;
 4. writes the identified :class:`RobotParameters` as the parameter set ``identified_robot``
    (``[parameter_sets.identified_robot]``, see :mod:`orchestration.scenario`) of an include
    file that the paper scenarios use.
@@ -32,6 +36,7 @@ CLI::
 
     flexfusion study identify [SCENARIO] --out DIR [--working-point X,Z ...] [--amplitude A]
         [--stop-time S] [--max-nfev N] [--prefilter HZ] [--no-acc-calibration] [--include FILE]
+        [--noise-free | --effective IDENTIFY_JSON]
         [--set COMP.PARAM=VALUE ...] [--workers K | --scheduler ADDR]
 
 writes ``DIR/identify.json`` and the include file (default ``DIR/identified_robot.toml``). A
@@ -214,9 +219,16 @@ def report(fit: ident.Fit, true: Any, ideal: bool | None, effective: dict[str, A
     for name in ident.NAMES:
         v, t, s = fit.values[name], float(true_values[name]), fit.std[name]
         sl = _std_log(fit, name)
+        bound = (fit.at_bound or {}).get(name)
         z, covers = _judge(v, sl, t, cv)
+        if bound is not None:               # not determined: the stated range is the interval
+            covers = bool(bound[0] <= t <= bound[1])
         biased = bool(z is not None and not z <= BIAS_LIMIT and abs(v / t - 1.0) > RESOLUTION)
-        if z is None:
+        if bound is not None:
+            biased = False
+            reason = (f"on the bound of its stated range {bound[0]:g}-{bound[1]:g}: not determined by these "
+                      "experiments; the range is its interval")
+        elif z is None:
             s = None
             reason = "not determined by these experiments (infinite std): add a working point that excites it"
         elif biased:
@@ -230,7 +242,9 @@ def report(fit: ident.Fit, true: Any, ideal: bool | None, effective: dict[str, A
             reason = f"error {abs(v / t - 1.0):.1e} relative, below the fit's resolution {RESOLUTION:g}"
         entry = {"fitted": v, "true": t, "std": s, "relative_error": v / t - 1.0,
                  "relative_std": None if s is None else s / v, "error_in_std": z,
-                 "interval95": None if s is None else [v * math.exp(-cv * sl), v * math.exp(cv * sl)],
+                 "interval95": (list(bound) if bound is not None else None if s is None else
+                                [v * math.exp(-cv * sl), v * math.exp(cv * sl)]),
+                 "at_bound": bound is not None,
                  "covers_true": covers, "biased": biased, "reason": reason}
         if fit.std_log_white is not None:
             zw, cw = _judge(v, fit.std_log_white[name], t)
@@ -239,6 +253,8 @@ def report(fit: ident.Fit, true: Any, ideal: bool | None, effective: dict[str, A
         if eff_values is not None:
             e = float(eff_values[name])
             ze, ce = _judge(v, sl, e, cv)
+            if bound is not None:
+                ce = bool(bound[0] <= e <= bound[1])
             entry.update({"effective": e, "effective_relative_to_true": e / t - 1.0,
                           "relative_error_to_effective": v / e - 1.0, "error_in_std_to_effective": ze,
                           "covers_effective": ce})

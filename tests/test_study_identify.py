@@ -211,3 +211,43 @@ def test_report_says_which_estimates_are_biased_and_why():
     json.dumps(rep)                                              # JSON-able (no inf, no numpy types)
     rep = study_identify.report(fit, true, ideal=None)
     assert rep["plant"]["unmodelled_dynamics"] is False and "insufficient" in rep["parameters"]["k_lo[1]"]["reason"]
+
+
+def test_report_gives_effective_values_their_coverage_and_bounded_estimates_their_range(tmp_path):
+    """``--effective``: the effective values (a noise-free fit's identify.json) beside the true
+    ones, with whether each 95 % interval covers them; an estimate on the bound of its stated
+    range is not determined: its interval is the range."""
+    true = RobotParameters()
+    values = dict(zip(ident.NAMES, ident.parameter_values(true)))
+    std = {n: 1e-3 * v for n, v in values.items()}
+    values["k_hi[1]"] *= 0.9                                     # biased against the truth ...
+    values["w_c[1]"] = ident.RANGES["w_c"][0]                    # ... on its bound
+    bound = {n: (ident.RANGES["w_c"] if n == "w_c[1]" else None) for n in ident.NAMES}
+    fit = ident.Fit(ident.robot_from_values(list(values.values()), true), values, std, 1.0, 1.0, 100, 3, True, "",
+                    at_bound=bound)
+    eff_file = tmp_path / "identify.json"
+    eff = {n: {"fitted": v * (1.0005 if n == "k_hi[1]" else 1.0)} for n, v in values.items()}
+    eff_file.write_text(json.dumps({"parameters": eff, "experiments": {"duration": 4.8}, "fit": {"converged": True}}))
+    rep = study_identify.report(fit, true, ideal=False, effective=study_identify.load_effective(eff_file))
+    k = rep["parameters"]["k_hi[1]"]
+    assert k["covers_true"] is False and k["covers_effective"] is True
+    assert_allclose(k["effective"], values["k_hi[1]"] * 1.0005)
+    w = rep["parameters"]["w_c[1]"]
+    assert w["at_bound"] and w["interval95"] == list(ident.RANGES["w_c"]) and "stated range" in w["reason"]
+    assert w["covers_true"] is True and w["biased"] is False
+    cov = rep["uncertainty"]["coverage"]
+    assert cov["effective"]["covered"] == 20 and cov["true"]["not_covered"] == ["k_hi[1]"]
+    assert rep["effective"]["experiments"] == {"duration": 4.8}
+    json.dumps(rep)
+
+
+def test_bad_effective_file_is_one_error(tmp_path, capsys):
+    missing = tmp_path / "none.json"
+    assert main(["study", "identify", "--out", str(tmp_path), "--effective", str(missing)]) == 2
+    assert f"--effective {missing}: no such file" in capsys.readouterr().err
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"parameters": {}}')
+    assert main(["study", "identify", "--out", str(tmp_path), "--effective", str(bad)]) == 2
+    assert "not an identify.json with every fitted parameter" in capsys.readouterr().err
+    assert main(["study", "identify", "--out", str(tmp_path), "--effective", str(bad), "--noise-free"]) == 2
+    assert "give one" in capsys.readouterr().err

@@ -192,6 +192,11 @@ def _std_log(fit: ident.Fit, name: str) -> float:
     return fit.std[name] / fit.values[name]
 
 
+def _interval(value: float, half: float) -> list[float | None]:
+    """``value exp(+-half)``; an upper end beyond floating point is None (unbounded)."""
+    return [value * math.exp(-half), value * math.exp(half) if half < 700.0 else None]
+
+
 def _judge(value: float, std_log: float, target: float, cv: float = Z95) -> tuple[float | None, bool | None]:
     """Error of ``value`` against ``target`` in std of ``log`` and whether the 95 % interval
     ``value exp(+-cv std_log)`` covers ``target`` (None, None if the std is not finite)."""
@@ -243,7 +248,7 @@ def report(fit: ident.Fit, true: Any, ideal: bool | None, effective: dict[str, A
         entry = {"fitted": v, "true": t, "std": s, "relative_error": v / t - 1.0,
                  "relative_std": None if s is None else s / v, "error_in_std": z,
                  "interval95": (list(bound) if bound is not None else None if s is None else
-                                [v * math.exp(-cv * sl), v * math.exp(cv * sl)]),
+                                _interval(v, cv * sl)),
                  "at_bound": bound is not None,
                  "covers_true": covers, "biased": biased, "reason": reason}
         if fit.std_log_white is not None:

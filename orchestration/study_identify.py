@@ -415,7 +415,7 @@ def _summary(rep: dict[str, Any]) -> str:
 # the study
 # ---------------------------------------------------------------------------------------------
 def identify(scenario: str | Path, out: Path, executor: Any, *, points: Sequence[Sequence[float]] = WORKING_POINTS,
-             overrides: Sequence[str] = (), amplitude: float | None = None, max_nfev: int = 40,
+             overrides: Sequence[str] = (), amplitude: float | None = None, max_nfev: int = 60,
              criterion: ident.Criterion = ident.PRACTICE, include: Path | None = None, command: str = "",
              progress: bool = True, effective: dict[str, Any] | None = None,
              noise_free: bool = False) -> dict[str, Any]:
@@ -565,8 +565,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--amplitude", type=float, default=None, help="multisine RMS per joint, N m "
                    "(default: the scenario's)")
     p.add_argument("--stop-time", type=float, default=None, help="length of each experiment (s)")
-    p.add_argument("--max-nfev", type=_positive, default=40, help="residual evaluations of the optimiser "
-                   "(default 40)")
+    p.add_argument("--max-nfev", type=_positive, default=60, help="residual evaluations of the optimiser "
+                   "(default 60: the realistic plant took 37 with delta and w_c fitted)")
     p.add_argument("--prefilter", type=float, default=ident.PRACTICE.prefilter, metavar="HZ",
                    help="low-pass cut-off of the output-error prefilter, Hz (0: none; default "
                    f"{ident.PRACTICE.prefilter:g}, below the link bending mode)")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -27,14 +28,15 @@ DURATION = 0.8
 
 
 def make_experiments(p: RobotParameters, noise: ident.NoiseLevels | None = None, seed: int = 0,
-                     duration: float = DURATION) -> list[ident.Experiment]:
+                     duration: float = DURATION, points: Sequence[Sequence[float]] = POINTS
+                     ) -> list[ident.Experiment]:
     """Experiments on the model ``p`` itself (no unmodelled dynamics), optionally with white
     measurement noise of the given levels."""
     n = int(round(duration / 1e-3))
     t = np.arange(n + 1) * 1e-3
     rng = np.random.default_rng(seed)
     exps = []
-    for k, point in enumerate(POINTS):
+    for k, point in enumerate(points):
         ctrl = MotionControllerParameters(path="csv", csv_file=str(CSV), path_start=point,
                                           excitation_amplitude=(0.5, 0.5), excitation_seed=k)
         x0 = dynamics.static_equilibrium(kinematics.inverse_kinematics(np.array(point), p), p)
@@ -134,12 +136,12 @@ def test_non_finite_residual_is_an_error(clean_experiments):
 
 
 def test_unmodelled_dynamics_bias_the_fit_beyond_its_std():
-    """A plant whose gearbox softens over a wider zone than the model's fixed ``delta`` (a
-    structure the model cannot represent, standing in for the realistic plant's extra dynamics):
-    the fit converges, but s^2 grows (about 200) and errors exceed 3 std - what identify.json
-    calls biased."""
+    """A plant whose gear ratios are 1 % off the data sheet the model holds them at (a structure
+    the model cannot represent, standing in for the realistic plant's extra dynamics): the fit
+    converges, but s^2 grows (about 1000) and errors exceed 3 std (6 of 20) - what
+    identify.json calls biased."""
     noise = ident.NoiseLevels()
-    plant = dataclasses.replace(TRUE, delta=(8e-4, 8e-4))
+    plant = dataclasses.replace(TRUE, gear_ratio=tuple(r * 1.01 for r in TRUE.gear_ratio))
     exps = make_experiments(plant, noise, seed=5)
     true = ident.parameter_values(plant)
     fit = ident.fit(exps, TRUE, noise=noise, theta0=np.log(true))
@@ -194,3 +196,117 @@ def test_fit_with_calibration_recovers_robot_and_calibration():
     assert fit.converged
     assert_allclose([fit.values[n] for n in ident.NAMES], true, rtol=0.01)
     assert_allclose(fit.acc_calibration[[0, 2, 3]], cal[[0, 2, 3]], atol=1e-4)
+
+
+# ---- coverage of the reported 95 % intervals (the ideal plant: the model is exact) ------------
+ENC_RES = 2 * math.pi / 2 ** 16          # the Encoder's and the Imu's data-sheet quantisation
+ACC_RES = 2 * 16 * G / 2 ** 16
+#: the Imu's default mounting and scale errors, as [f, 1] @ IMU_CAL (unknown to the fit)
+IMU_CAL = np.vstack([np.diag(1.0 + np.array([0.003, -0.004, 0.002])) @ np.eye(3), np.zeros(3)])
+
+
+def sensor_readings(clean: list[ident.Experiment], seed: int) -> list[ident.Experiment]:
+    """What the Encoder and the Imu read of noise-free experiments: white noise at their data-sheet
+    levels (2e-5 rad, 0.02 m/s^2), quantised at their resolution, the accelerometer through its
+    scale and mounting errors (the defaults of ImuParameters)."""
+    from fmus.common.frames import rot_rpy
+    from fmus.robot_plant.sensor_model import quantise
+    rng = np.random.default_rng(seed)
+    cal = np.vstack([rot_rpy((0.004, 0.003, -0.003)) @ IMU_CAL[:3], IMU_CAL[3]])
+    out = []
+    for e in clean:
+        q = quantise(e.q_m + 2e-5 * rng.standard_normal(e.q_m.shape), ENC_RES)
+        a = np.column_stack([e.acc, np.ones(len(e.acc))]) @ cal
+        out.append(dataclasses.replace(e, q_m=q, acc=quantise(a + 0.02 * rng.standard_normal(a.shape), ACC_RES)))
+    return out
+
+
+def coverage_counts(seeds: Sequence[int], duration: float, points: Sequence[Sequence[float]],
+                    criterion: ident.Criterion = ident.PRACTICE, white: bool = False) -> np.ndarray:
+    """Per parameter of ``ident.NAMES``, in how many identifications (one per noise seed) the
+    reported 95 % interval holds the true value: the study's criterion, started at the truth
+    (the coverage is a property of the interval, not of the search). ``white``: judge the former
+    interval, ``+-1.96 s^2 (J^T J)^-1``, instead. Up to 100 residual evaluations: from the truth
+    most fits stop within 10, but the bounded search (``RANGES``) of one seed of the fast test
+    crawled past 40 at cost 131.5."""
+    noise = ident.NoiseLevels.of_sensors(2e-5, ENC_RES, 0.02, ACC_RES)
+    clean = make_experiments(TRUE, duration=duration, points=points)
+    true = np.log(ident.parameter_values(TRUE))
+    covered = np.zeros(len(ident.NAMES), dtype=int)
+    for seed in seeds:
+        fit = ident.fit(sensor_readings(clean, seed), TRUE, noise=noise, criterion=criterion, theta0=true,
+                        max_nfev=100)
+        err = np.abs(np.log([fit.values[n] for n in ident.NAMES]) - true)
+        if white:
+            covered += err <= 1.959963984540054 * np.array([fit.std_log_white[n] for n in ident.NAMES])
+        else:
+            covered += err <= fit.critical_value * np.array([fit.std_log[n] for n in ident.NAMES])
+    return covered
+
+
+def least_count(runs: int, coverage: float = 0.90, alpha: float = 0.05) -> int:
+    """The smallest number of covering runs (of ``runs``) not rejecting "coverage >= 90 %" by a
+    one-sided binomial test at level ``alpha`` shared over the parameters (Bonferroni): a
+    parameter fails if ``P(X <= count | runs, 0.90) < alpha / len(NAMES)``."""
+    from scipy.stats import binom
+    level = alpha / len(ident.NAMES)
+    return next(k for k in range(runs + 1) if binom.cdf(k, runs, coverage) >= level)
+
+
+def test_intervals_cover_the_true_values_on_the_ideal_plant():
+    """Fast version: 8 noise seeds, two experiments of 0.6 s (the model is the ideal plant: the
+    FMU chain equals it to 1e-9, test_study_identify.py; the sensors' noise, quantisation and
+    accelerometer miscalibration as :func:`sensor_readings` says; the Imu's bias walk, 1e-3
+    m/s^2 per sqrt(s), left out). With 8 runs a coverage of 90 % is rejected (one-sided binomial,
+    Bonferroni over the 20 parameters, 5 %) below 4 covering runs. It can fail: the former
+    interval (``white=True`` with ``Criterion(prefilter=25.0, acc_calibration=True)``: white
+    residuals, the model started from the first encoder reading) covers J_m[2], f_c[2] and
+    w_c[2] in 1 of 8 runs (measured on these seeds). About 4 min at a load of 9 on 2 cores."""
+    runs = 8
+    counts = coverage_counts(range(1, runs + 1), 0.6, POINTS)
+    need = least_count(runs)
+    assert need == 4
+    assert np.all(counts >= need), dict(zip(ident.NAMES, counts))
+
+
+@pytest.mark.slow
+def test_intervals_cover_the_true_values_on_the_ideal_plant_full():
+    """Full version: 30 noise seeds, the three working points of the study, 1.2 s each; fails a
+    parameter whose count rejects a coverage of 90 % (binomial, Bonferroni 5 %)."""
+    runs = 30
+    counts = coverage_counts(range(101, 101 + runs), 1.2, ((0.7, 1.3), (0.9, -0.6), (1.4, 0.3)))
+    print("covering runs of", runs, "(least", least_count(runs), "):", dict(zip(ident.NAMES, counts.tolist())))
+    assert np.all(counts >= least_count(runs)), dict(zip(ident.NAMES, counts))
+
+
+def test_sandwich_covers_a_regression_with_autocorrelated_errors():
+    """The covariance itself on a linear regression whose regressors and errors are both AR(1)
+    (coefficient 0.7: the estimate's variance is (1 + 0.49) / (1 - 0.49) = 2.9 times what white
+    errors give): over 400 replicates the 95 % interval of :func:`ident.hac_covariance` with its
+    fixed-b value covers the true coefficient in at least 90 % (the issue's bar; measured 91.5-93.5 %
+    over five generator seeds), the white ``s^2 (X^T X)^-1`` in at most 85 % (measured 75-79 %,
+    where white errors would give 95 %). With 400 replicates the coverage's standard error is
+    about 1.3 %; the generator's seed is fixed, so the test is deterministic."""
+    rng = np.random.default_rng(11)
+    t, reps, rho = 200, 400, 0.7
+
+    def ar1(shape):
+        e = rng.standard_normal(shape)
+        for i in range(1, shape[0]):
+            e[i] += rho * e[i - 1]
+        return e * math.sqrt(1 - rho ** 2)
+
+    series = [np.arange(t).reshape(t, 1)]
+    hac = white = 0
+    for _ in range(reps):
+        x = np.column_stack([np.ones(t), ar1((t, 2))])
+        err = ar1((t,))
+        beta, *_ = np.linalg.lstsq(x, err, rcond=None)          # true coefficients zero
+        f = x @ beta - err                                         # residual, Jacobian x
+        lev = np.zeros(t)                                          # no eliminated parameters
+        cov, lag = ident.hac_covariance(x, f, series, 3, leverage=lev)
+        hac += abs(beta[1]) <= ident.fixed_b_critical_value(lag, t) * math.sqrt(cov[1, 1])
+        s2 = f @ f / (t - 3)
+        white += abs(beta[1]) <= 1.959963984540054 * math.sqrt(s2 * np.linalg.inv(x.T @ x)[1, 1])
+    assert hac / reps >= 0.90, hac / reps
+    assert white / reps <= 0.85, white / reps

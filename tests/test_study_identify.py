@@ -57,8 +57,11 @@ def test_cli_identifies_the_ideal_plant_and_writes_the_report_and_include(tmp_pa
         assert abs(p["relative_error"]) < 0.01, name
         assert p["biased"] is False and "std" in p and "reason" in p
     assert rep["fixed"]["m1"]["reason"].startswith("fixed at the nominal")
+    assert "delta" not in rep["fixed"] and "w_c" not in rep["fixed"]      # fitted, not held at the plant's
+    assert set(rep["fixed"]) == set(ident.FIXED) == set(ident.FIXED_REASONS)
     # the study's criterion: the calibration of an ideal accelerometer is estimated as ideal
-    assert rep["criterion"] == {"prefilter": 25.0, "prefilter_order": 4, "acc_calibration": True}
+    assert rep["criterion"] == {"prefilter": 25.0, "prefilter_order": 4, "acc_calibration": True,
+                                "initial_state": True}
     cal = rep["acc_calibration"]
     assert abs(cal["scale_x"]) < 1e-4 and abs(cal["scale_z"]) < 1e-4 and max(map(abs, cal["bias"])) < 1e-3
     doc = tomllib.loads(inc.read_text())
@@ -190,15 +193,61 @@ def test_report_says_which_estimates_are_biased_and_why():
     values = dict(zip(ident.NAMES, ident.parameter_values(true)))
     std = {n: 1e-3 * v for n, v in values.items()}
     values["k_lo[1]"] *= 1.01                                   # 10 std off
-    values["d[2]"] *= 1.002                                     # 2 std off: not biased
+    values["d[2]"] *= 1.0015                                    # 1.5 std off: not biased, covered
     std["f_v[1]"] = float("inf")
     fit = ident.Fit(ident.robot_from_values(list(values.values()), true), values, std, 1.0, 1.0, 100, 3, True, "")
     rep = study_identify.report(fit, true, ideal=False)
     assert rep["biased"] == ["k_lo[1]"] and rep["plant"]["unmodelled_dynamics"] is True
     assert "dynamics the model lacks" in rep["parameters"]["k_lo[1]"]["reason"]
-    assert_allclose(rep["parameters"]["k_lo[1]"]["error_in_std"], 10.0, rtol=1e-6)
+    # the error in std of log(value) (the fit runs in log space): log(1.01) / (1e-3 / 1.01)
+    assert_allclose(rep["parameters"]["k_lo[1]"]["error_in_std"], np.log(1.01) * 1.01e3, rtol=1e-12)
+    assert rep["parameters"]["k_lo[1]"]["covers_true"] is False and rep["parameters"]["d[2]"]["covers_true"] is True
+    lo, hi = rep["parameters"]["d[2]"]["interval95"]
+    assert_allclose(np.log(hi / lo) / 2, 1.959963984540054 * 1e-3 / 1.0015, rtol=1e-12)
+    assert rep["uncertainty"]["coverage"]["true"]["not_covered"] == ["k_lo[1]"]
+    assert rep["uncertainty"]["coverage"]["true"]["of"] == len(ident.NAMES) - 1
     assert rep["parameters"]["d[2]"]["biased"] is False
     assert rep["parameters"]["f_v[1]"]["std"] is None and "not determined" in rep["parameters"]["f_v[1]"]["reason"]
     json.dumps(rep)                                              # JSON-able (no inf, no numpy types)
     rep = study_identify.report(fit, true, ideal=None)
     assert rep["plant"]["unmodelled_dynamics"] is False and "insufficient" in rep["parameters"]["k_lo[1]"]["reason"]
+
+
+def test_report_gives_effective_values_their_coverage_and_bounded_estimates_their_range(tmp_path):
+    """``--effective``: the effective values (a noise-free fit's identify.json) beside the true
+    ones, with whether each 95 % interval covers them; an estimate on the bound of its stated
+    range is not determined: its interval is the range."""
+    true = RobotParameters()
+    values = dict(zip(ident.NAMES, ident.parameter_values(true)))
+    std = {n: 1e-3 * v for n, v in values.items()}
+    values["k_hi[1]"] *= 0.9                                     # biased against the truth ...
+    values["w_c[1]"] = ident.RANGES["w_c"][0]                    # ... on its bound
+    bound = {n: (ident.RANGES["w_c"] if n == "w_c[1]" else None) for n in ident.NAMES}
+    fit = ident.Fit(ident.robot_from_values(list(values.values()), true), values, std, 1.0, 1.0, 100, 3, True, "",
+                    at_bound=bound)
+    eff_file = tmp_path / "identify.json"
+    eff = {n: {"fitted": v * (1.0005 if n == "k_hi[1]" else 1.0)} for n, v in values.items()}
+    eff_file.write_text(json.dumps({"parameters": eff, "experiments": {"duration": 4.8}, "fit": {"converged": True}}))
+    rep = study_identify.report(fit, true, ideal=False, effective=study_identify.load_effective(eff_file))
+    k = rep["parameters"]["k_hi[1]"]
+    assert k["covers_true"] is False and k["covers_effective"] is True
+    assert_allclose(k["effective"], values["k_hi[1]"] * 1.0005)
+    w = rep["parameters"]["w_c[1]"]
+    assert w["at_bound"] and w["interval95"] == list(ident.RANGES["w_c"]) and "stated range" in w["reason"]
+    assert w["covers_true"] is True and w["biased"] is False
+    cov = rep["uncertainty"]["coverage"]
+    assert cov["effective"]["covered"] == 20 and cov["true"]["not_covered"] == ["k_hi[1]"]
+    assert rep["effective"]["experiments"] == {"duration": 4.8}
+    json.dumps(rep)
+
+
+def test_bad_effective_file_is_one_error(tmp_path, capsys):
+    missing = tmp_path / "none.json"
+    assert main(["study", "identify", "--out", str(tmp_path), "--effective", str(missing)]) == 2
+    assert f"--effective {missing}: no such file" in capsys.readouterr().err
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"parameters": {}}')
+    assert main(["study", "identify", "--out", str(tmp_path), "--effective", str(bad)]) == 2
+    assert "not an identify.json with every fitted parameter" in capsys.readouterr().err
+    assert main(["study", "identify", "--out", str(tmp_path), "--effective", str(bad), "--noise-free"]) == 2
+    assert "give one" in capsys.readouterr().err

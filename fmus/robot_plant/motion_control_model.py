@@ -499,7 +499,7 @@ def _measure_velocity(work, t, q_m, q_ref):
     work[_VEL + 4] = t
 
 
-@kernel(aot="void(float64[:])")
+@kernel
 def _law_speed(work):
     """:meth:`MotionController.law_speed` for the row in ``work``, into its scratch slots: the
     speed that makes the law's derivative term ``K_d (dq_m_ref - speed)`` the difference of the

@@ -499,13 +499,14 @@ def _measure_velocity(work, t, q_m, q_ref):
     work[_VEL + 4] = t
 
 
-@kernel
-def _law_speed(work):
-    """:meth:`MotionController.law_speed` for the row in ``work``, into its scratch slots: the
-    speed that makes the law's derivative term ``K_d (dq_m_ref - speed)`` the difference of the
-    filtered reference and measured speeds."""
+@kernel(aot="void(float64[:], float64[:])")
+def _law_speed(work, row):
+    """:meth:`MotionController.law_speed` for the reference-table ``row`` (its tabulated
+    ``dq_m_ref``), into the scratch slots of ``work``: the speed that makes the law's
+    derivative term ``K_d (dq_m_ref - speed)`` the difference of the filtered reference and
+    measured speeds."""
     for i in range(2):
-        work[_VEL + 10 + i] = work[_VEL + 2 + i] + work[_ROW + 16 + i] - work[_VEL + 8 + i]
+        work[_VEL + 10 + i] = work[_VEL + 2 + i] + row[16 + i] - work[_VEL + 8 + i]
 
 
 @kernel(aot="boolean(float64[:, :], float64, float64, float64, boolean, float64[:], float64[:], float64[:], "
@@ -527,12 +528,12 @@ def _control_step(table, dt, t, h, resample, work, q_m, dp, excitation, excitati
     if resample or t_next != t:
         _table_row(table, dt, t, row)
     speed = work[_VEL + 10:_VEL + 12]
-    _law_speed(work)
+    _law_speed(work, row)
     saturated = _control_law(table, dt, t, False, work, q_m, speed, dp, excitation)
     _integrate(work, saturated, h)
     if t_next != t:
         _table_row(table, dt, t_next, row)
-    _law_speed(work)
+    _law_speed(work, row)
     saturated = _control_law(table, dt, t_next, False, work, q_m, speed, dp, excitation_next)
     for i in range(10):
         if at[i] >= 0:
@@ -655,7 +656,8 @@ class MotionController:
         """The speed to give :meth:`evaluate` at ``t`` after :meth:`measure`: its derivative
         term ``K_d (dq_m_ref - speed)`` is then ``K_d (velocity_ref - velocity)``, the filtered
         derivative of the error, as :meth:`step` computes it."""
-        return self.velocity + self.model.sample(t)[_DQM] - self.velocity_ref
+        _law_speed(self._work, self.model.sample(t))
+        return self._work[_VEL + 10:_VEL + 12].copy()
 
     def evaluate(self, t: float, q_m: np.ndarray, dq_m: np.ndarray, dp_ref: np.ndarray) -> np.ndarray:
         """References at ``t`` and the motor torque for the measurement ``(q_m, dq_m)``, the

@@ -42,7 +42,9 @@ def closed_loop(params: mcm.MotionControllerParameters) -> tuple[dict[str, float
     for k in range(n):
         x = plant.x
         c0 = time.perf_counter()
-        tau = ctrl.evaluate(k * DT, x[2:4], x[6:8], zero)
+        q_m = np.array(x[2:4])
+        ctrl.measure(k * DT, q_m)                                 # the drive's speeds from q_m
+        tau = ctrl.evaluate(k * DT, q_m, ctrl.law_speed(k * DT), zero)
         ctrl.advance(DT)
         t_ctrl += time.perf_counter() - c0
         p_tool = kinematics.tool_position(x[0:2], plant_p)
@@ -80,9 +82,9 @@ def fmi_cost(path: str, n_steps: int = 3000) -> float:
         s.enterInitializationMode()
         s.setString([vr["path"]], [path])
         s.exitInitializationMode()
-        ins = [vr[f"{n}[{i}]"] for n in ("q_m", "dq_m", "dp_ref") for i in (1, 2)]
+        ins = [vr[f"{n}[{i}]"] for n in ("q_m", "dp_ref") for i in (1, 2)]
         outs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
-        u = [0.0] * 6
+        u = [0.0] * 4
         t0 = time.perf_counter()
         for k in range(n_steps):
             s.setReal(ins, u)

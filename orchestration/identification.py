@@ -252,7 +252,7 @@ class Experiment:
 
     def built_controller(self) -> MotionController:
         """The experiment's controller (reference table built once per process and setting),
-        to be copied: ``MotionController(c.model, c.excitation)`` starts a fresh run."""
+        to be copied: ``MotionController(c.model, c.excitation, cutoff)`` starts a fresh run."""
         c = self.controller
         ctrl = _CONTROLLERS.get(c)
         if ctrl is None:
@@ -298,8 +298,10 @@ def simulate(p: RobotParameters, exp: Experiment, q_m0: Sequence[float] | None =
 
     The timing is the co-simulation master's (Gauss-Seidel; the plant, whose outputs have no
     direct feedthrough, steps first): the plant integrates over ``[t, t + dt)`` (RK4) with the
-    torque the controller computed at ``t``, then the controller reads the motor angle and speed
-    at ``t + dt``, integrates its error over the step and computes the torque of ``t + dt``;
+    torque the controller computed at ``t``, then the controller reads the motor angle at
+    ``t + dt`` (its encoder, noise-free), forms its speed from it as the drive does
+    (:meth:`MotionController.measure` at ``t + dt``), integrates its error over the step and computes the
+    torque of ``t + dt``;
     the sensors sample the plant at ``t + dt``, the accelerometer's anti-aliasing filter starting
     in steady state at its first input. ``tests/test_study_identify.py`` checks the result
     against the FMUs.
@@ -307,7 +309,7 @@ def simulate(p: RobotParameters, exp: Experiment, q_m0: Sequence[float] | None =
     dt = exp.dt
     n = len(exp.time) - 1
     template = exp.built_controller()
-    ctrl = MotionController(template.model, template.excitation)
+    ctrl = MotionController(template.model, template.excitation, exp.controller.velocity_cutoff)
     plant = dynamics.FlexibleRobotModel(p, np.zeros(2))
     plant.x = rest_state(exp.q_m[0] if q_m0 is None else q_m0, p)
     zero = np.zeros(2)
@@ -316,16 +318,17 @@ def simulate(p: RobotParameters, exp: Experiment, q_m0: Sequence[float] | None =
     s = plant.state
     states[0] = s
     acc[0] = kinematics.point_motion(s[0:2], s[4:6], plant.arm_acceleration(0.0, 0.0), p, "sensor")[4:6]
-    tau = ctrl.evaluate(0.0, np.array(s[2:4]), np.array(s[6:8]), zero)
+    tau = ctrl.evaluate(0.0, np.array(s[2:4]), ctrl.law_speed(0.0), zero)
     for i in range(n):
         plant.step(tau, zero, dt)
         s = plant.state
         states[i + 1] = s
         acc[i + 1] = kinematics.point_motion(s[0:2], s[4:6], plant.arm_acceleration(0.0, 0.0), p, "sensor")[4:6]
-        qm, dqm = np.array(s[2:4]), np.array(s[6:8])
-        ctrl.evaluate(i * dt, qm, dqm, zero)
+        qm = np.array(s[2:4])
+        ctrl.measure((i + 1) * dt, qm)          # the drive's speeds from its (noise-free) encoder
+        ctrl.evaluate(i * dt, qm, ctrl.law_speed(i * dt), zero)
         ctrl.advance(dt)
-        tau = ctrl.evaluate((i + 1) * dt, qm, dqm, zero)
+        tau = ctrl.evaluate((i + 1) * dt, qm, ctrl.law_speed((i + 1) * dt), zero)
     ideal = specific_force(acc, states[:, 0] + states[:, 1], exp.mount_rpy, exp.g)
     if exp.acc_cutoff > 0.0:
         from scipy.signal import lfilter, lfilter_zi

@@ -6,7 +6,9 @@ anything but a sensor, the environment, the plant itself or the reference measur
 is an oracle: :func:`dishonest_connections`
 finds them, and the scenario loader warns (:class:`HonestSignalWarning`) unless the scenario
 lists the connection under ``oracles``. The one exception is the drive's own motor feedback:
-the MotionController may read the plant's ``q_m`` and ``dq_m``.
+the MotionController may read the plant's ``q_m`` (an ideal encoder; it has no speed input, it
+forms the speed from the angle). Every shipped scenario connects an Encoder's ``q_m_meas``
+instead (``tests/test_honest_signals.py``).
 
 An FMU not in :data:`ROLES` (a user's own) counts as an estimator/controller.
 """
@@ -49,7 +51,7 @@ TRUTH_READERS = frozenset({"plant", "environment", "sensor", "reference"})
 #: fmus; tests/test_log_replay.py checks they agree).
 LOG_TRUTH = frozenset({"q_a", "dq_a", "ddq_a", "p_tool"})
 #: The drive's own motor feedback: these plant outputs may feed the MotionController.
-DRIVE_FEEDBACK = frozenset({"q_m", "dq_m"})
+DRIVE_FEEDBACK = frozenset({"q_m"})
 
 
 class HonestSignalWarning(UserWarning):

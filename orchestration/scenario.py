@@ -67,8 +67,9 @@ Format::
 
 Honest signals (:mod:`orchestration.roles`): a truth output (of the plant, the contact
 environment or a force pulse) may feed only sensors, the environment, the plant and the
-reference system (Tracker); the MotionController may read the plant's q_m and dq_m (the drive's
-own motor feedback). Any other such connection gives an :class:`HonestSignalWarning` when the
+reference system (Tracker); the MotionController may read the plant's q_m (an ideal motor
+encoder: no shipped scenario does, each drive reads an Encoder and forms its speed from it). Any
+other such connection gives an :class:`HonestSignalWarning` when the
 scenario is loaded, unless it is listed in ``oracles`` (each entry must be one of the
 ``connections``, written the same way up to spaces, else :class:`ScenarioError`).
 

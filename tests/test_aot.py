@@ -124,6 +124,8 @@ def _tour() -> None:
     plant_model(PlantParameters()).step(np.array([20.0, -10.0]), np.zeros(2), 1e-3)
     controller.evaluate(0.5, np.zeros(2), np.zeros(2), np.zeros(2))
     controller.advance(1e-3)
+    controller.measure(0.5, np.zeros(2)), controller.measure(0.501, np.array([1e-3, -2e-3]))
+    controller.law_speed(0.501)
     rigid_kinematics_model.arm_angles(np.array([30.0, -20.0]), RobotParameters(), True)
     ekf = em.EkfAccelerometerModel(em.EkfAccelerometerParameters())
     ekf.predict(np.array([1.0, -1.0]), 1e-3)

@@ -83,7 +83,7 @@ def test_batched_runs_equal_the_fmus():
     seeds = [1, 2, 5]
     runs, res = study_montecarlo.run_batched(str(SCENARIO), [SHORT + [f"scenario.seed={s}"] for s in seeds],
                                              filters, plant, filters[0].ratio)
-    assert res.shared == ["plant", "controller"] and res.looped == []
+    assert res.shared == ["plant", "drive_encoder", "controller"] and res.looped == []   # the closed loop
     assert res.batched == ["encoder", "imu", "ekf_acc", "ekf_motor"]
     for s, b in zip(seeds, runs):
         f = study_montecarlo.run_one(str(SCENARIO), SHORT + [f"scenario.seed={s}"], filters, plant,
@@ -135,8 +135,9 @@ def test_noise_in_the_closed_loop_runs_the_plant_per_run():
     controller become per-run components (their FMU classes, one instance per run), and the runs
     still equal the FMUs' and differ in their true states."""
     doc = scenario_document(SCENARIO, ["scenario.stop_time=0.05"])
-    doc["connections"] = [c.replace("plant.q_m -> controller.q_m", "encoder.q_m_meas -> controller.q_m")
+    doc["connections"] = [c.replace("drive_encoder.q_m_meas -> controller.q_m", "encoder.q_m_meas -> controller.q_m")
                           for c in doc["connections"]]
+    assert "encoder.q_m_meas -> controller.q_m" in doc["connections"]
     seeds = [1, 2]
     runs = [(f"scenario.seed={s}",) for s in seeds]
     res = batched.simulate_runs(doc, runs, {"plant.q_a": None, "ekf_acc.q_a_hat": None})
@@ -194,18 +195,18 @@ def test_a_taped_run_replays_what_it_shared():
     rec = {"plant.q_a": None, "ekf_acc.q_a_hat": None, "ekf_motor.q_a_hat": None}
     own = SHORT + ["scenario.seed=3"]
     taped = batched.simulate_runs(str(SCENARIO), [own], rec, tape=True)
-    assert set(taped.tape.reads) == {"plant", "controller", "encoder", "imu", "ekf_acc", "ekf_motor"}
+    assert set(taped.tape.reads) == {"plant", "drive_encoder", "controller", "encoder", "imu", "ekf_acc", "ekf_motor"}
     runs = [own + [f"ekf_acc.q_jerk={q}"] for q in (0.5, 2.0)]
     full = batched.simulate_runs(str(SCENARIO), runs, rec)
     replayed = batched.simulate_runs(str(SCENARIO), runs, rec, replay=taped.tape)
-    assert replayed.replayed == ["plant", "controller", "encoder", "imu", "ekf_motor"]
+    assert replayed.replayed == ["plant", "encoder", "drive_encoder", "controller", "imu", "ekf_motor"]
     for var in rec:
         assert_array_equal(replayed[var], full[var], err_msg=var)
     assert_array_equal(replayed["ekf_motor.q_a_hat"], taped["ekf_motor.q_a_hat"])
     # the encoder differs from the tape: it and the filters it feeds run, the plant is replayed
     noisier = [r + ["encoder.noise=1e-4"] for r in runs]
     partly = batched.simulate_runs(str(SCENARIO), noisier, rec, replay=taped.tape)
-    assert partly.replayed == ["plant", "controller", "imu"]
+    assert partly.replayed == ["plant", "drive_encoder", "controller", "imu"]
     full = batched.simulate_runs(str(SCENARIO), noisier, rec)
     for var in rec:
         assert_array_equal(partly[var], full[var], err_msg=var)

@@ -87,8 +87,9 @@ def test_a_fork_that_fmi_does_not_allow_is_refused(saved, tmp_path: Path, overri
 
 
 def test_forks_with_new_seeds_equal_each_other_before_the_state_and_differ_after(saved, tmp_path: Path) -> None:
-    """scenario.seed in a fork reseeds every sensor at the state's time (fork.reseed_fork); the
-    plant, which no noise reaches in this scenario, goes on alike."""
+    """scenario.seed in a fork reseeds every sensor at the state's time (fork.reseed_fork). The
+    drive reads its encoder, so the new noise reaches the plant too, by a fraction of a
+    micrometre (measured 0.16 um; the sensors' readings change by their noise)."""
     whole, state = saved
     first = np.searchsorted(whole.time, T - 1e-9)
     a, b = (fork.resume(_multirate(), state, STOP + [f"scenario.seed={s}"], out_dir=tmp_path / str(s))
@@ -99,7 +100,8 @@ def test_forks_with_new_seeds_equal_each_other_before_the_state_and_differ_after
     for name, changed in (("encoder.q_m_meas", 0.15), ("imu.acc_s", 0.9), ("ekf.p_tool_hat", 0.9)):
         assert np.mean(a[name][1:] != b[name][1:]) > changed, name
         assert np.mean(a[name][1:] != whole[name][first + 1:]) > changed, name
-    assert_array_equal(a["plant.p_tool"], b["plant.p_tool"])
+    gap = np.abs(a["plant.p_tool"] - b["plant.p_tool"]).max()
+    assert 0.0 < gap < 1e-6
 
 
 def test_a_reseeded_fork_is_reproducible_and_reseeds_only_its_sensor(saved, tmp_path: Path) -> None:
@@ -109,7 +111,11 @@ def test_a_reseeded_fork_is_reproducible_and_reseeds_only_its_sensor(saved, tmp_
             for k in "ab")
     assert_array_equal(a.data, b.data)
     assert np.mean(a["encoder.q_m_meas"][1:] != whole["encoder.q_m_meas"][first + 1:]) > 0.15
-    assert_array_equal(a["imu.acc_s"], whole["imu.acc_s"][first:])   # the IMU's stream goes on
+    # the IMU's stream goes on: its readings change only through the plant's sub-micrometre
+    # change (the drive reads the encoder; measured RMS 0.0009 m/s^2), far below a reseeded
+    # IMU's difference (its noise, 0.02 m/s^2 per reading: RMS 0.029)
+    diff = a["imu.acc_s"] - whole["imu.acc_s"][first:]
+    assert np.sqrt(np.mean(diff ** 2)) < 0.005
 
 
 def test_monte_carlo_after_a_common_warm_up(tmp_path: Path) -> None:

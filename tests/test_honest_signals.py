@@ -24,7 +24,7 @@ def arm(extra_connections=(), oracles=None, rigid_compensation=False) -> dict:
     """Plant under its motion controller, an encoder, rigid kinematics and a tracker."""
     doc = {
         "connections": ["controller.tau_m -> plant.tau_m", "plant.q_m -> controller.q_m",
-                        "plant.dq_m -> controller.dq_m", "plant.q_m -> encoder.q_m",
+                        "plant.q_m -> encoder.q_m",
                         "encoder.q_m_meas -> rigid.q_m_meas", "plant.p_tool -> tracker.p_tool",
                         *extra_connections],
         "scenario": {"name": "arm", "stop_time": 0.05, "base_step": 0.001, "seed": 1},
@@ -52,9 +52,31 @@ def test_every_shipped_scenario_is_honest(fmu_env, path):
     assert honest_warnings(path) == []
 
 
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
+def test_every_shipped_drive_reads_an_encoder(fmu_env, path):
+    """Issue 24, "the drive uses its encoder": in every shipped scenario no plant or
+    environment output feeds a controller (not even the drive feedback the rule allows), and
+    every MotionController whose torque drives the plant reads its motor angle from an
+    Encoder's q_m_meas (it forms its speed from it: the FMU has no speed input)."""
+    sc = load_scenario(path)
+    comps = sc.components
+    into_controllers = [c for c in sc.connections if roles.role(comps[c.dst]) == "controller"]
+    assert [str(c) for c in into_controllers if roles.role(comps[c.src]) in roles.TRUTH_ROLES] == []
+    drives = {c.src for c in sc.connections if c.src_var == "tau_m"
+              and comps[c.src].model_identifier == "MotionController" and roles.role(comps[c.dst]) == "plant"}
+    if "controller" in comps and comps["controller"].model_identifier == "MotionController":
+        assert "controller" in drives                 # the test sees the scenario's drive
+    for drive in drives:
+        feedback = [c for c in into_controllers if c.dst == drive and c.dst_var == "q_m"]
+        assert [(comps[c.src].model_identifier, c.src_var) for c in feedback] == [("Encoder", "q_m_meas")]
+    assert {n.split("[")[0] for c in comps.values() if c.model_identifier == "MotionController"
+            for n in c.inputs} <= {"q_m", "dp_ref"}
+
+
 def test_sensors_reference_and_drive_feedback_are_honest(fmu_env):
     """The arm reads the plant through the encoder and the tracker; the motion controller reads
-    the drive's own q_m, dq_m. Nothing to warn about."""
+    the drive's own q_m (an ideal encoder: allowed, though no shipped scenario does it, see
+    test_every_shipped_drive_reads_an_encoder). Nothing to warn about."""
     assert honest_warnings(arm()) == []
 
 

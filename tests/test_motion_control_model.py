@@ -239,10 +239,12 @@ def test_bad_parameters_name_the_parameter(params, tmp_path: Path) -> None:
 
 # ---- closed loop with the flexible plant ------------------------------------------------------------
 def _closed_loop(traj, ctrl_params: mcm.MotionControllerParameters, plant: RobotParameters,
-                 t_end: float | None = None) -> dict[str, np.ndarray]:
-    """Controller at 1 kHz (torque held over each period) around dynamics.FlexibleRobotModel."""
+                 t_end: float | None = None, encoder=None) -> dict[str, np.ndarray]:
+    """Controller at 1 kHz (torque held over each period) around dynamics.FlexibleRobotModel.
+    ``encoder``: None, the law on the true motor angle and speed; else a function of the true
+    angle giving the reading, from which the drive forms its speed (MotionController.measure)."""
     model = mcm.MotionControlModel(traj, ctrl_params.robot(), _gains(ctrl_params))
-    ctrl = mcm.MotionController(model)
+    ctrl = mcm.MotionController(model, velocity_cutoff=ctrl_params.velocity_cutoff)
     robot = dynamics.FlexibleRobotModel(plant, model.q_a_ref0)
     n = int(round(((t_end if t_end is not None else traj.duration + 0.3)) / DT))
     r = np.asarray(plant.gear_ratio, float)
@@ -252,6 +254,10 @@ def _closed_loop(traj, ctrl_params: mcm.MotionControllerParameters, plant: Robot
     for k in range(n + 1):
         x = robot.x
         q, qm, dqm = x[0:2], x[2:4], x[6:8]
+        if encoder is not None:
+            qm = encoder(qm)
+            ctrl.measure(k * DT, qm)
+            dqm = ctrl.law_speed(k * DT)
         tau = ctrl.evaluate(k * DT, qm, dqm, zero)
         out["p_tool"][k] = kinematics.tool_position(q, plant)
         out["p_rigid"][k] = kinematics.tool_position(qm / r, plant)
@@ -285,6 +291,60 @@ def _figures(out: dict[str, np.ndarray]) -> dict[str, float]:
                 band_peak=db.max(), band_mean=db.mean(),
                 trk_peak=trk.max(), trk_rms=math.sqrt((trk ** 2).mean()),
                 em_peak=np.abs(out["e_m"]).max())
+
+
+def test_the_drives_speed_is_the_filtered_backward_difference() -> None:
+    """measure(): the first reading primes (speed 0); a ramp's difference is its slope, which
+    the first-order low-pass reaches as 1 - exp(-2 pi f_c t) at the sample times; cut-off 0 is
+    the raw difference; a reading at the last one's time changes nothing. The reference speed
+    is formed the same way from the reference angles: a drive reading exactly its reference
+    has equal speeds, and the law's derivative term is zero (law_speed is dq_m_ref)."""
+    model = mcm.MotionControlModel(make_path("square"), mcm.MotionControllerParameters().robot(),
+                                   _gains(mcm.MotionControllerParameters()))
+    w, h, fc = np.array([3.0, -7.0]), 1e-3, 250.0
+    ctrl = mcm.MotionController(model, velocity_cutoff=fc)
+    ctrl.measure(0.0, np.array([0.1, 0.2]))
+    assert_allclose(ctrl.velocity, 0.0, atol=0)
+    for k in range(1, 6):
+        ctrl.measure(k * h, np.array([0.1, 0.2]) + w * k * h)
+        assert_allclose(ctrl.velocity, w * (1.0 - math.exp(-2.0 * math.pi * fc * k * h)), rtol=1e-12)
+    v = ctrl.velocity.copy()
+    ctrl.measure(5 * h, np.array([9.0, 9.0]))
+    assert_allclose(ctrl.velocity, v, rtol=0)
+    raw = mcm.MotionController(model, velocity_cutoff=0.0)
+    raw.measure(0.0, np.zeros(2))
+    raw.measure(2e-3, np.array([1e-3, -4e-3]))
+    assert_allclose(raw.velocity, [0.5, -2.0], rtol=1e-12)
+    on_path = mcm.MotionController(model, velocity_cutoff=fc)
+    for t in np.arange(0.4, 0.9, h):                                     # the square path moves
+        on_path.measure(t, model.sample(t)[mcm.COLUMNS["q_m_ref"]])
+    assert np.abs(on_path.velocity).min() > 1.0
+    assert_allclose(on_path.velocity, on_path.velocity_ref, rtol=0, atol=0)
+    assert_allclose(on_path.law_speed(t), model.sample(t)[mcm.COLUMNS["dq_m_ref"]], rtol=1e-15)
+    assert mcm.MotionControllerParameters().velocity_cutoff == mcm.DEFAULT_VELOCITY_CUTOFF == 250.0
+
+
+def _resolver(seed: int = 0):
+    """The Encoder's defaults as a function: 2e-5 rad white noise, then 16-bit quantisation."""
+    rng = np.random.default_rng(seed)
+    lsb = 2.0 * math.pi / 2 ** 16
+    return lambda qm: np.round((qm + rng.normal(0.0, 2e-5, 2)) / lsb) * lsb
+
+
+def test_the_drive_on_its_encoder_stays_well_behaved(params, robot) -> None:
+    """Speed from the default encoder (quantised, noisy, differenced, 250 Hz low-pass) instead
+    of the true speed: the loop stays stable and tracks the corners as well. Measured: tool
+    tracking RMS 1.01x the ideal drive's, torque increments RMS 0.93x (with the exact
+    dq_m_ref in the derivative term instead of the filtered reference: 3.7x, the lag)."""
+    path = _corner_path()
+    ideal = _closed_loop(path, params, robot)
+    drive = _closed_loop(path, params, robot, encoder=_resolver())
+    fi, fd = _figures(ideal), _figures(drive)
+    assert np.all(np.isfinite(drive["tau"]))
+    assert fd["em_peak"] < 0.01 and fd["trk_peak"] < 0.5e-3          # the bounds of the ideal drive
+    assert fd["trk_rms"] < 1.05 * fi["trk_rms"]                         # measured 1.01x
+    steps = [math.sqrt((np.diff(o["tau"], axis=0) ** 2).mean()) for o in (ideal, drive)]
+    assert steps[1] < 1.1 * steps[0]                                    # no ringing, no noise pumping
 
 
 def test_closed_loop_tracks_corners_and_the_tool_deflects(params, robot) -> None:

@@ -27,15 +27,18 @@ def test_fmu_validates_and_declares_the_contract(fmu: Path) -> None:
     assert validate_fmu(fmu) == []
     md = read_model_description(str(fmu))
     by_name = {v.name: v for v in md.modelVariables}
-    for name in ("q_m", "dq_m", "dp_ref"):
+    for name in ("q_m", "dp_ref"):
         assert by_name[f"{name}[1]"].causality == "input"
-    for name in ("tau_m", "q_a_ref", "dq_a_ref", "ddq_a_ref", "dddq_a_ref", "p_ref", "q_m_ref"):
+    assert "dq_m[1]" not in by_name            # the drive forms its speed from its encoder
+    for name in ("tau_m", "q_a_ref", "dq_a_ref", "ddq_a_ref", "dddq_a_ref", "p_ref", "q_m_ref", "dq_m_hat"):
         assert by_name[f"{name}[2]"].causality == "output"
+    assert by_name["velocity_cutoff"].causality == "parameter"
     assert by_name["dddq_a_ref[1]"].unit == "rad/s3"
     assert by_name["path"].type == "String" and by_name["path"].causality == "parameter"
     # direct feedthrough: tau_m on the measurement and the offset; the jerk on nothing
     deps = {o.variable.name: {d.name for d in (o.dependencies or [])} for o in md.outputs}
-    assert deps["tau_m[1]"] == {f"{n}[{i}]" for n in ("q_m", "dq_m", "dp_ref") for i in (1, 2)}
+    assert deps["tau_m[1]"] == {f"{n}[{i}]" for n in ("q_m", "dp_ref") for i in (1, 2)}
+    assert deps["dq_m_hat[1]"] == set()       # formed in the step, from the readings before
     assert deps["dddq_a_ref[1]"] == set()
     assert deps["p_ref[2]"] == {"dp_ref[1]", "dp_ref[2]"}
 
@@ -55,7 +58,8 @@ def test_fmu_runs_standalone_under_simulate_fmu(fmu: Path) -> None:
 
 
 def test_fmu_matches_the_model_in_a_loop(fmu: Path) -> None:
-    """Torque with direct feedthrough from the measurement, and the integral, as in the model."""
+    """Torque with direct feedthrough from the measurement, the speeds the drive forms from its
+    readings in each step, and the integral, as in the model."""
     s = Slave(fmu, {"path": "square"}, instance_name="mc")
     s.fmu.exitInitializationMode()
     ctrl = mcm.build_controller(mcm.MotionControllerParameters(path="square"))
@@ -65,19 +69,21 @@ def test_fmu_matches_the_model_in_a_loop(fmu: Path) -> None:
     for k in range(300):
         row = ctrl.model.sample(t)
         qm = row[mcm.COLUMNS["q_m_ref"]] + rng.normal(0, 1e-3, 2)
-        dqm = row[mcm.COLUMNS["dq_m_ref"]] + rng.normal(0, 1e-2, 2)
         dp = np.array([1e-3, -5e-4]) if k > 150 else np.zeros(2)
         s.set(q_m=qm)
-        s.set(dq_m=dqm)
         s.set(dp_ref=dp)
         tau = s.get("tau_m", 2)
-        expected = ctrl.evaluate(t, qm, dqm, dp)
+        expected = ctrl.evaluate(t, qm, ctrl.law_speed(t), dp)
         assert_allclose(tau, expected, rtol=1e-12, atol=1e-12)
         assert_allclose(s.get("q_a_ref", 2), ctrl.q_a_ref, atol=1e-14)
         assert_allclose(s.get("p_ref", 2), ctrl.p_ref, atol=1e-14)
         s.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=dt)
+        ctrl.measure(t + dt, qm)                # the step's output torque is that of t + dt
+        ctrl.evaluate(t, qm, ctrl.law_speed(t), dp)
         ctrl.advance(dt)
+        assert_allclose(s.get("dq_m_hat", 2), ctrl.velocity, rtol=1e-12, atol=1e-12)
         t = (k + 1) * dt
+    assert np.abs(ctrl.velocity).max() > 1.0          # the random readings moved it
     s.close()
 
 

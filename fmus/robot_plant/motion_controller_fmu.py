@@ -11,7 +11,7 @@ from fmus.robot_plant.motion_control_model import COLUMNS, MotionControllerParam
 
 # outputs of the controller's results, in their order (MotionController.step), and outputs
 # copied straight from the reference-table row
-_LAW_OUTPUTS = ("q_a_ref", "q_m_ref", "p_ref", "e_m", "tau_m")
+_LAW_OUTPUTS = ("q_a_ref", "q_m_ref", "p_ref", "e_m", "tau_m", "dq_m_hat")
 _ROW_OUTPUTS = ("dq_a_ref", "ddq_a_ref", "dddq_a_ref", "v_ref", "a_ref", "dq_m_ref", "tau_ff")
 
 
@@ -23,8 +23,14 @@ class MotionController(FlexFusionSlave):
     Outputs the motor torque from a motor-side PID with rigid-body and flexible-joint
     feed-forward, and the arm references including the jerk (the 2012 paper's EKF input). The
     robot parameters are the controller's own model of the robot: set them differently from the
-    plant's to study model errors. The torque is computed from the measurement at the start of
-    each communication step and held over it. Identification mode: ``excitation_amplitude`` > 0
+    plant's to study model errors. The drive reads its motor encoder (``q_m``: connect an
+    Encoder's ``q_m_meas``) and forms the motor speed from it, as a servo drive does: the
+    backward difference over its communication step through a first-order low-pass
+    (``velocity_cutoff``; output ``dq_m_hat``, see
+    :mod:`~fmus.robot_plant.motion_control_model`); the PID's derivative term compares it with
+    the reference speed formed the same way. The encoder should sample at least once per
+    controller step. The torque is computed from the measurement at the start of each
+    communication step and held over it. Identification mode: ``excitation_amplitude`` > 0
     adds a random-phase multisine torque (``excitation_band``, ``excitation_period``,
     ``excitation_seed``) to the PID output.
     """
@@ -34,10 +40,9 @@ class MotionController(FlexFusionSlave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.input("q_m", 2, unit="rad", description="measured motor angle, motor side")
-        self.input("dq_m", 2, unit="rad/s", description="measured motor angular velocity, motor side")
+        self.input("q_m", 2, unit="rad", description="motor angle from the drive's encoder, motor side")
         self.input("dp_ref", 2, unit="m", description="Cartesian offset of the tool reference, world x and z")
-        meas = ("q_m", "dq_m", "dp_ref")
+        meas = ("q_m", "dp_ref")
         off = ("dp_ref",)
         self.output("tau_m", 2, unit="N.m", description="motor torque command, motor side", depends_on=meas)
         self.output("q_a_ref", 2, unit="rad", description="arm angle reference (with the dp_ref offset)",
@@ -55,6 +60,8 @@ class MotionController(FlexFusionSlave):
         self.output("tau_ff", 2, unit="N.m", description="feed-forward motor torque, motor side")
         self.output("e_m", 2, unit="rad", description="motor angle error q_m_ref - q_m, motor side",
                     depends_on=meas)
+        self.output("dq_m_hat", 2, unit="rad/s", description="the drive's motor speed from its encoder "
+                    "(backward difference, first-order low-pass), motor side")
         # where the step writes its results and the row's columns in the output buffer
         # (MotionController.step)
         row_at = np.full(max(c.stop for c in COLUMNS.values()), -1)
@@ -68,12 +75,12 @@ class MotionController(FlexFusionSlave):
 
     def update_outputs(self) -> None:
         c = self.ctrl
-        c.evaluate(self._time, self.q_m, self.dq_m, self.dp_ref)
-        results = np.concatenate([c.q_a_ref, c.q_m_ref, c.p_ref, c.error, c.tau, c.row])
+        c.evaluate(self._time, self.q_m, c.law_speed(self._time), self.dp_ref)
+        results = np.concatenate([c.q_a_ref, c.q_m_ref, c.p_ref, c.error, c.tau, c.velocity, c.row])
         shown = self._at >= 0
         self._outputs[self._at[shown]] = results[shown]
 
     def step(self, t: float, dt: float) -> None:
-        # the torque for the measurement just set, whose error the integrator takes, then the
-        # outputs at t + dt (one compiled call)
-        self.ctrl.step(t, dt, self.q_m, self.dq_m, self.dp_ref, self._outputs, self._at)
+        # the speed from the encoder reading just set, the torque for it, whose error the
+        # integrator takes, then the outputs at t + dt (one compiled call)
+        self.ctrl.step(t, dt, self.q_m, self.dp_ref, self._outputs, self._at)

@@ -654,17 +654,14 @@ class FlexFusionSlave(Fmi2Slave):
 
     def _state_identity(self) -> dict[str, str]:
         """What a serialised state must carry to be read by this FMU: its model identifier and
-        a hash of its build (the package's bundle id, the FMU script) and of its variables."""
+        a hash of its build (the package's bundle id) and of its variables (reference, name,
+        type, causality, variability). Not of the FMU script's file: a host process may hold
+        two builds' scripts under one module name."""
         cls = type(self)
         identity = _IDENTITIES.get(cls)
         if identity is None:
             from .jit import bundle_id
             digest = hashlib.sha256(bundle_id().encode())
-            try:
-                with open(sys.modules[cls.__module__].__file__, "rb") as script:   # type: ignore[arg-type]
-                    digest.update(script.read())
-            except (KeyError, AttributeError, TypeError, OSError):
-                pass                                   # no script file (a class defined in a session)
             for vr, v in sorted(self.vars.items()):
                 digest.update(f"\0{vr}:{v.name}:{type(v).__name__}:{v.causality}:{v.variability}".encode())
             identity = _IDENTITIES[cls] = {"model": cls.__name__, "build": digest.hexdigest()[:32]}

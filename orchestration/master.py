@@ -627,7 +627,10 @@ def _cached_folder(fmu: Path) -> str | None:
     cannot be written.
 
     It is named by the FMU's content (:func:`~orchestration.scenario.fmu_content_key`) and the
-    platform, whose binaries are the only ones extracted. Its Python packages in ``resources/``
+    platform, whose binaries are the only ones extracted. The cache's ``fmus/`` and
+    ``packages/`` folders hold code that is loaded: they are used only if private to this user
+    (:func:`fmus.common.disk_cache.private_folder`: made 0700, owner and mode checked from the
+    cache root down), else the FMU is extracted to a temporary folder of this process. Its Python packages in ``resources/``
     are links to folders shared by every FMU that bundles the same package
     (:func:`_shared_package`): our FMUs all bundle the same ``fmus_<hash>`` and ``pythonfmu``
     (112 of the Encoder FMU's 120 files), so a cold run extracts them once, not once per FMU. A folder
@@ -642,7 +645,7 @@ def _cached_folder(fmu: Path) -> str | None:
 
     from fmpy import platform
 
-    from fmus.common.disk_cache import cache_root, prune
+    from fmus.common.disk_cache import cache_root, private_folder, prune
 
     from .scenario import fmu_content_key
     try:
@@ -653,8 +656,9 @@ def _cached_folder(fmu: Path) -> str | None:
     folder = root / f"{key}-{platform}"
     marker = folder / _COMPLETE
     try:
+        private_folder(root, cache_root())      # code is loaded from it: private, or not used
+        private_folder(root.parent / "packages", cache_root())
         if not marker.is_file():
-            root.mkdir(parents=True, exist_ok=True)
             prune(root, _CACHE_KEEP - 1)
             _prune_packages(root)
             _publish(folder, partial(_extract_linked, fmu, platform), marker.is_file)

@@ -706,3 +706,17 @@ def test_a_run_frees_its_instances_and_unloads_their_libraries(tmp_path, monkeyp
         run(scenario, out_dir=tmp_path / "o")
     assert {Path(p).name for p in set().union(*loaded_at_close)} == {"Failing.so", "Gain.so"}   # were loaded
     assert set().union(*map(loaded_from, master._EXTRACTED.values())) == set()
+
+
+def test_a_cache_folder_others_can_write_is_not_used_for_fmus(tmp_path, toy_dir, monkeypatch):
+    """Extracted FMUs are loaded code: a cache whose fmus/ (or packages/) folder is writable by
+    others (or another user's) is not used; the FMU is extracted to a private temporary folder."""
+    from orchestration import master
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    for name in ("fmus", "packages"):
+        (tmp_path / "cache" / name).mkdir(parents=True, exist_ok=True)
+        (tmp_path / "cache" / name).chmod(0o777)
+        assert master._cached_folder(toy_dir / "Gain.fmu") is None
+        assert list((tmp_path / "cache" / name).iterdir()) == []
+        (tmp_path / "cache" / name).chmod(0o700)
+    assert Path(master._cached_folder(toy_dir / "Gain.fmu")).is_relative_to(tmp_path / "cache" / "fmus")

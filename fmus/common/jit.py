@@ -29,7 +29,8 @@ calls in another module) gives a new folder: nothing stale is ever loaded.
 
 Where the cache lives: ``$FLEXFUSION_CACHE_DIR``, else ``$XDG_CACHE_HOME/flexfusion``, else
 ``~/.cache/flexfusion``, under ``numba/<16 hex of the bundle id>-<package name>/``; if that cannot be written,
-a folder in the system's temporary directory. ``NUMBA_DISABLE_JIT=1`` runs the kernels as plain
+a folder in the system's temporary directory; each used only if private to this user (numba
+loads code from it: :func:`fmus.common.disk_cache.private_folder`), else no cache. ``NUMBA_DISABLE_JIT=1`` runs the kernels as plain
 Python (numba's own switch), for debugging.
 
 Kernels are compiled without ``fastmath``: floating point is evaluated in source order with no
@@ -46,7 +47,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Callable
 
-from fmus.common.disk_cache import cache_root
+from fmus.common.disk_cache import cache_root, private_folder
 
 PACKAGE = Path(__file__).resolve().parent.parent      # ``fmus``, or ``fmus_<hash>`` in an FMU
 BUNDLE_ID_FILE = "BUNDLE_ID"
@@ -98,13 +99,24 @@ def _writable(path: Path) -> bool:
 
 
 @functools.lru_cache(maxsize=None)
-def _kernel_cache_dir() -> Path:
+def _kernel_cache_dir() -> Path | None:
+    """The kernel cache's folder: :func:`cache_dir`, else one in the system's temporary
+    directory, each only if private (:func:`fmus.common.disk_cache.private_folder`: numba loads
+    code from it); None (no cache, with one warning) if neither is."""
     preferred = cache_dir()
-    if _writable(preferred):
-        return preferred
-    fallback = Path(tempfile.gettempdir()) / f"flexfusion-numba-{os.getuid()}" / preferred.name
-    fallback.mkdir(parents=True, exist_ok=True)
-    return fallback
+    shared = Path(tempfile.gettempdir()) / f"flexfusion-numba-{os.getuid()}"
+    why = []
+    for folder, top in ((preferred, cache_root()), (shared / preferred.name, shared)):
+        try:
+            private_folder(folder, top)
+            if _writable(folder):
+                return folder
+            why.append(f"{folder}: not writable")
+        except OSError as exc:
+            why.append(str(exc))
+    logging.getLogger(__name__).warning("no private folder for the compiled kernels (%s): they are "
+                                        "compiled in every process", "; ".join(why))
+    return None
 
 
 @functools.lru_cache(maxsize=None)
@@ -209,7 +221,7 @@ def kernel(function: Callable | None = None, *, aot: str | None = None, **option
             return getattr(compiled, export_name(fn)) if aot else PythonKernel(fn)
         import numba
         _register_locator()
-        cache = os.path.isfile(fn.__code__.co_filename)
+        cache = os.path.isfile(fn.__code__.co_filename) and _kernel_cache_dir() is not None
         dispatcher = numba.njit(cache=cache, **options)(fn)
         dispatcher.aot_signature = aot
         return dispatcher

@@ -5,7 +5,8 @@ the base step):
 
 * every component's FMI state (``fmi2GetFMUstate`` + ``fmi2SerializeFMUstate``, base64): for
   our FMUs the complete internal state, bit-exact (models, filter covariances, particles, RNG
-  states, held samples, inputs, outputs);
+  states, held samples, inputs, outputs), as data only (:mod:`fmus.common.state_codec`: no
+  pickle; an FMU refuses a state of another FMU or build, or a damaged or crafted one);
 * the master's: the step index, and every value on its buffer (the connected and recorded
   outputs as last read, which multi-rate components hold and Jacobi edges read next); the
   master itself draws no random numbers;

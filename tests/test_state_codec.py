@@ -2,12 +2,12 @@
 comes back bit for bit, and no byte string runs code or crashes the reader."""
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
 import pickle
 import struct
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -112,11 +112,10 @@ def test_a_pickle_with_a_payload_is_refused_and_does_not_run(tmp_path: Path) -> 
     assert not marker.exists()
 
 
-def craft(head: dict, blob: bytes = b"") -> bytes:
-    """A state with a valid digest around any header: what an attacker can write."""
-    header = json.dumps(head).encode()
-    body = struct.pack("<Q", len(header)) + header + blob
-    return MAGIC + hashlib.sha256(body).digest() + body
+def craft(head: dict | str, blob: bytes = b"") -> bytes:
+    """A state with valid lengths and CRC around any header: what an attacker can write."""
+    header = (head if isinstance(head, str) else json.dumps(head)).encode()
+    return struct.pack("<16sIQQ", MAGIC, zlib.crc32(header + blob), len(header), len(blob)) + header + blob
 
 
 def refused(data: bytes, match: str) -> None:
@@ -126,10 +125,11 @@ def refused(data: bytes, match: str) -> None:
 
 def test_a_truncated_or_corrupted_state_is_refused() -> None:
     data = encode({"x": np.arange(100.0), "s": "text"}, IDENTITY)
+    refused(data + b"\0", "truncated or padded")
     for n in (0, 10, len(MAGIC) + 20, len(MAGIC) + 40, len(data) // 2, len(data) - 1):
         with pytest.raises(StateError, match="truncated|corrupted"):
             decode(data[:n], IDENTITY, bound=lambda name: name)
-    for i in (len(MAGIC) + 1, len(MAGIC) + 50, len(data) - 3):
+    for i in (len(MAGIC) + 1, len(MAGIC) + 50, len(data) - 3):              # the CRC, the header, an array
         bad = bytearray(data)
         bad[i] ^= 0x01
         with pytest.raises(StateError, match="corrupted"):
@@ -182,6 +182,5 @@ def test_deep_nesting_is_refused_not_a_crash() -> None:
         tree = ["t", [tree]]
     refused(craft({"format": 1, "identity": IDENTITY, "tree": tree, "arrays": []}), "nested deeper")
     deep = "[" * 100000 + "]" * 100000                 # the JSON parser's own limit
-    header = ('{"format": 1, "identity": %s, "tree": %s, "arrays": []}' % (json.dumps(IDENTITY), deep)).encode()
-    body = struct.pack("<Q", len(header)) + header
-    refused(MAGIC + hashlib.sha256(body).digest() + body, "unreadable header|nested")
+    refused(craft('{"format": 1, "identity": %s, "tree": %s, "arrays": []}' % (json.dumps(IDENTITY), deep)),
+            "unreadable header|nested")

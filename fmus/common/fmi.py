@@ -155,6 +155,20 @@ class _Bound:
         return memo[_BOUND][self.name]
 
 
+def _build_id() -> str:
+    """The build of this package: the bundle id in an FMU's package name (``fmus_<12 hex>``,
+    orchestration/build.py), else (the working tree) the first 12 hex of
+    :func:`fmus.common.jit.bundle_id`, the same for the same sources. Not read from the
+    package's ``BUNDLE_ID`` file: in the process that built the FMUs the package was imported
+    from a staging folder that is gone."""
+    package = __name__.partition(".")[0]
+    suffix = package[len("fmus_"):]
+    if package.startswith("fmus_") and len(suffix) == 12 and all(c in "0123456789abcdef" for c in suffix):
+        return suffix
+    from .jit import bundle_id
+    return bundle_id()[:12]
+
+
 def _like(new: Any, live: Any, path: str, depth: int) -> None:
     """Raise :class:`~fmus.common.state_codec.StateError` where a decoded state's value ``new``
     at ``path`` does not fit the value ``live`` an instance holds there: an array of another
@@ -654,14 +668,13 @@ class FlexFusionSlave(Fmi2Slave):
 
     def _state_identity(self) -> dict[str, str]:
         """What a serialised state must carry to be read by this FMU: its model identifier and
-        a hash of its build (the package's bundle id) and of its variables (reference, name,
-        type, causality, variability). Not of the FMU script's file: a host process may hold
-        two builds' scripts under one module name."""
+        a hash of its build (:func:`_build_id`) and of its variables (reference, name, type,
+        causality, variability). Not of the FMU script's file: a host process may hold two
+        builds' scripts under one module name."""
         cls = type(self)
         identity = _IDENTITIES.get(cls)
         if identity is None:
-            from .jit import bundle_id
-            digest = hashlib.sha256(bundle_id().encode())
+            digest = hashlib.sha256(_build_id().encode())
             for vr, v in sorted(self.vars.items()):
                 digest.update(f"\0{vr}:{v.name}:{type(v).__name__}:{v.causality}:{v.variability}".encode())
             identity = _IDENTITIES[cls] = {"model": cls.__name__, "build": digest.hexdigest()[:32]}

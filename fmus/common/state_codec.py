@@ -4,8 +4,10 @@ An FMU state travels: ``fmi2SerializeFMUstate`` hands it to a host, a state file
 (``flexfusion run --from-state``) carries it between users and machines. Whoever crafts the
 bytes must not be able to run code in the FMU that reads them, so the bytes hold only data:
 
-``MAGIC`` (16 bytes) | SHA-256 of the rest (32 bytes) | header length (8 bytes, little endian)
-| header (JSON, UTF-8) | the arrays' bytes, one after the other.
+``MAGIC`` (16 bytes) | CRC-32 of the rest (4 bytes) | header length (8 bytes) | length of the
+arrays' bytes (8 bytes) | header (JSON, UTF-8) | the arrays' bytes, one after the other
+(integers little endian). The lengths and the CRC find a truncated or damaged state; the CRC
+is no signature (anyone can compute it): whatever the bytes say, they are read as data only.
 
 The header holds the format ``VERSION``, the ``identity`` the caller gives (for an FMU: its
 model identifier and a hash of its build and variables), the object ``tree`` and, for each
@@ -35,16 +37,17 @@ Allowed classes are those of the package this module is in (``fmus`` or an FMU's
 among the modules already imported (nothing is imported), by module and qualified name,
 checked to be defined there. An object is made with ``object.__new__`` and its ``__dict__``
 filled (a named tuple with ``tuple.__new__``): no constructor, ``__setstate__``,
-``__reduce__`` or ``__setattr__`` of the class runs. Anything else, a bad digest, a truncated
+``__reduce__`` or ``__setattr__`` of the class runs. Anything else, a bad CRC, a truncated
 blob, another identity or an unknown tag is a :class:`StateError` naming why.
 """
 from __future__ import annotations
 
-import hashlib
+import functools
 import json
 import re
 import struct
 import sys
+import zlib
 from typing import Any, Callable
 
 import numpy as np
@@ -55,7 +58,7 @@ BIT_GENERATORS = ("PCG64", "PCG64DXSM", "Philox", "SFC64", "MT19937")   #: resto
 MAX_DEPTH = 200                       #: nesting of the tree (a deeper one is refused)
 _PACKAGE = __name__.partition(".")[0]  # ``fmus`` or ``fmus_<hash>``
 _DTYPE = re.compile(r"[<>|=]?[biufc][0-9]{1,2}")   # bool, int, uint, float, complex only
-_PREFIX = struct.Struct("<16s32sQ")
+_PREFIX = struct.Struct("<16sIQQ")
 
 
 class StateError(ValueError):
@@ -72,6 +75,7 @@ def _module_key(module: str, script: str | None) -> str:
     raise TypeError(f"a {module} object is not part of the state format")
 
 
+@functools.lru_cache(maxsize=1024)
 def _plain(cls: type, forbidden: tuple[type, ...]) -> bool:
     """Whether objects of ``cls`` are plain data: a ``__dict__`` and nothing else (no slots,
     no ``__new__`` or ``__del__`` of their own, not a container, class or exception), and not
@@ -125,10 +129,10 @@ def encode(obj: Any, identity: dict[str, Any], *, bound: type | None = None,
             if not _DTYPE.fullmatch(x.dtype.str):
                 raise TypeError(f"an array of dtype {x.dtype} is not part of the state format")
             order = "F" if x.flags.f_contiguous and not x.flags.c_contiguous else "C"
-            data = x.tobytes(order=order)
-            arrays.append([x.dtype.str, list(x.shape), order, offset, len(data)])
-            chunks.append(data)
-            offset += len(data)
+            data = x.T if order == "F" else np.ascontiguousarray(x)   # C order: the same bytes, no copy
+            arrays.append([x.dtype.str, list(x.shape), order, offset, data.nbytes])
+            chunks.append(memoryview(data.reshape(-1)).cast("B") if data.size else b"")
+            offset += data.nbytes
             return ["a", len(arrays) - 1, new_id(x)]
         if isinstance(x, np.generic):
             if not _DTYPE.fullmatch(x.dtype.str):
@@ -157,8 +161,8 @@ def encode(obj: Any, identity: dict[str, Any], *, bound: type | None = None,
 
     header = json.dumps({"format": VERSION, "identity": identity, "tree": node(obj), "arrays": arrays},
                         separators=(",", ":"), allow_nan=False).encode()
-    body = b"".join([struct.pack("<Q", len(header)), header, *chunks])
-    return MAGIC + hashlib.sha256(body).digest() + body
+    body = b"".join([header, *chunks])
+    return _PREFIX.pack(MAGIC, zlib.crc32(body), len(header), offset) + body
 
 
 def decode(data: bytes, identity: dict[str, Any], *, bound: Callable[[str], Any],
@@ -169,18 +173,19 @@ def decode(data: bytes, identity: dict[str, Any], *, bound: Callable[[str], Any]
     view = memoryview(data)
     if len(view) < _PREFIX.size:
         raise StateError(f"truncated: {len(view)} bytes, not even the {_PREFIX.size}-byte prefix")
-    magic, digest, n_header = _PREFIX.unpack_from(view)
+    magic, crc, n_header, n_arrays = _PREFIX.unpack_from(view)
     if magic != MAGIC:
         what = "a pickle" if view[:1] == b"\x80" else "not a FlexFusion state"
         raise StateError(f"{what} (it does not start with {MAGIC!r}): a state is data only, and "
                          "nothing else is read")
-    body = view[len(MAGIC) + 32:]
-    if n_header > len(body) - 8:
-        raise StateError(f"truncated: its header has {n_header} bytes, {len(body) - 8} follow")
-    if hashlib.sha256(body).digest() != digest:
-        raise StateError("corrupted or truncated: its SHA-256 does not match its content")
+    body = view[_PREFIX.size:]
+    if len(body) != n_header + n_arrays:
+        raise StateError(f"truncated or padded: {len(body)} bytes follow its prefix, it says "
+                         f"{n_header} + {n_arrays}")
+    if zlib.crc32(body) != crc:
+        raise StateError("corrupted: its CRC-32 does not match its content")
     try:
-        head = json.loads(bytes(body[8:8 + n_header]))
+        head = json.loads(bytes(body[:n_header]))
     except (ValueError, RecursionError) as exc:
         raise StateError(f"unreadable header: {exc}") from None
     if not isinstance(head, dict) or head.get("format") != VERSION:
@@ -192,7 +197,7 @@ def decode(data: bytes, identity: dict[str, Any], *, bound: Callable[[str], Any]
         raise StateError(f"the state of another FMU or build ({', '.join(diff) or 'identity'} "
                          f"{ {k: theirs.get(k) for k in diff} if isinstance(theirs, dict) else theirs!r} "
                          f"instead of { {k: identity[k] for k in diff} })")
-    blob = body[8 + n_header:]
+    blob = body[n_header:]
     try:
         return _Decoder(head.get("arrays"), blob, bound, script, forbidden).node(head.get("tree"), 0)
     except StateError:

@@ -5,7 +5,8 @@ the base step):
 
 * every component's FMI state (``fmi2GetFMUstate`` + ``fmi2SerializeFMUstate``, base64): for
   our FMUs the complete internal state, bit-exact (models, filter covariances, particles, RNG
-  states, held samples, inputs, outputs);
+  states, held samples, inputs, outputs), as data only (:mod:`fmus.common.state_codec`: no
+  pickle; an FMU refuses a state of another FMU or build, or a damaged or crafted one);
 * the master's: the step index, and every value on its buffer (the connected and recorded
   outputs as last read, which multi-rate components hold and Jacobi edges read next); the
   master itself draws no random numbers;
@@ -42,6 +43,7 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable
@@ -100,11 +102,17 @@ class FromState:
     """Master hook: after initialisation, set the saved states and step on from their time."""
 
     scenario: Scenario
-    doc: dict[str, Any]
+    doc: dict[str, Any]            #: :func:`read_state`'s (the FMU states decoded to bytes)
+    where: str = "state file"
 
     def start(self, instances: dict[str, Any], values: np.ndarray, offsets: dict) -> int:
+        from fmpy.fmi1 import FMICallException
         for name, inst in instances.items():
-            state = inst.fmu.deSerializeFMUstate(base64.b64decode(self.doc["fmus"][name]))
+            try:
+                state = inst.fmu.deSerializeFMUstate(self.doc["fmus"][name])
+            except FMICallException:
+                raise ScenarioError(f"{self.where}: component '{name}' refused its saved state; FMU log: "
+                                    + inst.log_text(1)) from None
             try:
                 inst.fmu.setFMUstate(state)
             finally:
@@ -134,16 +142,70 @@ class FromState:
 
 
 def read_state(path: str | Path) -> dict[str, Any]:
-    """A state file's document, checked for its format."""
+    """A state file's document, checked for its format and the type of every entry
+    (:func:`check_document`); the FMU states decoded from base64 to bytes. A bad file raises
+    :class:`ScenarioError` naming the entry and why. Nothing in the file is executed: the FMU
+    states are data, which each FMU checks in its turn (``fmi2DeSerializeFMUstate``; for our
+    FMUs :mod:`fmus.common.state_codec`)."""
     try:
-        doc = json.loads(Path(path).read_text())
+        doc = json.loads(Path(path).read_bytes())
     except FileNotFoundError:
         raise ScenarioError(f"state file not found: {path}") from None
-    except (OSError, ValueError) as exc:
+    except IsADirectoryError:
+        raise ScenarioError(f"{path}: a folder, not a state file") from None
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read it: {exc.strerror or exc}") from None
+    except (ValueError, RecursionError) as exc:
         raise ScenarioError(f"{path}: not a FlexFusion state file: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ScenarioError(f"{path}: not a FlexFusion state file (format {FORMAT!r} expected)")
+    check_document(doc, str(path))
     return doc
+
+
+def _number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def check_document(doc: dict[str, Any], where: str) -> None:
+    """Check the entries of a state document ``doc`` (from the file ``where``) for their types
+    and ranges, and decode its FMU states from base64 in place; :class:`ScenarioError` naming
+    the first bad entry."""
+    def bad(key: str, why: str) -> ScenarioError:
+        return ScenarioError(f"{where}: entry '{key}' {why}")
+
+    for key in ("time", "step", "structure", "values", "fmus"):
+        if key not in doc:
+            raise bad(key, "is missing")
+    time, step = doc["time"], doc["step"]
+    if not (_number(time) and math.isfinite(time) and time > 0):
+        raise bad("time", f"must be a number of seconds > 0, not {time!r}")
+    if not (isinstance(step, int) and not isinstance(step, bool) and 0 < step < 2 ** 53):
+        raise bad("step", f"must be a base step number > 0, not {step!r}")
+    st = doc["structure"]
+    if not (isinstance(st, dict) and _number(st.get("base_step")) and st["base_step"] > 0
+            and isinstance(st.get("components"), dict) and isinstance(st.get("connections"), list)
+            and all(isinstance(c, str) for c in st["connections"])):
+        raise bad("structure", "must hold base_step (> 0), components and connections (names)")
+    for name, c in st["components"].items():
+        if not (isinstance(c, dict) and isinstance(c.get("model_identifier"), str) and isinstance(c.get("guid"), str)
+                and _number(c.get("step")) and isinstance(c.get("parameters"), dict)):
+            raise bad(f"structure.components.{name}", "must hold model_identifier, guid, step and parameters")
+    if abs(step * st["base_step"] - time) > 1e-9 * max(1.0, time):
+        raise bad("step", f"{step} base steps of {st['base_step']:g} s are not the state's time {time:g} s")
+    values = doc["values"]
+    if not (isinstance(values, dict) and all(_number(v) for v in values.values())):
+        raise bad("values", "must map each connected output to a number")
+    fmus = doc["fmus"]
+    if not (isinstance(fmus, dict) and set(fmus) == set(st["components"])):
+        raise bad("fmus", "must hold one state per component of the structure")
+    for name, text in fmus.items():
+        if isinstance(text, bytes):
+            continue                                   # decoded already
+        try:
+            fmus[name] = base64.b64decode(text, validate=True)
+        except (TypeError, ValueError) as exc:
+            raise bad(f"fmus.{name}", f"is not base64: {exc}") from None
 
 
 def reseed_fork(sc: Scenario, doc: dict[str, Any]) -> None:
@@ -196,6 +258,9 @@ def check_fork(sc: Scenario, doc: dict[str, Any], where: str) -> None:
     if not T < sc.stop_time:
         raise ScenarioError(f"{where}: stop_time {sc.stop_time:g} s is not after the state's time "
                             f"{T:g} s")
+    if not doc["step"] < sc.n_steps:
+        raise ScenarioError(f"{where}: the state's step {doc['step']} is not before the scenario's "
+                            f"last ({sc.n_steps})")
 
 
 def check_capable(sc: Scenario) -> None:
@@ -228,9 +293,10 @@ def from_state(sc: Scenario, state: str | Path) -> FromState:
     """The hook that starts from the state file ``state`` (checked against the scenario)."""
     doc = read_state(state)
     reseed_fork(sc, doc)
-    check_fork(sc, doc, f"{sc.path or sc.name} from state {state}")
+    where = f"{sc.path or sc.name} from state {state}"
+    check_fork(sc, doc, where)
     check_capable(sc)
-    return FromState(sc, doc)
+    return FromState(sc, doc, where)
 
 
 def run_saving(scenario: str | Path, t: float, state_out: str | Path, overrides: Iterable[str] = (),
@@ -282,6 +348,6 @@ def monte_carlo(scenario: str | Path | dict[str, Any], t: float, seeds: Iterable
     return map_jobs(resume, jobs, executor, desc="forks", progress=progress, star=True)
 
 
-__all__ = ["FORMAT", "SaveState", "FromState", "read_state", "reseed_fork", "check_fork", "check_capable",
+__all__ = ["FORMAT", "SaveState", "FromState", "read_state", "check_document", "reseed_fork", "check_fork", "check_capable",
            "structure", "save_step", "saving", "from_state",
            "run_saving", "resume", "monte_carlo"]

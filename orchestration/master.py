@@ -415,10 +415,15 @@ def _cached_folder(fmu: Path) -> str | None:
     cannot be written.
 
     It is named by the FMU's content (:func:`~orchestration.scenario.fmu_content_key`) and the
-    platform, whose binaries are the only ones extracted. Its Python packages in ``resources/``
+    platform, whose binaries are the only ones extracted. The cache's ``fmus/`` and
+    ``packages/`` folders hold code that is loaded: they are used only if private to this user
+    (:func:`fmus.common.disk_cache.private_folder`: made 0700, owner and mode checked from the
+    cache root down), else the FMU is extracted to a temporary folder of this process. Its Python packages in ``resources/``
     are links to folders shared by every FMU that bundles the same package
     (:func:`_shared_package`): our FMUs all bundle the same ``fmus_<hash>`` and ``pythonfmu``
-    (112 of the Encoder FMU's 120 files), so a cold run extracts them once, not once per FMU. A folder
+    (112 of the Encoder FMU's 120 files), so a cold run extracts them once, not once per FMU. A
+    folder whose shared libraries are not whole is set aside and extracted again
+    (:func:`_repaired`). A folder
     is extracted under a temporary name and renamed when complete, so processes extracting the
     same FMU at once each use a whole folder (the first rename wins). Extracting a new folder
     removes all but the :data:`_CACHE_KEEP` last used ones (a removed folder that a process
@@ -430,7 +435,7 @@ def _cached_folder(fmu: Path) -> str | None:
 
     from fmpy import platform
 
-    from fmus.common.disk_cache import cache_root, prune
+    from fmus.common.disk_cache import cache_root, private_folder, prune
 
     from .scenario import fmu_content_key
     try:
@@ -441,8 +446,11 @@ def _cached_folder(fmu: Path) -> str | None:
     folder = root / f"{key}-{platform}"
     marker = folder / _COMPLETE
     try:
+        private_folder(root, cache_root())      # code is loaded from it: private, or not used
+        private_folder(root.parent / "packages", cache_root())
+        if marker.is_file():
+            _repaired(folder, fmu, platform)
         if not marker.is_file():
-            root.mkdir(parents=True, exist_ok=True)
             prune(root, _CACHE_KEEP - 1)
             _prune_packages(root)
             _publish(folder, partial(_extract_linked, fmu, platform), marker.is_file)
@@ -454,6 +462,44 @@ def _cached_folder(fmu: Path) -> str | None:
     except OSError:
         return None
     return str(folder)
+
+
+def _repaired(folder: Path, fmu: Path, platform: str) -> None:
+    """Set a cached FMU folder aside (with the shared packages concerned) if one of its shared
+    libraries (``*.so``/``*.dll``/``*.dylib``: its binary for ``platform``, a package's
+    compiled kernels) is not the size it has in the FMU ``fmu``: a library truncated by a full
+    disk or a killed copy makes the process that loads it die (a bus error, no message), so
+    the folder is extracted again instead. Set aside = renamed to a hidden name, which
+    :func:`fmus.common.disk_cache.prune` removes an hour later (a process that has the library
+    loaded keeps it)."""
+    import warnings
+    import zipfile
+    bad, packages = [], set()
+    with zipfile.ZipFile(fmu) as z:
+        for m in z.infolist():
+            name = m.filename
+            if not name.endswith((".so", ".dll", ".dylib")) or \
+                    (name.startswith("binaries/") and not name.startswith(f"binaries/{platform}/")):
+                continue
+            path = folder / name
+            try:
+                if path.stat().st_size == m.file_size:
+                    continue
+            except FileNotFoundError:
+                continue            # not extracted here (another platform's) or a dangling link
+            bad.append(name)
+            real = path.resolve()
+            for parent in real.parents:
+                if parent.parent.name == "packages":
+                    packages.add(parent)
+                    break
+    if not bad:
+        return
+    stamp = f".bad-{int(time.time())}-{os.getpid()}-"
+    for entry in (*sorted(packages), folder):
+        os.replace(entry, entry.with_name(stamp + entry.name))
+    warnings.warn(f"{folder}: {', '.join(bad)} not whole (truncated?): set aside, the FMU is extracted again",
+                  stacklevel=3)
 
 
 def _extract_linked(fmu: Path, platform: str, folder: Path) -> None:

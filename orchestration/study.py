@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import hashlib
+import hmac
 import json
 import multiprocessing
 import os
@@ -298,12 +299,16 @@ class StudyFolder:
     ``status.json`` says ``ok``, ``failed`` or ``interrupted`` (with the cause).
 
     A resumed study reuses a stored result whenever the job is the same call; it does not know
-    whether the FMUs or the code changed meanwhile (start a new folder then). The job files are
-    pickles: like an FMU, a study folder from someone else runs code when it is resumed.
+    whether the FMUs or the code changed meanwhile (start a new folder then). A job file is a
+    pickle signed with this user's key (:func:`job_key`): ``MAGIC``, the HMAC-SHA256 of the
+    pickle, the pickle. The signature is checked before anything is unpickled, so a job file
+    that this user's studies did not write (another user's folder, a crafted or damaged file, an
+    older unsigned one) is never loaded: its job runs again, with a warning.
     """
 
     STATUS = "status.json"
     JOBS = "jobs"
+    MAGIC = b"FlexFusionJob1\0"
 
     def __init__(self, path: str | Path, *, resume: bool = False, command: str = "") -> None:
         self.path = Path(path)
@@ -378,19 +383,40 @@ class StudyFolder:
         return self.path / self.JOBS / f"{key}.pickle"
 
     def load(self, key: str) -> tuple[bool, Any]:
-        """``(True, result)`` for a stored job, ``(False, None)`` otherwise (or if unreadable)."""
+        """``(True, result)`` for the stored job ``key``, ``(False, None)`` otherwise: not
+        there, not signed with this user's key (never unpickled, then), or unreadable."""
         try:
-            value = pickle.loads(self._file(key).read_bytes())
+            data = self._file(key).read_bytes()
         except FileNotFoundError:
             return False, None
-        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError) as exc:
-            warnings.warn(f"{self._file(key)}: cannot read it ({exc}); the job runs again")
+        except OSError as exc:
+            warnings.warn(f"{self._file(key)}: cannot read it ({exc.strerror or exc}); the job runs again")
+            return False, None
+        n = len(self.MAGIC)
+        secret = job_key()
+        if secret is None or data[:n] != self.MAGIC or not hmac.compare_digest(
+                data[n:n + 32], hmac.new(secret, data[n + 32:], "sha256").digest()):
+            why = ("no private key folder" if secret is None else "an unsigned file (an older format)"
+                   if data[:n] != self.MAGIC else "its signature is not this user's key's")
+            warnings.warn(f"{self._file(key)}: not loaded: {why}; a job file this user's studies did "
+                          "not write is never unpickled; the job runs again")
+            return False, None
+        try:
+            value = pickle.loads(data[n + 32:])  # noqa: S301 - signed with this user's key (checked above)
+        except Exception as exc:  # noqa: BLE001 - a result whose class is gone: the job runs again
+            warnings.warn(f"{self._file(key)}: cannot read it ({type(exc).__name__}: {exc}); the job runs again")
             return False, None
         self.reused += 1
         return True, value
 
     def store(self, key: str, value: Any) -> None:
-        atomic_write_bytes(self._file(key), pickle.dumps(value, protocol=5))
+        """Store the result ``value`` of the job ``key``, signed (the class docstring); without
+        a private key folder it is not stored (the study goes on, a resume computes it again)."""
+        secret = job_key()
+        if secret is None:
+            return
+        data = pickle.dumps(value, protocol=5)
+        atomic_write_bytes(self._file(key), self.MAGIC + hmac.new(secret, data, "sha256").digest() + data)
         self.computed += 1
 
     def stored(self) -> int:
@@ -398,6 +424,46 @@ class StudyFolder:
 
 
 _ACTIVE_FOLDER: ContextVar[StudyFolder | None] = ContextVar("study_folder", default=None)
+KEY_FILE = "study-jobs.key"
+
+
+def job_key() -> bytes | None:
+    """This user's key that signs the study job files (32 random bytes): made once, in
+    ``<cache root>/keys/`` (else a folder in the temporary directory), a folder of mode 0700
+    checked private with the file (:func:`fmus.common.disk_cache.private_folder`); None, with
+    a warning, where neither can be used."""
+    import secrets
+    import tempfile
+
+    from fmus.common import disk_cache
+    root = disk_cache.cache_root()
+    shared = Path(tempfile.gettempdir()) / f"flexfusion-{os.getuid()}"
+    why = []
+    for folder, top in ((root / "keys", root), (shared / "keys", shared)):
+        path = folder / KEY_FILE
+        try:
+            disk_cache.private_folder(folder, top)
+            if not path.exists():
+                tmp = folder / f".{KEY_FILE}.{os.getpid()}"
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+                with os.fdopen(fd, "wb") as f:
+                    f.write(secrets.token_bytes(32))
+                try:
+                    os.link(tmp, path)            # the first one made wins
+                except FileExistsError:
+                    pass
+                finally:
+                    os.unlink(tmp)
+            disk_cache.check_private(path, folder=False)
+            key = path.read_bytes()
+            if len(key) == 32:
+                return key
+            why.append(f"{path}: not a key")
+        except OSError as exc:
+            why.append(str(exc))
+    warnings.warn("no private folder for the key that signs study job files (" + "; ".join(why)
+                  + "): finished jobs are not kept")
+    return None
 
 
 @contextmanager

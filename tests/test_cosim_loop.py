@@ -196,3 +196,88 @@ def test_without_a_compiler_or_when_asked_the_python_loop_runs(tmp_path, monkeyp
         assert cloop.library() is None and "FLEXFUSION_PYTHON_LOOP" in cloop.unavailable()
     finally:
         cloop.library.cache_clear()
+
+
+PLANTED = r"""
+#include <stdio.h>
+__attribute__((constructor)) static void planted(void) { FILE *f = fopen(MARKER, "w"); if (f) fclose(f); }
+long cosim_steps(void) { return 0; }
+"""
+
+
+def _plant(folder: Path, marker: Path, mode: int = 0o755, record: bool = True) -> Path:
+    """A library that creates ``marker`` as soon as it is loaded, at the C loop's place in
+    ``folder`` (with its hash recorded, as a compiled one has, if ``record``)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    source = folder.parent / "planted.c"
+    source.write_text(PLANTED)
+    lib = folder / cloop.LIBRARY_NAME
+    subprocess.run([*c_compiler(), "-shared", "-fPIC", f'-DMARKER="{marker}"', str(source), "-o", str(lib)],
+                   check=True)
+    if record:
+        lib.with_name(lib.name + ".sha256").write_text(cloop._sha256(lib) + "\n")
+    lib.chmod(mode)
+    return lib
+
+
+@pytest.fixture
+def cache_dirs(tmp_path, monkeypatch):
+    """A cache root and a temporary directory of the test's own; ``cloop.library`` recomputed."""
+    monkeypatch.delenv("FLEXFUSION_PYTHON_LOOP", raising=False)
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr("tempfile.tempdir", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    cloop.library.cache_clear()
+    yield tmp_path / "cache", tmp_path / "tmp" / f"flexfusion-{os.getuid()}"
+    cloop.library.cache_clear()
+
+
+@needs_cc
+def test_a_library_planted_in_a_folder_others_can_write_is_not_loaded(cache_dirs, tmp_path):
+    """The cache root cannot be written (a file stands there): the fallback folder in the
+    temporary directory, made by someone else with mode 0777 and holding a library (with its
+    hash), is not used at all: no C loop, the Python loop runs, and the library never loaded."""
+    root, fallback = cache_dirs
+    root.write_text("not a folder")
+    marker = tmp_path / "loaded"
+    _plant(fallback / "loop" / cloop._key(), marker)
+    for folder in (fallback, fallback / "loop", fallback / "loop" / cloop._key()):
+        folder.chmod(0o777)
+    assert cloop.library() is None
+    assert "writable by group or others (mode 777)" in cloop.unavailable()
+    assert not marker.exists()
+    fallback.chmod(0o700)                 # only the top was open: the next one below is refused too
+    cloop.library.cache_clear()
+    assert cloop.library() is None and f"{fallback / 'loop'}: writable by group" in cloop.unavailable()
+    assert not marker.exists()
+
+
+@needs_cc
+@pytest.mark.parametrize("case", ["world-writable", "other owner", "no hash recorded", "truncated"])
+def test_a_library_that_fails_its_check_is_set_aside_and_compiled_again(cache_dirs, tmp_path, case):
+    """In a private cache folder, a library writable by others, owned by another user (where
+    the test may chown), with no hash recorded at compile time, or truncated after it (a disk
+    that filled up) is not loaded: it is set aside (``.bad-*``) and the loop compiled again."""
+    root, _ = cache_dirs
+    folder = root / "loop" / cloop._key()
+    marker = tmp_path / "loaded"
+    if case == "truncated":
+        lib = cloop._compiled()
+        lib.write_bytes(lib.read_bytes()[:4096])
+    else:
+        lib = _plant(folder, marker, mode=0o666 if case == "world-writable" else 0o755,
+                     record=case != "no hash recorded")
+        root.chmod(0o700)
+        (root / "loop").chmod(0o700)
+        folder.chmod(0o700)
+    if case == "other owner":
+        if os.geteuid() != 0:
+            pytest.skip("changing a file's owner needs root")
+        os.chown(lib, 4242, 4242)
+    why = {"world-writable": "writable by group or others", "other owner": "owned by user 4242",
+           "no hash recorded": "no hash recorded", "truncated": "not what was compiled"}[case]
+    with pytest.warns(UserWarning, match=f"cached C loop was not loaded .*{why}.*compiled again"):
+        assert cloop.library() is not None
+    assert not marker.exists()
+    assert cloop._verified(lib) and len(list(folder.glob(f".bad-*-{cloop.LIBRARY_NAME}"))) == 1
+    assert cloop._compiled() == lib                                     # and now it is reused

@@ -93,3 +93,29 @@ def test_without_a_writable_cache_the_array_is_computed(tmp_path, monkeypatch):
         out = cached_array("tables", "k", (2,), lambda: np.ones(2), keep=4)
         np.testing.assert_array_equal(out, np.ones(2))
     assert blocker.read_text() == ""
+
+
+def test_private_folder_is_made_0700_and_refuses_what_others_can_write(tmp_path):
+    top = tmp_path / "root"
+    made = disk_cache.private_folder(top / "a" / "b", top)
+    for p in (top, top / "a", top / "a" / "b"):
+        assert p.is_dir() and p.stat().st_mode & 0o777 == 0o700, p
+    (top / "a").chmod(0o775)
+    with pytest.raises(PermissionError, match=r"root/a: writable by group or others \(mode 775\)"):
+        disk_cache.private_folder(made, top)
+    (top / "a").chmod(0o755)               # not writable by others: accepted as it is
+    assert disk_cache.private_folder(made, top) == made
+    (tmp_path / "elsewhere").mkdir()
+    os.symlink(tmp_path / "elsewhere", top / "link")
+    with pytest.raises(PermissionError, match="a symbolic link"):
+        disk_cache.private_folder(top / "link", top)
+    (top / "file").write_text("")
+    with pytest.raises(PermissionError, match="not a folder"):
+        disk_cache.private_folder(top / "file", top)
+    (top / "file").chmod(0o646)
+    with pytest.raises(PermissionError, match="writable by group or others"):
+        disk_cache.check_private(top / "file", folder=False)
+    if os.geteuid() == 0:                  # changing an owner needs root
+        os.chown(top / "a" / "b", 4242, 4242)
+        with pytest.raises(PermissionError, match="owned by user 4242"):
+            disk_cache.private_folder(made, top)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
@@ -200,6 +201,49 @@ def test_fmu_state_restores_bit_exactly_and_survives_serialisation() -> None:
         s.do_step((k + 1) * 1e-3, 1e-3)
     assert_array_equal(s.x, after)
     assert s.get_real([vr(s, "x[1]")]) == [after[0]]      # the getters see the restored array
+
+
+class _Payload:
+    """Unpickling it creates the marker file."""
+
+    def __init__(self, marker) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (str(self.marker), "w"))
+
+
+def test_a_foreign_or_crafted_state_is_an_fmi_error_naming_why_and_runs_nothing(tmp_path) -> None:
+    import pickle
+
+    from fmus.common import state_codec
+    log: list[str] = []
+    s = started(log)
+    s.do_step(0.0, 1e-3)
+    good = s._fmu_state_to_bytes(s._get_fmu_state())
+    marker = tmp_path / "ran"
+    crafted = pickle.dumps({"arrays": {}, "attrs": {"x": _Payload(marker)}})
+    with pytest.raises(ValueError, match="toy: fmi2DeSerializeFMUstate: state refused: a pickle"):
+        s._fmu_state_from_bytes(crafted)
+    assert not marker.exists() and "state refused: a pickle" in log[-1]
+    with pytest.raises(ValueError, match="truncated"):
+        s._fmu_state_from_bytes(good[:-5])
+    state = s._get_fmu_state()
+    wider = dict(state, arrays=dict(state["arrays"], x=np.zeros(3)))
+    with pytest.raises(ValueError, match=r"variable 'x': not an array of shape \(2,\)"):
+        s._fmu_state_from_bytes(s._fmu_state_to_bytes(wider))
+    odd = dict(state, attrs=dict(state["attrs"], params=np.zeros(2)))    # a kernel would index it
+    with pytest.raises(ValueError, match="'params' is float64 of 1 dimensions, this instance holds a ToyParameters"):
+        s._fmu_state_from_bytes(s._fmu_state_to_bytes(odd))
+
+    class Other(Toy):
+        """Another FMU (its model identifier)."""
+    other = Other(instance_name="other")
+    with pytest.raises(ValueError, match="the state of another FMU or build .*'model': 'Toy'"):
+        other._fmu_state_from_bytes(good)
+    s._set_fmu_state(s._fmu_state_from_bytes(good))         # the good one still restores
+    assert_array_equal(s.x, [0.0, 0.0])
+    assert state_codec.MAGIC == good[:16]
 
 
 def test_get_real_reads_any_list_of_references_live() -> None:

@@ -214,3 +214,98 @@ def test_cli_fork_errors_exit_2(tmp_path: Path, capsys, monkeypatch, extra, matc
     assert code == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and match in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.fixture(scope="module")
+def cli_state(tmp_path_factory) -> tuple[Path, dict]:
+    """A state file saved by the command line at 0.02 s (stop 0.05 s) and its document."""
+    d = tmp_path_factory.mktemp("cli_state")
+    assert main(["run", str(SCENARIO), "--set", "scenario.stop_time=0.05", "--no-progress", "--out", str(d / "run"),
+                 "--save-state-at", "0.02", "--state-out", str(d / "state.json")]) == 0
+    return d / "state.json", json.loads((d / "state.json").read_text())
+
+
+class _Payload:
+    """Unpickling it creates the marker file (what a crafted state.json did: any command)."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (str(self.marker), "w"))
+
+
+def _b64(data: bytes) -> str:
+    import base64
+    return base64.b64encode(data).decode()
+
+
+@pytest.mark.parametrize("case, match", [
+    ("pickle", "component 'encoder' refused its saved state; FMU log: "),
+    ("truncated", "component 'imu' refused its saved state; FMU log: "),
+    ("other fmu", "component 'encoder' refused its saved state; FMU log: "),
+    ("bad base64", "entry 'fmus.encoder' is not base64"),
+    ("no values", "entry 'values' is missing"),
+    ("no fmu", "entry 'fmus' must hold one state per component"),
+    ("string time", "entry 'time' must be a number of seconds > 0, not '0.02'"),
+    ("negative step", "entry 'step' must be a base step number > 0, not -20"),
+    ("huge step", "entry 'step' must be a base step number > 0, not 1000000000000000000"),
+    ("float step", "entry 'step' must be a base step number > 0, not 1e+18"),
+    ("other step", "entry 'step' 5 base steps of 0.001 s are not the state's time 0.02 s"),
+    ("bad structure", "entry 'structure' must hold base_step"),
+    ("not json", "not a FlexFusion state file"),
+])
+def test_a_bad_or_crafted_state_file_is_one_error_line_and_runs_nothing(cli_state, tmp_path: Path, capsys,
+                                                                         case, match) -> None:
+    path, doc = cli_state
+    doc = json.loads(json.dumps(doc))
+    marker = tmp_path / "ran"
+    fmus = doc["fmus"]
+    if case == "pickle":
+        import pickle
+        fmus["encoder"] = _b64(pickle.dumps({"arrays": {}, "attrs": _Payload(marker)}))
+    elif case == "truncated":
+        fmus["imu"] = fmus["imu"][:len(fmus["imu"]) // 2 // 4 * 4]
+    elif case == "other fmu":
+        fmus["encoder"] = fmus["imu"]
+    elif case == "bad base64":
+        fmus["encoder"] = "not base64!"
+    elif case == "no values":
+        del doc["values"]
+    elif case == "no fmu":
+        del fmus["plant"]
+    elif case == "string time":
+        doc["time"] = "0.02"
+    elif case == "negative step":
+        doc["step"] = -20
+    elif case == "huge step":
+        doc["step"] = 10 ** 18
+    elif case == "float step":
+        doc["step"] = 1e18
+    elif case == "other step":
+        doc["step"] = 5
+    elif case == "bad structure":
+        doc["structure"]["base_step"] = "fast"
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json" if case == "not json" else json.dumps(doc))
+    code = main(["run", str(SCENARIO), "--set", "scenario.stop_time=0.05", "--no-progress",
+                 "--out", str(tmp_path / "out"), "--from-state", str(bad)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: ") and match in err and len(err.strip().splitlines()) == 1, err
+    assert not marker.exists()
+    if case == "pickle":
+        assert "a pickle" in err and "data only" in err
+    if case == "truncated":
+        assert "truncated" in err
+    if case == "other fmu":
+        assert "another FMU or build" in err and "'Imu'" in err
+
+
+def test_the_cli_state_file_resumes(cli_state, tmp_path: Path, capsys) -> None:
+    """The file the bad ones above are made from is good: the run from it equals the whole one."""
+    path, _ = cli_state
+    assert main(["run", str(SCENARIO), "--set", "scenario.stop_time=0.05", "--no-progress",
+                 "--out", str(tmp_path / "out"), "--from-state", str(path)]) == 0
+    whole, forked = Result.load(path.parent / "run"), Result.load(tmp_path / "out")
+    first = np.searchsorted(whole.time, 0.02 - 1e-9)
+    assert_array_equal(forked.data, whole.data[first:])

@@ -188,3 +188,25 @@ def test_a_kernel_without_a_source_file_compiles_uncached():
     exec(compile("from fmus.common.jit import kernel\n@kernel\ndef twice(x):\n    return 2.0 * x\n",
                  "6324638:fmus/common/kern.py", "exec"), namespace)
     assert namespace["twice"](1.5) == 3.0
+
+
+def test_a_kernel_cache_folder_others_can_write_is_not_used(tmp_path):
+    """numba loads code (pickled indexes, machine code) from the kernel cache: a fallback folder
+    in the temporary directory that another user made, or made writable by others, is not
+    used; the kernels compile without a cache (with a warning) and still run."""
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    tmp = tmp_path / "tmp"
+    planted = tmp / f"flexfusion-numba-{os.getuid()}"
+    planted.mkdir(parents=True)
+    planted.chmod(0o777)
+    env = {**os.environ, "FLEXFUSION_CACHE_DIR": str(blocker), "PYTHONPATH": str(REPO), "TMPDIR": str(tmp)}
+    code = ("from fmus.common import jit; print(jit._kernel_cache_dir())\n"
+            "twice = jit.kernel(lambda x: 2.0 * x); print(twice(1.5))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["None", "3.0"]
+    assert "no private folder for the compiled kernels" in out.stderr and "writable by group or others" in out.stderr
+    assert list(planted.iterdir()) == []
+    planted.chmod(0o700)                 # private: used
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split()[0].startswith(str(planted))

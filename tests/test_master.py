@@ -709,3 +709,46 @@ def test_a_run_frees_its_instances_and_unloads_their_libraries(tmp_path, monkeyp
         run(scenario, out_dir=tmp_path / "o")
     assert {Path(p).name for p in set().union(*loaded_at_close)} == {"Failing.so", "Gain.so"}   # were loaded
     assert set().union(*map(loaded_from, master._EXTRACTED.values())) == set()
+
+
+def test_a_cache_folder_others_can_write_is_not_used_for_fmus(tmp_path, toy_dir, monkeypatch):
+    """Extracted FMUs are loaded code: a cache whose fmus/ (or packages/) folder is writable by
+    others (or another user's) is not used; the FMU is extracted to a private temporary folder."""
+    from orchestration import master
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    for name in ("fmus", "packages"):
+        (tmp_path / "cache" / name).mkdir(parents=True, exist_ok=True)
+        (tmp_path / "cache" / name).chmod(0o777)
+        assert master._cached_folder(toy_dir / "Gain.fmu") is None
+        assert list((tmp_path / "cache" / name).iterdir()) == []
+        (tmp_path / "cache" / name).chmod(0o700)
+    assert Path(master._cached_folder(toy_dir / "Gain.fmu")).is_relative_to(tmp_path / "cache" / "fmus")
+
+
+def test_a_truncated_library_in_a_cached_fmu_folder_is_set_aside_and_extracted_again(tmp_path, toy_dir, monkeypatch):
+    """A library left truncated in the cache (a full disk, a killed copy) made every later run
+    die with a bus error: the folder (and the shared package holding a truncated library) is
+    set aside and extracted again, and a run goes on."""
+    import zipfile
+
+    from fmpy import platform
+
+    from orchestration import master
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    fmu = toy_dir / "Gain.fmu"
+    folder = Path(master._cached_folder(fmu))
+    with zipfile.ZipFile(fmu) as z:
+        sizes = {m.filename: m.file_size for m in z.infolist() if m.filename.endswith(".so")
+                 and (not m.filename.startswith("binaries/") or m.filename.startswith(f"binaries/{platform}/"))}
+    assert any(n.startswith("binaries/") for n in sizes)
+    for name in sizes:
+        with open(folder / name, "r+b") as f:            # through the link for a package's library
+            f.truncate(100)
+    with pytest.warns(UserWarning, match="not whole .*: set aside, the FMU is extracted again"):
+        assert master._cached_folder(fmu) == str(folder)
+    assert {n: (folder / n).stat().st_size for n in sizes} == sizes
+    assert len(list((tmp_path / "cache" / "fmus").glob(".bad-*"))) == 1
+    assert master._cached_folder(fmu) == str(folder)        # whole now: no warning, the same folder
+    scenario = write(tmp_path, CHAIN)
+    monkeypatch.setattr(master, "_EXTRACTED", {})
+    run(scenario, out_dir=tmp_path / "run")

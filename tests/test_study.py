@@ -356,3 +356,56 @@ def test_process_pool_terminate_ends_its_busy_workers_and_only_them():
     finally:
         other.terminate()
         other.join()
+
+
+class _Payload:
+    """Unpickling it creates the marker file: what a crafted job file would run."""
+
+    def __init__(self, marker: str) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def _double(k: int) -> int:
+    """A test job."""
+    return 2 * k
+
+
+def test_a_job_file_this_user_did_not_sign_is_never_unpickled_and_runs_again(tmp_path, monkeypatch):
+    """--resume over job files replaced by a pickle with a payload (unsigned, and signed with
+    another user's key: another cache root), a damaged one and a good one: only the good one is
+    taken; the others run again, with a warning each, and the payload never runs."""
+    import hashlib
+    import hmac
+    import pickle
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    out, marker = tmp_path / "study", tmp_path / "ran"
+    jobs = [1, 2, 3, 4]
+    with study.StudyFolder(out), study.open_executor(workers=1) as ex:
+        assert study.map_jobs(_double, jobs, ex, progress=False) == [2, 4, 6, 8]
+    files = [out / "jobs" / f"{study.StudyFolder.key(_double, j)}.pickle" for j in jobs]
+    assert all(f.read_bytes().startswith(study.StudyFolder.MAGIC) for f in files)
+    payload = pickle.dumps(_Payload(str(marker)))
+    files[0].write_bytes(payload)                                        # unsigned
+    other = hashlib.sha256(b"another user's key").digest()
+    files[1].write_bytes(study.StudyFolder.MAGIC + hmac.new(other, payload, "sha256").digest() + payload)
+    files[2].write_bytes(files[2].read_bytes()[:-3])                     # damaged
+    with pytest.warns(UserWarning) as caught, study.StudyFolder(out, resume=True) as folder:
+        keys = [study.StudyFolder.key(_double, j) for j in jobs]
+        got = [folder.load(k) for k in keys]
+    assert not marker.exists()
+    assert [found for found, _ in got] == [False, False, False, True] and got[3][1] == 8
+    messages = " ".join(str(w.message) for w in caught)
+    assert "an unsigned file" in messages and "not this user's key's" in messages
+    assert "never unpickled" in messages
+    with study.StudyFolder(out, resume=True) as folder, study.open_executor(workers=1) as ex:   # again, signed
+        assert study.map_jobs(_double, jobs, ex, progress=False) == [2, 4, 6, 8]
+        assert (folder.computed, folder.reused) == (3, 1)
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "another user"))
+    with pytest.warns(UserWarning, match="not this user's key's"), study.StudyFolder(out, resume=True) as folder, \
+            study.open_executor(workers=1) as ex:
+        assert study.map_jobs(_double, jobs, ex, progress=False) == [2, 4, 6, 8]
+        assert folder.reused == 0
+    assert not marker.exists()

@@ -6,6 +6,12 @@ hash of everything it is made from (:func:`content_key`), and published whole (w
 a temporary name starting with ``.``, then renamed), so a reader never sees a half-written
 entry and no entry is ever stale. A folder keeps its last used entries (:func:`prune`). A
 cache that cannot be written means no cache (the caller computes), never an error.
+
+A folder that holds code something loads (compiled kernels, extracted FMUs, the C loop) is made
+private with :func:`private_folder` (mode 0700) and checked before anything in it is loaded:
+each folder from the cache's root down, and each file loaded (:func:`check_private`), must be
+owned by this user and not writable by group or others, and no symbolic link. A folder that
+fails the check is not used (the caller falls back, or runs without that cache).
 """
 from __future__ import annotations
 
@@ -14,6 +20,7 @@ import hashlib
 import json
 import os
 import shutil
+import stat
 import tempfile
 import time
 import types
@@ -29,6 +36,41 @@ def cache_root() -> Path:
     if not base:
         base = os.path.join(os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache"), "flexfusion")
     return Path(base)
+
+
+def check_private(path: Path, *, folder: bool | None = None) -> None:
+    """Raise ``PermissionError`` naming why unless ``path`` is private to this user: not a
+    symbolic link, owned by this user, not writable by group or others, and a folder (``folder``
+    True), a regular file (False) or either (None). ``FileNotFoundError`` if it is not there."""
+    st = os.lstat(path)
+    kind = "folder" if stat.S_ISDIR(st.st_mode) else "file" if stat.S_ISREG(st.st_mode) else None
+    if kind is None or (folder is not None and (kind == "folder") != folder):
+        what = "a symbolic link" if stat.S_ISLNK(st.st_mode) else f"not a {'folder' if folder else 'file'}"
+        raise PermissionError(f"{path}: {what}")
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        raise PermissionError(f"{path}: owned by user {st.st_uid}, not by this user ({os.getuid()})")
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        raise PermissionError(f"{path}: writable by group or others (mode {stat.S_IMODE(st.st_mode):o})")
+
+
+def private_folder(path: Path, top: Path | None = None) -> Path:
+    """The folder ``path``, made with mode 0700 where missing (with its missing parents), and
+    checked private (:func:`check_private`) from ``top`` (a parent of ``path``; default ``path``
+    itself) down to it. Raises ``OSError`` (``PermissionError`` naming the folder and why)."""
+    path = Path(path)
+    top = Path(top) if top is not None else path
+    below = [path, *path.parents]
+    below = below[:below.index(top) + 1] if top in below else [path]
+    for p in reversed(top.parents if top in below else path.parents):
+        if not os.path.lexists(p):
+            os.mkdir(p, 0o700)                 # the parents of the checked chain: not checked
+    for p in reversed(below):                  # from the top down: nothing made below a bad one
+        try:
+            os.mkdir(p, 0o700)
+        except FileExistsError:
+            pass                               # there already (or made by another process)
+        check_private(p, folder=True)
+    return path
 
 
 def content_key(*parts: Any) -> str:

@@ -23,7 +23,10 @@ every input. This base class adds what our FMUs all need, once:
   between steps (FMI 2.0 variability "tunable"): it is validated, ``self.params`` follows and
   :meth:`FlexFusionSlave.tuned` tells the model; errors reach the host's logger even without
   debug logging;
-* get/set (and serialise) FMU state of the complete internal state, bit-exact;
+* get/set (and serialise) FMU state of the complete internal state, bit-exact; serialised as
+  data only (:mod:`fmus.common.state_codec`: no pickle), stamped with the FMU's identity, and
+  checked against the instance that reads it (a foreign, corrupted or crafted state is an FMI
+  error naming why);
 * every exception turned into an FMI error status with one clear log message (pythonfmu 0.7's
   native layer turns an exception into ``fmi2Fatal``, a ``do_step`` returning False into
   ``fmi2Discard``).
@@ -36,9 +39,9 @@ from __future__ import annotations
 
 import copy
 import ctypes
+import hashlib
 import keyword
 import math
-import pickle
 import sys
 from functools import partial
 import traceback
@@ -51,6 +54,7 @@ from pythonfmu.fmi2slave import Fmi2Slave
 from pythonfmu.variables import Boolean, Integer, Real, String
 
 from . import parameters as _parameters
+from . import state_codec as _state_codec
 
 _MODULE_DICTS: list = []   # see FlexFusionSlave.__init_subclass__
 
@@ -106,6 +110,7 @@ _NOT_STATE = frozenset({"vars", "log_queue", "instance_name", "resources", "visi
 _BOUND = "flexfusion.bound"   # deepcopy memo key: the live objects _Bound names stand for
 _OUTPUT_CAPACITY = 512        # floats of a slave's output buffer (vector outputs beyond it: own arrays)
 _NOMINAL: dict[float, float] = {}    # nominal_step's results: a run meets few distinct steps
+_IDENTITIES: dict[type, dict[str, str]] = {}   # FlexFusionSlave._state_identity, by class
 
 
 def nominal_step(h: float) -> float:
@@ -148,6 +153,52 @@ class _Bound:
 
     def __deepcopy__(self, memo: dict) -> Any:
         return memo[_BOUND][self.name]
+
+
+def _build_id() -> str:
+    """The build of this package: the bundle id in an FMU's package name (``fmus_<12 hex>``,
+    orchestration/build.py), else (the working tree) the first 12 hex of
+    :func:`fmus.common.jit.bundle_id`, the same for the same sources. Not read from the
+    package's ``BUNDLE_ID`` file: in the process that built the FMUs the package was imported
+    from a staging folder that is gone."""
+    package = __name__.partition(".")[0]
+    suffix = package[len("fmus_"):]
+    if package.startswith("fmus_") and len(suffix) == 12 and all(c in "0123456789abcdef" for c in suffix):
+        return suffix
+    from .jit import bundle_id
+    return bundle_id()[:12]
+
+
+def _like(new: Any, live: Any, path: str, depth: int) -> None:
+    """Raise :class:`~fmus.common.state_codec.StateError` where a decoded state's value ``new``
+    at ``path`` does not fit the value ``live`` an instance holds there: an array of another
+    dtype or number of dimensions (not shape: buffers grow), or another class of object
+    (recursively through objects, tuples and dicts of equal keys; a value absent on either
+    side, or None, is not compared)."""
+    if new is None or live is None or isinstance(new, _Bound) or depth > 50:
+        return
+    if isinstance(live, np.ndarray) or isinstance(new, np.ndarray):
+        if not (type(new) is type(live) and new.dtype == live.dtype and new.ndim == live.ndim):
+            def shown(a: Any) -> str:
+                return f"{a.dtype} of {a.ndim} dimensions" if isinstance(a, np.ndarray) else f"a {type(a).__name__}"
+            raise _state_codec.StateError(f"'{path}' is {shown(new)}, this instance holds {shown(live)}")
+        return
+    if type(new) is not type(live):
+        if isinstance(new, (int, float)) and isinstance(live, (int, float)):
+            return                                   # a number whose type changed as it was computed
+        raise _state_codec.StateError(f"'{path}' is a {type(new).__name__}, this instance holds a "
+                                      f"{type(live).__name__}")
+    if isinstance(new, tuple) and len(new) == len(live):
+        for i, (a, b) in enumerate(zip(new, live)):
+            _like(a, b, f"{path}[{i}]", depth + 1)
+    elif isinstance(new, dict):
+        for k in new.keys() & live.keys():
+            _like(new[k], live[k], f"{path}[{k!r}]", depth + 1)
+    elif hasattr(new, "__dict__") and not isinstance(new, np.random.Generator):
+        mine = vars(live)
+        for k, v in vars(new).items():
+            if k in mine:
+                _like(v, mine[k], f"{path}.{k}", depth + 1)
 
 
 _LOGGER = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p,
@@ -615,13 +666,67 @@ class FlexFusionSlave(Fmi2Slave):
         for k, v in attrs.items():
             setattr(self, k, v)
 
-    @staticmethod
-    def _fmu_state_to_bytes(state: dict[str, Any]) -> bytes:
-        return pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
+    def _state_identity(self) -> dict[str, str]:
+        """What a serialised state must carry to be read by this FMU: its model identifier and
+        a hash of its build (:func:`_build_id`) and of its variables (reference, name, type,
+        causality, variability). Not of the FMU script's file: a host process may hold two
+        builds' scripts under one module name."""
+        cls = type(self)
+        identity = _IDENTITIES.get(cls)
+        if identity is None:
+            digest = hashlib.sha256(_build_id().encode())
+            for vr, v in sorted(self.vars.items()):
+                digest.update(f"\0{vr}:{v.name}:{type(v).__name__}:{v.causality}:{v.variability}".encode())
+            identity = _IDENTITIES[cls] = {"model": cls.__name__, "build": digest.hexdigest()[:32]}
+        return identity
 
-    @staticmethod
-    def _fmu_state_from_bytes(data: bytes) -> dict[str, Any]:
-        return pickle.loads(data)  # noqa: S301 - our own state, from the host that saved it
+    def _fmu_state_to_bytes(self, state: dict[str, Any]) -> bytes:
+        """``fmi2SerializeFMUstate``: the bytes of ``state`` (:meth:`_get_fmu_state`'s) in the
+        data-only format of :mod:`fmus.common.state_codec`, stamped with the FMU's identity."""
+        return _state_codec.encode(state, self._state_identity(), bound=_Bound,
+                                   script=type(self).__module__, forbidden=(Fmi2Slave,))
+
+    def _fmu_state_from_bytes(self, data: bytes) -> dict[str, Any]:
+        """``fmi2DeSerializeFMUstate``: the state in the bytes ``data``, if they are a state of
+        this FMU's build that fits this instance; else an FMI error naming why (no code in
+        ``data`` ever runs: :mod:`fmus.common.state_codec`)."""
+        bound = dict(self._arrays, **{"": self})
+
+        def live(name: str) -> _Bound:
+            if name not in bound:
+                raise KeyError(name)
+            return _Bound(name)
+        try:
+            state = _state_codec.decode(bytes(data), self._state_identity(), bound=live,
+                                        script=type(self).__module__, forbidden=(Fmi2Slave,))
+            self._check_state(state)
+        except _state_codec.StateError as exc:
+            msg = f"{self.instance_name}: fmi2DeSerializeFMUstate: state refused: {exc}"
+            self.log(msg, Fmi2Status.error)
+            raise ValueError(msg) from None
+        return state
+
+    def _check_state(self, state: Any) -> None:
+        """Refuse a decoded ``state`` that does not fit this instance: its vector variables'
+        arrays (names, shapes), and, where this instance holds them already, the arrays (dtype,
+        dimensions) and our objects (class) at the same place in its attributes (:func:`_like`)."""
+        if not (isinstance(state, dict) and set(state) == {"arrays", "attrs"}
+                and isinstance(state["arrays"], dict) and isinstance(state["attrs"], dict)):
+            raise _state_codec.StateError("not an FMU state (arrays and attributes)")
+        arrays = state["arrays"]
+        if set(arrays) != set(self._arrays):
+            raise _state_codec.StateError(f"vector variables {sorted(arrays)}, not {sorted(self._arrays)}")
+        for name, a in arrays.items():
+            if not (isinstance(a, np.ndarray) and a.shape == self._arrays[name].shape):
+                raise _state_codec.StateError(f"variable '{name}': not an array of shape {self._arrays[name].shape}")
+        attrs = state["attrs"]
+        for k in attrs:
+            if not isinstance(k, str) or k in _NOT_STATE:
+                raise _state_codec.StateError(f"attribute {k!r} is not part of an FMU state")
+        mine = vars(self)
+        for k, v in attrs.items():
+            if k in mine:
+                _like(v, mine[k], k, 0)
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
         """FMI ``fmi2SetReal`` of ``values`` to the value references ``vrs``.

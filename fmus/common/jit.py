@@ -33,7 +33,9 @@ modules compiled in and numba's check covers only its own file (a changed callee
   be written): any source changed, another folder. It is set for the process (and its
   children) when numba is not imported yet and the variable is unset or another FlexFusion
   tree's; otherwise (numba imported first, or ``NUMBA_CACHE_DIR`` the user's) the kernels are
-  compiled without a cache, with one warning naming the cause.
+  compiled without a cache, with one warning naming the cause. numba loads code from that
+  folder, so it is used only if private to this user
+  (:func:`fmus.common.disk_cache.private_folder`), else no cache, with one warning.
 
 ``NUMBA_DISABLE_JIT=1`` runs the kernels as plain Python (numba's own switch), for debugging.
 
@@ -53,7 +55,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Callable
 
-from fmus.common.disk_cache import cache_root
+from fmus.common.disk_cache import cache_root, private_folder
 
 PACKAGE = Path(__file__).resolve().parent.parent      # ``fmus``, or ``fmus_<hash>`` in an FMU
 BUNDLE_ID_FILE = "BUNDLE_ID"
@@ -106,13 +108,24 @@ def _writable(path: Path) -> bool:
 
 
 @functools.lru_cache(maxsize=None)
-def _kernel_cache_dir() -> Path:
+def _kernel_cache_dir() -> Path | None:
+    """The kernel cache's folder: :func:`cache_dir`, else one in the system's temporary
+    directory, each only if private (:func:`fmus.common.disk_cache.private_folder`: numba loads
+    code from it); None (no cache, with one warning) if neither is."""
     preferred = cache_dir()
-    if _writable(preferred):
-        return preferred
-    fallback = Path(tempfile.gettempdir()) / f"flexfusion-numba-{os.getuid()}" / preferred.name
-    fallback.mkdir(parents=True, exist_ok=True)
-    return fallback
+    shared = Path(tempfile.gettempdir()) / f"flexfusion-numba-{os.getuid()}"
+    why = []
+    for folder, top in ((preferred, cache_root()), (shared / preferred.name, shared)):
+        try:
+            private_folder(folder, top)
+            if _writable(folder):
+                return folder
+            why.append(f"{folder}: not writable")
+        except OSError as exc:
+            why.append(str(exc))
+    logging.getLogger(__name__).warning("no private folder for the compiled kernels (%s): they are "
+                                        "compiled in every process", "; ".join(why))
+    return None
 
 
 @functools.lru_cache(maxsize=None)
@@ -121,7 +134,10 @@ def _cached() -> bool:
     ``NUMBA_CACHE_DIR`` first (the rules of the module docstring)."""
     if (PACKAGE / BUNDLE_ID_FILE).is_file():
         return True                          # an FMU's package: in its content-named folder
-    wanted = str(_kernel_cache_dir())
+    folder = _kernel_cache_dir()
+    if folder is None:
+        return False                         # no private folder: said once by _kernel_cache_dir
+    wanted = str(folder)
     current = os.environ.get("NUMBA_CACHE_DIR", "")
     if "numba" not in sys.modules and (not current or _OURS.fullmatch(Path(current).name)):
         os.environ["NUMBA_CACHE_DIR"] = wanted

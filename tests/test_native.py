@@ -256,6 +256,65 @@ def test_valgrind_check_finds_pythonfmus_use_after_free(fmus: dict[str, Fmu], ho
     assert any("finalizePythonInterpreter" in e for e in errors), errors
 
 
+# ---- a careless C host: misuse is an error, never a crash; memory per cycle ----------------
+
+MISUSE_CYCLES = 1000
+# Resident set growth from the 100th to the 1000th cycle of ForcePulse, measured with this host
+# (Python 3.11, glibc): 1196 kB before fmi2FreeInstance cleared the slave's attributes (its
+# variables' getters refer back to it: a cycle that waited for a full garbage collection),
+# 456-528 kB after, flat (0 kB) from the 2000th to the 3000th cycle. The bound lies between.
+RSS_GROWTH_BOUND_KB = 800
+
+
+@pytest.fixture(scope="session")
+def misuse_host(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """native/fmi2_misuse_host.c compiled like the host above."""
+    if not sysconfig.get_config_var("Py_ENABLE_SHARED"):
+        pytest.skip("this Python has no shared libpython for a C host to link")
+    return native.compile_c_host(tmp_path_factory.mktemp("misuse") / "fmi2_misuse_host",
+                                 "fmi2_misuse_host.c")
+
+
+def misuse_run(host: Path, f: Fmu, cycles: int) -> tuple[subprocess.CompletedProcess, dict[str, str]]:
+    r = run_host(host, [str(f.library), str(f.resources), f.dt.hex(), str(cycles)])
+    checks = dict(line.split()[1:3] for line in r.stdout.splitlines() if line.startswith("check "))
+    return r, checks
+
+
+def test_careless_host_gets_errors_never_a_crash(fmus: dict[str, Fmu], misuse_host: Path) -> None:
+    """A doStep at the wrong time, a double free, calls after free (also once the freed memory
+    may hold a new instance): fmi2Error (3) each with a message, the process exits 0, and a
+    right call still works after each."""
+    f = fmus[FAST_SUBSET[0]]
+    r, checks = misuse_run(misuse_host, f, 0)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert checks["step_at_wrong_time"] == "3" and checks["step_at_dt"] == "0"
+    assert checks["double_free"] == "survived"
+    for name in ("step_after_free", "set_real_after_free", "get_real_after_free",
+                 "terminate_after_free", "debug_logging_after_free", "real_status_after_free",
+                 "freed_handle_beside_new"):
+        assert checks[name] == "3", (name, checks)
+    assert checks["new_step"] == "0"
+    # the wrong time's message names both times, as %.17g
+    assert f"fmi2DoStep: currentCommunicationPoint = 5 s, but the instance is at t = {f.dt:.17g} s" \
+        in r.stderr, r.stderr[-2000:]
+    for function in ("fmi2FreeInstance", "fmi2DoStep", "fmi2SetReal", "fmi2GetReal", "fmi2Terminate",
+                     "fmi2SetDebugLogging", "fmi2GetRealStatus"):
+        assert f"[careless] status 3 logStatusError: {function}: this instance was freed by " \
+               f"fmi2FreeInstance; the call is refused" in r.stderr, (function, r.stderr[-2000:])
+
+
+def test_instantiate_free_cycles_do_not_grow_memory(fmus: dict[str, Fmu], misuse_host: Path) -> None:
+    """1000 instantiate/setup/initialise/step/terminate/free cycles in one process: the
+    resident set grows by less than RSS_GROWTH_BOUND_KB from the 100th cycle to the last."""
+    f = fmus[FAST_SUBSET[0]]
+    r, _ = misuse_run(misuse_host, f, MISUSE_CYCLES)
+    assert r.returncode == 0, r.stderr[-2000:]
+    warm, end, cycles, warm_cycles = map(int, r.stdout.split("rss_kb ")[1].split())
+    assert cycles == MISUSE_CYCLES and warm > 0
+    assert end - warm < RSS_GROWTH_BOUND_KB, (warm, end)
+
+
 # ---- errors and logging (fmpy in this process) -------------------------------------------
 
 class Logged(list):

@@ -446,6 +446,35 @@ def test_fmu_state_round_trip(toys: dict[str, Fmu]) -> None:
     fmu.freeInstance()
 
 
+def test_wrong_time_step_is_refused_and_a_restored_state_steps_from_its_time(
+        toys: dict[str, Fmu]) -> None:
+    """In fmpy: a doStep away from the instance's time is fmi2Error with both times logged and
+    changes nothing; within the tolerance (a few ulps: t0 + k h vs an accumulated time) it is
+    taken; after fmi2SetFMUstate the step goes from the state's (earlier) time."""
+    f = toys["Source"]
+    fmu, log = instantiate(f, logging_on=False)
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    y = next(v.valueReference for v in f.md.modelVariables if v.name == "y")
+    fmu.doStep(0.0, 0.1)
+    state = fmu.getFMUstate()
+    assert status_of(fmu.doStep, 0.3, 0.1) == 3
+    assert any(s == 3 and "currentCommunicationPoint = 0.29999999999999999 s, but the instance "
+               "is at t = 0.10000000000000001 s" in m for s, m in log), log
+    assert fmu.getReal([y]) == [0.1]                       # the refused step did nothing
+    fmu.doStep(0.1, 0.4)
+    fmu.doStep(0.5, 0.1)          # the instance is at 0.5 + 0.1 = 0.6
+    assert 6 * 0.1 != 0.5 + 0.1   # a host counting steps says 0.6000000000000001: an ulp off
+    fmu.doStep(6 * 0.1, 0.1)
+    assert fmu.getReal([y]) == [6 * 0.1 + 0.1]
+    fmu.setFMUstate(state)
+    fmu.doStep(0.1, 0.1)                                   # back at the state's time
+    assert fmu.getReal([y]) == [0.2]
+    fmu.freeFMUstate(state)
+    fmu.freeInstance()
+
+
 # ---- Python host: free, unload, normal exit (pythonfmu 0.7's binary needed work-arounds) -------
 
 PYTHON_HOST = """

@@ -644,8 +644,9 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
     if (!has_slave(in)) return fmi2Error;
     if (in->time_known) {
         double expected = in->last_successful_time;
-        double scale = fabs(expected) > fabs(communicationStepSize) ? fabs(expected)
-                                                                      : fabs(communicationStepSize);
+        /* (a NaN step size gives |expected|: the slave then reports the bad step size) */
+        double scale = fabs(communicationStepSize) > fabs(expected) ? fabs(communicationStepSize)
+                                                                      : fabs(expected);
         double tolerance = TIME_TOLERANCE * scale;
         if (!(fabs(currentCommunicationPoint - expected) <= tolerance)) {   /* NaN too */
             char buffer[256];

@@ -262,10 +262,11 @@ def test_valgrind_check_finds_pythonfmus_use_after_free(fmus: dict[str, Fmu], ho
 # ---- a careless C host: misuse is an error, never a crash; memory per cycle ----------------
 
 MISUSE_CYCLES = 1000
-# Resident set growth from the 100th to the 1000th cycle of ForcePulse, measured with this host
-# (Python 3.11, glibc): 1196 kB before fmi2FreeInstance cleared the slave's attributes (its
-# variables' getters refer back to it: a cycle that waited for a full garbage collection),
-# 456-528 kB after, flat (0 kB) from the 2000th to the 3000th cycle. The bound lies between.
+# Resident set growth from the 100th to the 1000th cycle, measured with this host (Python 3.11,
+# glibc) before fmi2FreeInstance cleared the slave's attributes (its variables' getters refer
+# back to it: a cycle that waited for a full garbage collection) and after: ForcePulse 1196 kB
+# -> 452-528 kB (flat, 0 kB, from the 2000th to the 3000th cycle: the allocator settles),
+# MotionController 18920 kB (21 kB per cycle) -> 244-268 kB. The bound lies between.
 RSS_GROWTH_BOUND_KB = 800
 
 
@@ -307,10 +308,12 @@ def test_careless_host_gets_errors_never_a_crash(fmus: dict[str, Fmu], misuse_ho
                f"fmi2FreeInstance; the call is refused" in r.stderr, (function, r.stderr[-2000:])
 
 
-def test_instantiate_free_cycles_do_not_grow_memory(fmus: dict[str, Fmu], misuse_host: Path) -> None:
+@pytest.mark.parametrize("name", [FAST_SUBSET[0], "MotionController"])
+def test_instantiate_free_cycles_do_not_grow_memory(fmus: dict[str, Fmu], misuse_host: Path,
+                                                    name: str) -> None:
     """1000 instantiate/setup/initialise/step/terminate/free cycles in one process: the
     resident set grows by less than RSS_GROWTH_BOUND_KB from the 100th cycle to the last."""
-    f = fmus[FAST_SUBSET[0]]
+    f = fmus[name]
     r, _ = misuse_run(misuse_host, f, MISUSE_CYCLES)
     assert r.returncode == 0, r.stderr[-2000:]
     warm, end, cycles, warm_cycles = map(int, r.stdout.split("rss_kb ")[1].split())

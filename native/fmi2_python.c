@@ -34,6 +34,9 @@
 #define Py_LIMITED_API 0x030B0000
 #include <Python.h>
 
+#include <math.h>
+#include <pthread.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -62,13 +65,122 @@ typedef struct {
     int logging_on;
     char **categories;                /* enabled log categories; none = all */
     size_t n_categories;
-    double last_successful_time;
+    double last_successful_time;      /* also the time the next fmi2DoStep must start at */
+    int time_known;                   /* 0 after fmi2SetFMUstate: the state's time is not kept */
     PyObject *slave_class;
     PyObject *slave;
     PyObject *log_queue;              /* the slave's list of LogMsg */
     PyObject *methods[N_METHODS];
     PyObject *strings;                /* keeps the last fmi2GetString results alive */
 } Instance;
+
+/* ---- live instances: a handle table -----------------------------------------------------
+ *
+ * The FMI standard leaves a call with a freed instance undefined; we refuse it. The host never
+ * gets the address of an Instance: fmi2Instantiate returns a handle, a number that is never
+ * handed out twice by this library (a 64-bit counter, salted with the library's own load
+ * address so that two FMUs' libraries in one process give different handles), and every entry
+ * point looks it up in the table of live instances before touching anything. A handle that is
+ * not there (freed, never ours, or garbage) is never dereferenced, even if malloc has since
+ * reused the freed Instance's memory for another instance: the call returns fmi2Error, and a
+ * message goes to stderr (the freed instance's logger is not called: the host may have freed
+ * its environment with it). The names of the last FREED_KEPT freed handles are kept (fixed
+ * memory) to say which instance it was. The handles are non-canonical addresses on x86-64 and
+ * AArch64, so a host that dereferences one faults at once instead of reading someone's memory.
+ * A mutex guards the table (any host thread may call); a lookup is a lock, a scan of the live
+ * instances (a few) and an unlock, well under a microsecond against a step's tens.
+ */
+#define FREED_KEPT 64
+typedef struct { uintptr_t handle; Instance *in; } Live;
+typedef struct { uintptr_t handle; char name[64]; } Freed;
+static pthread_mutex_t registry_lock = PTHREAD_MUTEX_INITIALIZER;
+static Live *live;                      /* the live instances (grown, never shrunk) */
+static size_t n_live, live_capacity;
+static Freed freed[FREED_KEPT];         /* a ring of the last freed handles */
+static size_t n_freed;
+static uint64_t handles_made;
+
+static uintptr_t new_handle(void)
+{
+#if UINTPTR_MAX > 0xFFFFFFFFu
+    const uintptr_t tag = (uintptr_t)0xFF1Fu << 48, bits = ((uintptr_t)1 << 48) - 1;
+#else
+    const uintptr_t tag = 0, bits = UINTPTR_MAX;
+#endif
+    uintptr_t salt = (uintptr_t)&registry_lock;
+    handles_made++;
+    return tag | ((salt + (uintptr_t)handles_made * 16) & bits & ~(uintptr_t)15);
+}
+
+/* Put `in` in the table; its handle, or NULL when out of memory. */
+static fmi2Component register_instance(Instance *in)
+{
+    uintptr_t handle = 0;
+    pthread_mutex_lock(&registry_lock);
+    if (n_live == live_capacity) {
+        size_t capacity = live_capacity ? 2 * live_capacity : 16;
+        Live *grown = realloc(live, capacity * sizeof *grown);
+        if (grown) { live = grown; live_capacity = capacity; }
+    }
+    if (n_live < live_capacity) {
+        do handle = new_handle(); while (handle == 0);
+        live[n_live].handle = handle;
+        live[n_live++].in = in;
+    }
+    pthread_mutex_unlock(&registry_lock);
+    return (fmi2Component)handle;
+}
+
+/* Why `c` is not a live instance, on stderr (the table's lock is held). */
+static void report_stale(fmi2Component c, const char *function)
+{
+    uintptr_t handle = (uintptr_t)c;
+    size_t kept = n_freed < FREED_KEPT ? n_freed : FREED_KEPT;
+    for (size_t i = 0; i < kept; i++) {
+        if (freed[i].handle == handle) {
+            fprintf(stderr, "[%s] status %d logStatusError: %s: this instance was freed by "
+                    "fmi2FreeInstance; the call is refused\n", freed[i].name, (int)fmi2Error,
+                    function);
+            return;
+        }
+    }
+    fprintf(stderr, "[?] status %d logStatusError: %s: %p is not a live instance of this FMU "
+            "(%s); the call is refused\n", (int)fmi2Error, function, c,
+            c ? "freed, or never returned by its fmi2Instantiate" : "NULL");
+}
+
+/* The live instance of handle `c`, or NULL (reported) if it is not one. */
+static Instance *lookup(fmi2Component c, const char *function)
+{
+    Instance *in = NULL;
+    pthread_mutex_lock(&registry_lock);
+    for (size_t i = 0; i < n_live; i++) {
+        if (live[i].handle == (uintptr_t)c) { in = live[i].in; break; }
+    }
+    if (!in) report_stale(c, function);
+    pthread_mutex_unlock(&registry_lock);
+    return in;
+}
+
+/* Take `c` out of the table (remembering its name); its instance, or NULL (reported). */
+static Instance *unregister_instance(fmi2Component c, const char *function)
+{
+    Instance *in = NULL;
+    pthread_mutex_lock(&registry_lock);
+    for (size_t i = 0; i < n_live; i++) {
+        if (live[i].handle == (uintptr_t)c) {
+            in = live[i].in;
+            live[i] = live[--n_live];
+            Freed *f = &freed[n_freed++ % FREED_KEPT];
+            f->handle = (uintptr_t)c;
+            snprintf(f->name, sizeof f->name, "%s", in->instance_name);
+            break;
+        }
+    }
+    if (!in) report_stale(c, function);
+    pthread_mutex_unlock(&registry_lock);
+    return in;
+}
 
 /* ---- logging ------------------------------------------------------------------------- */
 
@@ -287,11 +399,23 @@ done:
     return cls;
 }
 
+/* Drop the slave. Its attributes are cleared first: a slave's variables hold getters and
+   setters that refer back to it (a reference cycle), so without this a freed slave waits for a
+   full collection of Python's cyclic garbage collector, which comes only when the older
+   objects have grown by a quarter; until then every instantiate/free cycle added about a
+   kilobyte (measured in tests/test_native.py). A full collection at each free would cost a
+   few tens of milliseconds in a process with numpy, scipy and numba. */
 static void release_slave(Instance *in)
 {
     for (int m = 0; m < N_METHODS; m++) Py_CLEAR(in->methods[m]);
     Py_CLEAR(in->log_queue);
     Py_CLEAR(in->strings);
+    if (in->slave) {
+        PyObject *attributes = PyObject_GetAttrString(in->slave, "__dict__");
+        if (attributes && PyDict_Check(attributes)) PyDict_Clear(attributes);
+        Py_XDECREF(attributes);
+        PyErr_Clear();   /* a slave without a __dict__ (slots) keeps its cycles, if any */
+    }
     Py_CLEAR(in->slave);
 }
 
@@ -356,6 +480,7 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
     in->visible = visible;
     in->logging_on = loggingOn;
     in->last_successful_time = 0.0;
+    in->time_known = 1;
     if (!in->instance_name) { free_instance_memory(in); return NULL; }
     if (fmuType != fmi2CoSimulation || !fmuResourceLocation) {
         emit(in, fmi2Error, "logStatusError", fmuType != fmi2CoSimulation
@@ -383,13 +508,21 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
         return NULL;
     }
     flush_log(in);
+    fmi2Component handle = register_instance(in);
+    if (!handle) {
+        emit(in, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
+        release_slave(in);
+        Py_CLEAR(in->slave_class);
+    }
     PyGILState_Release(gil);
-    return in;
+    if (!handle) free_instance_memory(in);
+    return handle;
 }
 
 FMI2_Export void fmi2FreeInstance(fmi2Component c)
 {
-    Instance *in = c;
+    if (!c) return;   /* as free(NULL): a host may free what fmi2Instantiate failed to make */
+    Instance *in = unregister_instance(c, "fmi2FreeInstance");
     if (!in) return;
     PyGILState_STATE gil = PyGILState_Ensure();
     release_slave(in);
@@ -401,7 +534,7 @@ FMI2_Export void fmi2FreeInstance(fmi2Component c)
 FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn,
                                            size_t nCategories, const fmi2String categories[])
 {
-    Instance *in = c;
+    Instance *in = lookup(c, "fmi2SetDebugLogging");
     if (!in) return fmi2Error;
     for (size_t i = 0; i < in->n_categories; i++) free(in->categories[i]);
     free(in->categories);
@@ -422,11 +555,19 @@ FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingO
 
 /* ---- calls into the slave ------------------------------------------------------------ */
 
+/* How far a doStep's currentCommunicationPoint may be from the instance's time, relative to
+   the larger of |time| and |step size|. The instance's time is the host's previous point plus
+   its step (one rounded addition), so a host that forms its points as t0 + k h, accumulates
+   t += h, or converts integer ticks to seconds differs from it by a few ulps (~1e-16
+   relative); 1e-9 leaves six orders of magnitude for that, and stays below one step h until a
+   run has 1e9 steps (a real wrong point is off by a step or more). */
+#define TIME_TOLERANCE 1e-9
+
 /* method(*args) on the slave, GIL taken here; fmi2OK or the exception as fmi2Error. */
 static fmi2Status call(fmi2Component c, enum Method m, const char *function, const char *format,
                        ...)
 {
-    Instance *in = c;
+    Instance *in = lookup(c, function);
     if (!has_slave(in)) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     va_list va;
@@ -449,9 +590,10 @@ FMI2_Export fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranc
                                            fmi2Real tolerance, fmi2Real startTime,
                                            fmi2Boolean stopTimeDefined, fmi2Real stopTime)
 {
-    Instance *in = c;
+    Instance *in = lookup(c, "fmi2SetupExperiment");
     if (!has_slave(in)) return fmi2Error;
     in->last_successful_time = startTime;
+    in->time_known = 1;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *stop = optional(stopTimeDefined, stopTime);
     PyObject *tol = optional(toleranceDefined, tolerance);
@@ -482,10 +624,12 @@ FMI2_Export fmi2Status fmi2Terminate(fmi2Component c)
 
 FMI2_Export fmi2Status fmi2Reset(fmi2Component c)
 {
-    Instance *in = c;
+    Instance *in = lookup(c, "fmi2Reset");
     if (!in) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     flush_log(in);
+    in->last_successful_time = 0.0;   /* until fmi2SetupExperiment says otherwise */
+    in->time_known = 1;
     fmi2Status status = create_slave(in) < 0 ? report_exception(in, "fmi2Reset") : fmi2OK;
     PyGILState_Release(gil);
     return status;
@@ -496,8 +640,24 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
                                   fmi2Boolean noSetFMUStatePriorToCurrentPoint)
 {
     (void)noSetFMUStatePriorToCurrentPoint;
-    Instance *in = c;
+    Instance *in = lookup(c, "fmi2DoStep");
     if (!has_slave(in)) return fmi2Error;
+    if (in->time_known) {
+        double expected = in->last_successful_time;
+        /* (a NaN step size gives |expected|: the slave then reports the bad step size) */
+        double scale = fabs(communicationStepSize) > fabs(expected) ? fabs(communicationStepSize)
+                                                                      : fabs(expected);
+        double tolerance = TIME_TOLERANCE * scale;
+        if (!(fabs(currentCommunicationPoint - expected) <= tolerance)) {   /* NaN too */
+            char buffer[256];
+            snprintf(buffer, sizeof buffer, "fmi2DoStep: currentCommunicationPoint = %.17g s, "
+                     "but the instance is at t = %.17g s (the end of its last step, or the "
+                     "start time); the step is refused and the instance left as it was",
+                     currentCommunicationPoint, expected);
+            emit(in, fmi2Error, "logStatusError", buffer);
+            return fmi2Error;
+        }
+    }
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *t = PyFloat_FromDouble(currentCommunicationPoint);
     PyObject *h = PyFloat_FromDouble(communicationStepSize);
@@ -514,6 +674,7 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
         flush_log(in);
         status = done ? fmi2OK : fmi2Discard;   /* do_step() returned False: as pythonfmu */
         in->last_successful_time = currentCommunicationPoint + (done ? communicationStepSize : 0.0);
+        in->time_known = 1;
     }
     PyGILState_Release(gil);
     return status;
@@ -593,7 +754,7 @@ static fmi2Status set_values(fmi2Component c, enum Method m, const char *functio
                              const fmi2ValueReference vr[], size_t nvr, const void *values,
                              ToPython convert)
 {
-    Instance *in = c;
+    Instance *in = lookup(c, function);
     if (!has_slave(in)) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *refs = references(vr, nvr);
@@ -616,7 +777,7 @@ static fmi2Status get_values(fmi2Component c, enum Method m, const char *functio
                              const fmi2ValueReference vr[], size_t nvr, void *values,
                              FromPython convert)
 {
-    Instance *in = c;
+    Instance *in = lookup(c, function);
     if (!has_slave(in)) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *refs = references(vr, nvr);
@@ -684,7 +845,7 @@ FMI2_Export fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference 
 FMI2_Export fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                      fmi2String value[])
 {
-    Instance *in = c;
+    Instance *in = lookup(c, "fmi2GetString");
     if (!has_slave(in)) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     Py_XDECREF(in->strings);                   /* the previous call's strings may go now */
@@ -708,7 +869,7 @@ static fmi2Status give_state(Instance *in, const char *function, PyObject *s, fm
 
 FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state)
 {
-    Instance *in = c;
+    Instance *in = lookup(c, "fmi2GetFMUstate");
     if (!has_slave(in) || !state) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *s = PyObject_CallNoArgs(in->methods[M_GET_FMU_STATE]);
@@ -721,7 +882,12 @@ FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state)
 FMI2_Export fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state)
 {
     if (!state) return fmi2Error;
-    return call(c, M_SET_FMU_STATE, "fmi2SetFMUstate", "(O)", (PyObject *)state);
+    fmi2Status status = call(c, M_SET_FMU_STATE, "fmi2SetFMUstate", "(O)", (PyObject *)state);
+    /* The state's time is the slave's business (a serialised state carries no time of ours,
+       and its bytes stay as they were): the next fmi2DoStep's time is taken as given. */
+    Instance *in = status == fmi2OK ? lookup(c, "fmi2SetFMUstate") : NULL;
+    if (in) in->time_known = 0;
+    return status;
 }
 
 FMI2_Export fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *state)
@@ -747,7 +913,7 @@ static PyObject *state_bytes(Instance *in, fmi2FMUstate state)
 
 FMI2_Export fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size)
 {
-    Instance *in = c;
+    Instance *in = lookup(c, "fmi2SerializedFMUstateSize");
     if (!has_slave(in) || !state || !size) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *b = state_bytes(in, state);
@@ -760,7 +926,7 @@ FMI2_Export fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate 
 FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state,
                                              fmi2Byte serializedState[], size_t size)
 {
-    Instance *in = c;
+    Instance *in = lookup(c, "fmi2SerializeFMUstate");
     if (!has_slave(in) || !state) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *b = state_bytes(in, state);
@@ -778,7 +944,7 @@ FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state
 FMI2_Export fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[],
                                                size_t size, fmi2FMUstate *state)
 {
-    Instance *in = c;
+    Instance *in = lookup(c, "fmi2DeSerializeFMUstate");
     if (!has_slave(in) || !state) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *b = PyBytes_FromStringAndSize(serializedState, (Py_ssize_t)size);
@@ -793,7 +959,7 @@ FMI2_Export fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte s
 
 static fmi2Status unsupported(fmi2Component c, const char *function)
 {
-    Instance *in = c;
+    Instance *in = lookup(c, function);
     if (!in) return fmi2Error;
     char buffer[160];
     snprintf(buffer, sizeof buffer, "%s: not supported by this FMU", function);
@@ -833,12 +999,12 @@ FMI2_Export fmi2Status fmi2CancelStep(fmi2Component c)
 FMI2_Export fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
 {
     (void)s; (void)value;
-    return c ? fmi2Discard : fmi2Error;
+    return lookup(c, "fmi2GetStatus") ? fmi2Discard : fmi2Error;
 }
 
 FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
 {
-    Instance *in = c;
+    Instance *in = lookup(c, "fmi2GetRealStatus");
     if (!in || !value) return fmi2Error;
     if (s != fmi2LastSuccessfulTime) return fmi2Discard;
     *value = in->last_successful_time;
@@ -848,17 +1014,17 @@ FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s
 FMI2_Export fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
 {
     (void)s; (void)value;
-    return c ? fmi2Discard : fmi2Error;
+    return lookup(c, "fmi2GetIntegerStatus") ? fmi2Discard : fmi2Error;
 }
 
 FMI2_Export fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
 {
     (void)s; (void)value;
-    return c ? fmi2Discard : fmi2Error;
+    return lookup(c, "fmi2GetBooleanStatus") ? fmi2Discard : fmi2Error;
 }
 
 FMI2_Export fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
 {
     (void)s; (void)value;
-    return c ? fmi2Discard : fmi2Error;
+    return lookup(c, "fmi2GetStringStatus") ? fmi2Discard : fmi2Error;
 }

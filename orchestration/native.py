@@ -144,9 +144,10 @@ def install_into(fmu: Path, library: Path) -> None:
         dst.write(library, member)
 
 
-def compile_c_host(exe: Path) -> Path:
-    """Compile ``native/fmi2_host.c`` (the example C host) into ``exe``, linked to this
-    Python's libpython so that an FMU's library finds the interpreter (native/README.md).
+def compile_c_host(exe: Path, source: str = "fmi2_host.c") -> Path:
+    """Compile ``native/<source>`` (by default ``fmi2_host.c``, the example C host; the tests
+    also use ``fmi2_misuse_host.c``, a careless one) into ``exe``, linked to this Python's
+    libpython so that an FMU's library finds the interpreter (native/README.md).
 
     Raises
     ------
@@ -158,7 +159,7 @@ def compile_c_host(exe: Path) -> Path:
     libdir = sysconfig.get_config_var("LIBDIR")
     # --no-as-needed: the host calls no Python function itself, the FMU's library does
     command = [*c_compiler(), "-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", f"-I{NATIVE}",
-               str(NATIVE / "fmi2_host.c"), "-o", str(exe), "-ldl", "-Wl,--no-as-needed",
+               str(NATIVE / source), "-o", str(exe), "-ldl", "-Wl,--no-as-needed",
                f"-L{libdir}", f"-lpython{sysconfig.get_config_var('LDVERSION')}",
                f"-Wl,-rpath,{libdir}"]
     result = subprocess.run(command, capture_output=True, text=True)

@@ -7,7 +7,10 @@ corrupted unsorted chunks``, a use-after-free that valgrind shows in its
 ``finalizePythonInterpreter``); ours must exit 0 every time, and valgrind must find no invalid
 memory access. Fast tests run every FMU once (against fmpy, bit for bit) and one FMU 20 times;
 the slow ones run every FMU 20 times, and valgrind (one FMU loaded twice, every FMU, and
-pythonfmu's own library to show that the check finds its use-after-free).
+pythonfmu's own library to show that the check finds its use-after-free). A careless C host
+(native/fmi2_misuse_host.c) frees twice, calls after free and steps at the wrong time: each is
+fmi2Error, never a crash (and, under valgrind, no freed memory read); 1000 instantiate/free
+cycles stay under a stated memory bound.
 """
 from __future__ import annotations
 
@@ -256,6 +259,77 @@ def test_valgrind_check_finds_pythonfmus_use_after_free(fmus: dict[str, Fmu], ho
     assert any("finalizePythonInterpreter" in e for e in errors), errors
 
 
+# ---- a careless C host: misuse is an error, never a crash; memory per cycle ----------------
+
+MISUSE_CYCLES = 1000
+# Resident set growth from the 100th to the 1000th cycle, measured with this host (Python 3.11,
+# glibc) before fmi2FreeInstance cleared the slave's attributes (its variables' getters refer
+# back to it: a cycle that waited for a full garbage collection) and after: ForcePulse 1196 kB
+# -> 452-528 kB (flat, 0 kB, from the 2000th to the 3000th cycle: the allocator settles),
+# MotionController 18920 kB (21 kB per cycle) -> 244-268 kB. The bound lies between.
+RSS_GROWTH_BOUND_KB = 800
+
+
+@pytest.fixture(scope="session")
+def misuse_host(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """native/fmi2_misuse_host.c compiled like the host above."""
+    if not sysconfig.get_config_var("Py_ENABLE_SHARED"):
+        pytest.skip("this Python has no shared libpython for a C host to link")
+    return native.compile_c_host(tmp_path_factory.mktemp("misuse") / "fmi2_misuse_host",
+                                 "fmi2_misuse_host.c")
+
+
+def misuse_run(host: Path, f: Fmu, cycles: int) -> tuple[subprocess.CompletedProcess, dict[str, str]]:
+    r = run_host(host, [str(f.library), str(f.resources), f.dt.hex(), str(cycles)])
+    checks = dict(line.split()[1:3] for line in r.stdout.splitlines() if line.startswith("check "))
+    return r, checks
+
+
+def test_careless_host_gets_errors_never_a_crash(fmus: dict[str, Fmu], misuse_host: Path) -> None:
+    """A doStep at the wrong time, a double free, calls after free (also once the freed memory
+    may hold a new instance): fmi2Error (3) each with a message, the process exits 0, and a
+    right call still works after each."""
+    f = fmus[FAST_SUBSET[0]]
+    r, checks = misuse_run(misuse_host, f, 0)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert checks["step_at_wrong_time"] == "3" and checks["step_at_dt"] == "0"
+    assert checks["double_free"] == "survived"
+    for name in ("step_after_free", "set_real_after_free", "get_real_after_free",
+                 "terminate_after_free", "debug_logging_after_free", "real_status_after_free",
+                 "freed_handle_beside_new"):
+        assert checks[name] == "3", (name, checks)
+    assert checks["new_step"] == "0"
+    # the wrong time's message names both times, as %.17g
+    assert f"fmi2DoStep: currentCommunicationPoint = 5 s, but the instance is at t = {f.dt:.17g} s" \
+        in r.stderr, r.stderr[-2000:]
+    for function in ("fmi2FreeInstance", "fmi2DoStep", "fmi2SetReal", "fmi2GetReal", "fmi2Terminate",
+                     "fmi2SetDebugLogging", "fmi2GetRealStatus"):
+        assert f"[careless] status 3 logStatusError: {function}: this instance was freed by " \
+               f"fmi2FreeInstance; the call is refused" in r.stderr, (function, r.stderr[-2000:])
+
+
+@pytest.mark.parametrize("name", [FAST_SUBSET[0], "MotionController"])
+def test_instantiate_free_cycles_do_not_grow_memory(fmus: dict[str, Fmu], misuse_host: Path,
+                                                    name: str) -> None:
+    """1000 instantiate/setup/initialise/step/terminate/free cycles in one process: the
+    resident set grows by less than RSS_GROWTH_BOUND_KB from the 100th cycle to the last."""
+    f = fmus[name]
+    r, _ = misuse_run(misuse_host, f, MISUSE_CYCLES)
+    assert r.returncode == 0, r.stderr[-2000:]
+    warm, end, cycles, warm_cycles = map(int, r.stdout.split("rss_kb ")[1].split())
+    assert cycles == MISUSE_CYCLES and warm > 0
+    assert end - warm < RSS_GROWTH_BOUND_KB, (warm, end)
+
+
+@pytest.mark.slow   # about 40-60 s: Python's start and numpy's import under valgrind
+def test_careless_host_makes_no_invalid_memory_access_under_valgrind(
+        fmus: dict[str, Fmu], misuse_host: Path, tmp_path: Path) -> None:
+    """The double free and the calls after free read no freed memory (not only: do not crash)."""
+    f = fmus[FAST_SUBSET[0]]
+    args = [str(f.library), str(f.resources), f.dt.hex(), "5"]
+    assert valgrind_errors(misuse_host, args, tmp_path / "vg.xml") == []
+
+
 # ---- errors and logging (fmpy in this process) -------------------------------------------
 
 class Logged(list):
@@ -384,6 +458,35 @@ def test_fmu_state_round_trip(toys: dict[str, Fmu]) -> None:
     assert fmu.getReal([y]) == [0.5]
     fmu.freeFMUstate(state)
     fmu.freeFMUstate(restored)
+    fmu.freeInstance()
+
+
+def test_wrong_time_step_is_refused_and_a_restored_state_steps_from_its_time(
+        toys: dict[str, Fmu]) -> None:
+    """In fmpy: a doStep away from the instance's time is fmi2Error with both times logged and
+    changes nothing; within the tolerance (a few ulps: t0 + k h vs an accumulated time) it is
+    taken; after fmi2SetFMUstate the step goes from the state's (earlier) time."""
+    f = toys["Source"]
+    fmu, log = instantiate(f, logging_on=False)
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    y = next(v.valueReference for v in f.md.modelVariables if v.name == "y")
+    fmu.doStep(0.0, 0.1)
+    state = fmu.getFMUstate()
+    assert status_of(fmu.doStep, 0.3, 0.1) == 3
+    assert any(s == 3 and "currentCommunicationPoint = 0.29999999999999999 s, but the instance "
+               "is at t = 0.10000000000000001 s" in m for s, m in log), log
+    assert fmu.getReal([y]) == [0.1]                       # the refused step did nothing
+    fmu.doStep(0.1, 0.4)
+    fmu.doStep(0.5, 0.1)          # the instance is at 0.5 + 0.1 = 0.6
+    assert 6 * 0.1 != 0.5 + 0.1   # a host counting steps says 0.6000000000000001: an ulp off
+    fmu.doStep(6 * 0.1, 0.1)
+    assert fmu.getReal([y]) == [6 * 0.1 + 0.1]
+    fmu.setFMUstate(state)
+    fmu.doStep(0.1, 0.1)                                   # back at the state's time
+    assert fmu.getReal([y]) == [0.2]
+    fmu.freeFMUstate(state)
     fmu.freeInstance()
 
 

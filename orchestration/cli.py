@@ -8,6 +8,7 @@ its results up to then on disk (``run.json`` status ``interrupted``).
 from __future__ import annotations
 
 import argparse
+import logging
 import signal
 import sys
 import warnings
@@ -16,6 +17,59 @@ from pathlib import Path
 from typing import Any, Iterator
 
 EXIT_USER_ERROR = 2
+
+log = logging.getLogger(__name__)
+
+EXAMPLES = """examples:
+  flexfusion build                                    # build every FMU into dist/fmus
+  flexfusion run orchestration/scenarios/flagship.toml --stop-time 1 --out results/quick
+  flexfusion run orchestration/scenarios/flagship.toml --set ekf.r_acc=1e-3 --set scenario.seed=7 -q
+  flexfusion plot results/quick                       # variables.png (and tool_path.png)
+  flexfusion study KIND --help                        # the studies: flexfusion study --help
+"""
+
+
+def version() -> str:
+    """The installed ``flexfusion`` distribution's version (importlib.metadata)."""
+    from importlib import metadata
+    try:
+        return metadata.version("flexfusion")
+    except metadata.PackageNotFoundError:
+        return "unknown (the flexfusion distribution is not installed)"
+
+
+def _log_level(args: argparse.Namespace) -> int:
+    """``--log-level`` if given, else WARNING moved down by each ``-v`` (INFO, DEBUG) and up by
+    each ``-q`` (ERROR, CRITICAL)."""
+    if getattr(args, "log_level", None):
+        return int(getattr(logging, args.log_level))
+    steps = getattr(args, "verbose", 0) - getattr(args, "quiet", 0)
+    return min(max(logging.WARNING - 10 * steps, logging.DEBUG), logging.CRITICAL)
+
+
+class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """A handler writing to ``sys.stderr`` as it is at each message (a replaced stderr, as
+    pytest's capture or a caller's redirect, gets the messages)."""
+
+    @property                                       # type: ignore[override]
+    def stream(self) -> Any:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value: Any) -> None:
+        pass
+
+
+def configure_logging(level: int) -> None:
+    """The ``orchestration`` loggers at ``level``, to stderr as ``level: message`` lines (one
+    handler, added once)."""
+    package = logging.getLogger(__name__.rpartition(".")[0])
+    package.setLevel(level)
+    if not any(isinstance(h, _StderrHandler) for h in package.handlers):
+        handler = _StderrHandler()
+        handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
+        package.addHandler(handler)
+        package.propagate = False
 
 
 def _error(message: str) -> int:
@@ -29,7 +83,8 @@ def _output_folder_error(exc: OSError, out: Any) -> int:
 
 def _show_warning(message: Any, category: Any, filename: str, lineno: int, file: Any = None,
                   line: Any = None) -> None:
-    print(f"warning: {message}", file=sys.stderr)
+    if log.isEnabledFor(logging.WARNING):           # -q (ERROR) hides them
+        print(f"warning: {message}", file=sys.stderr)
 
 
 @contextmanager
@@ -70,6 +125,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         return _error("--workers and --scheduler go with --forks N (the forks run on them)")
     try:
         with stop_on_signals(), loaded(args.scenario, args.set or ()) as scenario:
+            log.info("scenario %s from %s: stop_time %g s, base step %g s, seed %d, overrides %s",
+                     scenario.name, args.scenario, scenario.stop_time, scenario.base_step,
+                     scenario.seed, list(args.set or ()) or "none")
             if args.forks is not None:      # fork i: scenario.seed = seed + i (fork.monte_carlo)
                 out = args.out or Path("results") / f"{scenario.name}-forks"
                 seeds = range(scenario.seed + 1, scenario.seed + 1 + args.forks)
@@ -225,14 +283,35 @@ def cmd_check_estimator(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     from .ssp import HOSTS
 
-    parser = argparse.ArgumentParser(prog="flexfusion", description=__doc__.splitlines()[0])
+    # -v/-q/--log-level before or after the sub-command (SUPPRESS: a sub-command's parser does
+    # not reset what the main parser read; no set_defaults, which would change the shared actions)
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                        help="more log output (-v: info, -vv: debug)")
+    common.add_argument("-q", "--quiet", action="count", default=argparse.SUPPRESS,
+                        help="errors only: no progress bar, no warnings")
+    common.add_argument("--log-level", type=str.upper, default=argparse.SUPPRESS,
+                        choices=["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"],
+                        help="the log level (overrides -v/-q; default WARNING)")
+    parser = argparse.ArgumentParser(prog="flexfusion", description=__doc__.splitlines()[0],
+                                     parents=[common], epilog=EXAMPLES,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("build", help="build and validate every FMU into dist/fmus", add_help=False)
 
-    p_run = sub.add_parser("run", help="run a scenario: results.csv, metrics.json, run.json")
+    p_run = sub.add_parser("run", help="run a scenario: results.csv, metrics.json, run.json",
+                           parents=[common], formatter_class=argparse.RawDescriptionHelpFormatter,
+                           epilog="examples:\n"
+                           "  flexfusion run SCENARIO.toml --stop-time 2 --out /tmp/r --force\n"
+                           "  flexfusion run SCENARIO.toml --set ekf.r_acc=1e-3 --set scenario.seed=3 -v\n"
+                           "  flexfusion run SCENARIO.toml --save-state-at 1 --forks 8 --workers 2\n")
     p_run.add_argument("scenario", type=Path, help="scenario file (TOML), or an SSP package (.ssp, .ssd)")
     p_run.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE",
                        help="override a parameter (repeatable); also scenario.seed=N, scenario.stop_time=T")
+    p_run.add_argument("--stop-time", metavar="T",
+                       help="the run's stop time (s): the same as --set scenario.stop_time=T, "
+                            "given after every --set")
     p_run.add_argument("--out", type=Path, help="output folder (default results/<scenario name>); "
                        "one run at a time owns it")
     p_run.add_argument("--force", action="store_true",
@@ -257,10 +336,10 @@ def main(argv: list[str] | None = None) -> int:
                        help="with --forks: run them on a Dask cluster (tcp://host:port, or 'local'; "
                             "its workers must see --out)")
 
-    p_plot = sub.add_parser("plot", help="PNG plots of a run folder")
+    p_plot = sub.add_parser("plot", help="PNG plots of a run folder", parents=[common])
     p_plot.add_argument("dir", type=Path, help="a run folder (flexfusion run --out)")
 
-    p_ssp = sub.add_parser("export-ssp", help="export a scenario as an SSP package")
+    p_ssp = sub.add_parser("export-ssp", help="export a scenario as an SSP package", parents=[common])
     p_ssp.add_argument("scenario", type=Path, help="scenario file (TOML)")
     p_ssp.add_argument("-o", "--output", required=True, type=Path, help="the .ssp file to write")
     p_ssp.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE", help="override a parameter")
@@ -272,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
                              "(docs/estimator_contract.md): one line per failed rule, exit 2 if any")
     p_check.add_argument("fmus", type=Path, nargs="+", metavar="FILE.fmu")
 
-    p_study = sub.add_parser("study", help="studies: Monte Carlo, tuning, robustness, ...")
+    p_study = sub.add_parser("study", help="studies: Monte Carlo, tuning, robustness, ...", parents=[common])
     kinds = p_study.add_subparsers(dest="study", required=True, metavar="KIND")
     argv = sys.argv[1:] if argv is None else list(argv)
     if next((a for a in argv if not a.startswith("-")), None) == "study":
@@ -282,12 +361,21 @@ def main(argv: list[str] | None = None) -> int:
             module.register(kinds)
 
     args, rest = parser.parse_known_args(argv)
+    level = _log_level(args)
+    configure_logging(level)
+    if level > logging.WARNING and hasattr(args, "no_progress"):
+        args.no_progress = True          # -q: no progress bar
     if args.command == "build":
         from orchestration import build
         return build.main(rest)
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     args.argv = argv                     # recorded in a study folder's status.json
+    if getattr(args, "stop_time", None) is not None:
+        args.set = [*(args.set or ()), f"scenario.stop_time={args.stop_time}"]
+    workers = getattr(args, "workers", None)
+    if workers is not None and workers < 1:      # before anything is loaded or computed
+        return _error(f"--workers must be at least 1, not {workers}")
     handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp, "study": cmd_study,
                 "check-estimator": cmd_check_estimator}
     with warnings.catch_warnings():

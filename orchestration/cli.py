@@ -159,14 +159,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         for name in forks[0].metrics:       # each fork's metrics are over its rows, from T on
             values = np.array([f.metrics[name] for f in forks])
             spread = f" +- {values.std(ddof=1):.2g}" if len(values) > 1 else ""
-            unit = forks[0].units.get(name, "")
+            unit = forks[0].metric_units.get(name, "")
             print(f"  {name:<32} {values.mean():.6g}{spread} {unit if unit != '1' else ''}".rstrip())
         return 0
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
     if args.state_out is not None:
         print(f"  state at t = {args.save_state_at:g} s in {args.state_out}")
     for name, value in result.metrics.items():
-        unit = result.units.get(name, "")
+        unit = result.metric_units.get(name, "")
         print(f"  {name:<32} {value:.6g} {unit if unit != '1' else ''}".rstrip())   # "1": no unit
     return 0
 

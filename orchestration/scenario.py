@@ -220,6 +220,16 @@ class Scenario:
             cols += [f"{comp}.{s}" for s in self.components[comp].group(var)]
         return cols
 
+    def column_units(self) -> dict[str, str]:
+        """The unit of ``time`` (``"s"``) and of every :meth:`record_columns` column, as its
+        FMU's modelDescription gives it (the variable's ``unit``, else its ``declaredType``'s);
+        ``""`` for a variable without one."""
+        units = {"time": "s"}
+        for col in self.record_columns():
+            comp, scalar = col.split(".", 1)
+            units[col] = self.components[comp].variables[scalar].unit or ""
+        return units
+
     def describe(self) -> dict[str, Any]:
         """A JSON-able summary (for ``run.json``)."""
         return {

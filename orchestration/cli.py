@@ -280,19 +280,25 @@ def cmd_check_estimator(args: argparse.Namespace) -> int:
     return check(args.fmus)
 
 
+def add_verbosity_arguments(parser: argparse.ArgumentParser) -> None:
+    """``-v``, ``-q`` and ``--log-level`` on ``parser``, each absent from the namespace unless
+    given (so a sub-command's parser keeps what the main parser read)."""
+    parser.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                        help="more log output (-v: info, -vv: debug)")
+    parser.add_argument("-q", "--quiet", action="count", default=argparse.SUPPRESS,
+                        help="errors only: no progress bar, no warnings")
+    parser.add_argument("--log-level", type=str.upper, default=argparse.SUPPRESS,
+                        choices=["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"],
+                        help="the log level (overrides -v/-q; default WARNING)")
+
+
 def main(argv: list[str] | None = None) -> int:
     from .ssp import HOSTS
 
     # -v/-q/--log-level before or after the sub-command (SUPPRESS: a sub-command's parser does
     # not reset what the main parser read; no set_defaults, which would change the shared actions)
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
-                        help="more log output (-v: info, -vv: debug)")
-    common.add_argument("-q", "--quiet", action="count", default=argparse.SUPPRESS,
-                        help="errors only: no progress bar, no warnings")
-    common.add_argument("--log-level", type=str.upper, default=argparse.SUPPRESS,
-                        choices=["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"],
-                        help="the log level (overrides -v/-q; default WARNING)")
+    add_verbosity_arguments(common)
     parser = argparse.ArgumentParser(prog="flexfusion", description=__doc__.splitlines()[0],
                                      parents=[common], epilog=EXAMPLES,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -359,6 +365,8 @@ def main(argv: list[str] | None = None) -> int:
         # run must not (it runs the FMUs' own bundled copies)
         for module in study_modules():
             module.register(kinds)
+        for kind in kinds.choices.values():       # -v/-q/--log-level after `study KIND` too
+            add_verbosity_arguments(kind)
 
     args, rest = parser.parse_known_args(argv)
     level = _log_level(args)

@@ -318,6 +318,10 @@ def test_verbosity_flags_set_the_log_level_and_quiet_drops_the_progress_bar(tmp_
         assert package.level == logging.DEBUG and "INFO: scenario toy" in capsys.readouterr().err
         assert main(["-vv", "plot", str(tmp_path / "v")]) == 0
         assert package.level == logging.DEBUG
+        capsys.readouterr()
+        assert main(["study", "montecarlo", str(path), "--runs", "2", "--out", str(tmp_path / "m"),
+                     "--workers", "0", "-q"]) == 2                     # after `study KIND` too
+        assert package.level == logging.ERROR and "--workers" in capsys.readouterr().err
     finally:
         package.setLevel(logging.NOTSET)
 

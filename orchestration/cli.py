@@ -38,6 +38,19 @@ def version() -> str:
         return "unknown (the flexfusion distribution is not installed)"
 
 
+class _Version(argparse.Action):
+    """``--version``: the distribution's version, looked up only when asked (importing and
+    scanning importlib.metadata took 0.1 s under load, which every command would pay)."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: Any, values: Any,
+                 option_string: str | None = None) -> None:
+        print(f"{parser.prog} {version()}")
+        parser.exit()
+
+
 def _log_level(args: argparse.Namespace) -> int:
     """``--log-level`` if given, else WARNING moved down by each ``-v`` (INFO, DEBUG) and up by
     each ``-q`` (ERROR, CRITICAL)."""
@@ -302,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="flexfusion", description=__doc__.splitlines()[0],
                                      parents=[common], epilog=EXAMPLES,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action="version", version=f"%(prog)s {version()}")
+    parser.add_argument("--version", action=_Version, help="show the version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("build", help="build and validate every FMU into dist/fmus", add_help=False)
 

@@ -392,7 +392,7 @@ def main(argv: list[str] | None = None) -> int:
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     args.argv = argv                     # recorded in a study folder's status.json
-    if getattr(args, "stop_time", None) is not None:
+    if args.command == "run" and args.stop_time is not None:    # (study robustness has its own)
         args.set = [*(args.set or ()), f"scenario.stop_time={args.stop_time}"]
     workers = getattr(args, "workers", None)
     if workers is not None and workers < 1:      # before anything is loaded or computed

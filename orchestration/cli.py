@@ -8,6 +8,7 @@ its results up to then on disk (``run.json`` status ``interrupted``).
 from __future__ import annotations
 
 import argparse
+import logging
 import signal
 import sys
 import warnings
@@ -16,6 +17,72 @@ from pathlib import Path
 from typing import Any, Iterator
 
 EXIT_USER_ERROR = 2
+
+log = logging.getLogger(__name__)
+
+EXAMPLES = """examples:
+  flexfusion build                                    # build every FMU into dist/fmus
+  flexfusion run orchestration/scenarios/flagship.toml --stop-time 1 --out results/quick
+  flexfusion run orchestration/scenarios/flagship.toml --set ekf.r_acc=1e-3 --set scenario.seed=7 -q
+  flexfusion plot results/quick                       # variables.png (and tool_path.png)
+  flexfusion study KIND --help                        # the studies: flexfusion study --help
+"""
+
+
+def version() -> str:
+    """The installed ``flexfusion`` distribution's version (importlib.metadata)."""
+    from importlib import metadata
+    try:
+        return metadata.version("flexfusion")
+    except metadata.PackageNotFoundError:
+        return "unknown (the flexfusion distribution is not installed)"
+
+
+class _Version(argparse.Action):
+    """``--version``: the distribution's version, looked up only when asked (importing and
+    scanning importlib.metadata took 0.1 s under load, which every command would pay)."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: Any, values: Any,
+                 option_string: str | None = None) -> None:
+        print(f"{parser.prog} {version()}")
+        parser.exit()
+
+
+def _log_level(args: argparse.Namespace) -> int:
+    """``--log-level`` if given, else WARNING moved down by each ``-v`` (INFO, DEBUG) and up by
+    each ``-q`` (ERROR, CRITICAL)."""
+    if getattr(args, "log_level", None):
+        return int(getattr(logging, args.log_level))
+    steps = getattr(args, "verbose", 0) - getattr(args, "quiet", 0)
+    return min(max(logging.WARNING - 10 * steps, logging.DEBUG), logging.CRITICAL)
+
+
+class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """A handler writing to ``sys.stderr`` as it is at each message (a replaced stderr, as
+    pytest's capture or a caller's redirect, gets the messages)."""
+
+    @property                                       # type: ignore[override]
+    def stream(self) -> Any:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value: Any) -> None:
+        pass
+
+
+def configure_logging(level: int) -> None:
+    """The ``orchestration`` loggers at ``level``, to stderr as ``level: message`` lines (one
+    handler, added once)."""
+    package = logging.getLogger(__name__.rpartition(".")[0])
+    package.setLevel(level)
+    if not any(isinstance(h, _StderrHandler) for h in package.handlers):
+        handler = _StderrHandler()
+        handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
+        package.addHandler(handler)
+        package.propagate = False
 
 
 def _error(message: str) -> int:
@@ -29,7 +96,8 @@ def _output_folder_error(exc: OSError, out: Any) -> int:
 
 def _show_warning(message: Any, category: Any, filename: str, lineno: int, file: Any = None,
                   line: Any = None) -> None:
-    print(f"warning: {message}", file=sys.stderr)
+    if log.isEnabledFor(logging.WARNING):           # -q (ERROR) hides them
+        print(f"warning: {message}", file=sys.stderr)
 
 
 @contextmanager
@@ -70,6 +138,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         return _error("--workers and --scheduler go with --forks N (the forks run on them)")
     try:
         with stop_on_signals(), loaded(args.scenario, args.set or ()) as scenario:
+            log.info("scenario %s from %s: stop_time %g s, base step %g s, seed %d, overrides %s",
+                     scenario.name, args.scenario, scenario.stop_time, scenario.base_step,
+                     scenario.seed, list(args.set or ()) or "none")
             if args.forks is not None:      # fork i: scenario.seed = seed + i (fork.monte_carlo)
                 out = args.out or Path("results") / f"{scenario.name}-forks"
                 seeds = range(scenario.seed + 1, scenario.seed + 1 + args.forks)
@@ -101,14 +172,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         for name in forks[0].metrics:       # each fork's metrics are over its rows, from T on
             values = np.array([f.metrics[name] for f in forks])
             spread = f" +- {values.std(ddof=1):.2g}" if len(values) > 1 else ""
-            unit = forks[0].units.get(name, "")
+            unit = forks[0].metric_units.get(name, "")
             print(f"  {name:<32} {values.mean():.6g}{spread} {unit if unit != '1' else ''}".rstrip())
         return 0
     print(f"{scenario.name}: {len(result.time)} rows in {result.out_dir}")
     if args.state_out is not None:
         print(f"  state at t = {args.save_state_at:g} s in {args.state_out}")
     for name, value in result.metrics.items():
-        unit = result.units.get(name, "")
+        unit = result.metric_units.get(name, "")
         print(f"  {name:<32} {value:.6g} {unit if unit != '1' else ''}".rstrip())   # "1": no unit
     return 0
 
@@ -222,17 +293,44 @@ def cmd_check_estimator(args: argparse.Namespace) -> int:
     return check(args.fmus)
 
 
+def add_verbosity_arguments(parser: argparse.ArgumentParser) -> None:
+    """``-v``, ``-q`` and ``--log-level`` on ``parser``, each absent from the namespace unless
+    given (so a sub-command's parser keeps what the main parser read)."""
+    parser.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                        help="more log output (-v: info, -vv: debug)")
+    parser.add_argument("-q", "--quiet", action="count", default=argparse.SUPPRESS,
+                        help="errors only: no progress bar, no warnings")
+    parser.add_argument("--log-level", type=str.upper, default=argparse.SUPPRESS,
+                        choices=["DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"],
+                        help="the log level (overrides -v/-q; default WARNING)")
+
+
 def main(argv: list[str] | None = None) -> int:
     from .ssp import HOSTS
 
-    parser = argparse.ArgumentParser(prog="flexfusion", description=__doc__.splitlines()[0])
+    # -v/-q/--log-level before or after the sub-command (SUPPRESS: a sub-command's parser does
+    # not reset what the main parser read; no set_defaults, which would change the shared actions)
+    common = argparse.ArgumentParser(add_help=False)
+    add_verbosity_arguments(common)
+    parser = argparse.ArgumentParser(prog="flexfusion", description=__doc__.splitlines()[0],
+                                     parents=[common], epilog=EXAMPLES,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action=_Version, help="show the version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("build", help="build and validate every FMU into dist/fmus", add_help=False)
 
-    p_run = sub.add_parser("run", help="run a scenario: results.csv, metrics.json, run.json")
+    p_run = sub.add_parser("run", help="run a scenario: results.csv, metrics.json, run.json",
+                           parents=[common], formatter_class=argparse.RawDescriptionHelpFormatter,
+                           epilog="examples:\n"
+                           "  flexfusion run SCENARIO.toml --stop-time 2 --out /tmp/r --force\n"
+                           "  flexfusion run SCENARIO.toml --set ekf.r_acc=1e-3 --set scenario.seed=3 -v\n"
+                           "  flexfusion run SCENARIO.toml --save-state-at 1 --forks 8 --workers 2\n")
     p_run.add_argument("scenario", type=Path, help="scenario file (TOML), or an SSP package (.ssp, .ssd)")
     p_run.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE",
                        help="override a parameter (repeatable); also scenario.seed=N, scenario.stop_time=T")
+    p_run.add_argument("--stop-time", metavar="T",
+                       help="the run's stop time (s): the same as --set scenario.stop_time=T, "
+                            "given after every --set")
     p_run.add_argument("--out", type=Path, help="output folder (default results/<scenario name>); "
                        "one run at a time owns it")
     p_run.add_argument("--force", action="store_true",
@@ -257,10 +355,10 @@ def main(argv: list[str] | None = None) -> int:
                        help="with --forks: run them on a Dask cluster (tcp://host:port, or 'local'; "
                             "its workers must see --out)")
 
-    p_plot = sub.add_parser("plot", help="PNG plots of a run folder")
+    p_plot = sub.add_parser("plot", help="PNG plots of a run folder", parents=[common])
     p_plot.add_argument("dir", type=Path, help="a run folder (flexfusion run --out)")
 
-    p_ssp = sub.add_parser("export-ssp", help="export a scenario as an SSP package")
+    p_ssp = sub.add_parser("export-ssp", help="export a scenario as an SSP package", parents=[common])
     p_ssp.add_argument("scenario", type=Path, help="scenario file (TOML)")
     p_ssp.add_argument("-o", "--output", required=True, type=Path, help="the .ssp file to write")
     p_ssp.add_argument("--set", action="append", metavar="COMP.PARAM=VALUE", help="override a parameter")
@@ -272,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
                              "(docs/estimator_contract.md): one line per failed rule, exit 2 if any")
     p_check.add_argument("fmus", type=Path, nargs="+", metavar="FILE.fmu")
 
-    p_study = sub.add_parser("study", help="studies: Monte Carlo, tuning, robustness, ...")
+    p_study = sub.add_parser("study", help="studies: Monte Carlo, tuning, robustness, ...", parents=[common])
     kinds = p_study.add_subparsers(dest="study", required=True, metavar="KIND")
     argv = sys.argv[1:] if argv is None else list(argv)
     if next((a for a in argv if not a.startswith("-")), None) == "study":
@@ -280,14 +378,25 @@ def main(argv: list[str] | None = None) -> int:
         # run must not (it runs the FMUs' own bundled copies)
         for module in study_modules():
             module.register(kinds)
+        for kind in kinds.choices.values():       # -v/-q/--log-level after `study KIND` too
+            add_verbosity_arguments(kind)
 
     args, rest = parser.parse_known_args(argv)
+    level = _log_level(args)
+    configure_logging(level)
+    if level > logging.WARNING and hasattr(args, "no_progress"):
+        args.no_progress = True          # -q: no progress bar
     if args.command == "build":
         from orchestration import build
         return build.main(rest)
     if rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     args.argv = argv                     # recorded in a study folder's status.json
+    if args.command == "run" and args.stop_time is not None:    # (study robustness has its own)
+        args.set = [*(args.set or ()), f"scenario.stop_time={args.stop_time}"]
+    workers = getattr(args, "workers", None)
+    if workers is not None and workers < 1:      # before anything is loaded or computed
+        return _error(f"--workers must be at least 1, not {workers}")
     handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp, "study": cmd_study,
                 "check-estimator": cmd_check_estimator}
     with warnings.catch_warnings():

@@ -870,6 +870,7 @@ def run_loaded(sc: Scenario, folder: RunFolder | None = None, progress: bool = F
                 warnings.warn(w.message, w.category, stacklevel=3)
     wall = time.perf_counter() - t0
     result = recorder.result(sc.record_columns(), wall)
+    result.units = sc.column_units()
     try:
         described = evaluate_metrics(sc, result)
         if folder is not None:
@@ -939,7 +940,7 @@ class RunFolder:
         self.stop_time = sc.stop_time
         self.info: dict[str, Any] = {"scenario": sc.describe(), "overrides": list(overrides or sc.overrides),
                                      "versions": None, "status": "running", "error": None,
-                                     "rows": 0, "time_reached": None}
+                                     "rows": 0, "time_reached": None, "units": sc.column_units()}
         self.writer: Any = None
         self.recorder = _Recorder()
         self.t0 = 0.0                       # perf_counter() when the stepping began
@@ -1039,7 +1040,9 @@ def evaluate_metrics(sc: Scenario, result: "Result") -> dict[str, dict[str, Any]
                                         result[spec.covariance] if spec.covariance else None)
         except ValueError as exc:
             raise ScenarioError(f"{sc.name}: metric '{spec.name}': {exc}") from None
-        unit = metric_unit(sc, spec.estimate)
+        # NEES and NIS are squared errors normalised by their covariance: dimensionless ("1"),
+        # whatever the unit of the estimate
+        unit = "1" if spec.kind in ("nees", "nis") else metric_unit(sc, spec.estimate)
         described.update({k: {**e, "unit": unit} for k, e in _metrics.entries(spec, computed).items()})
     return described
 

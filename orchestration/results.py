@@ -17,8 +17,12 @@ Files in a run's folder:
     plant truth, ``"reference"`` when it is a reference system's measurement (the Tracker).
 ``run.json``
     The resolved scenario, the overrides, package versions (from the run's end on), wall
-    time, ``status``, ``error`` (the cause), ``rows`` (data rows in ``results.csv``) and
-    ``time_reached`` (s, the last row's time). Written atomically (a temporary file renamed over it): ``"running"`` when the
+    time, ``status``, ``error`` (the cause), ``rows`` (data rows in ``results.csv``),
+    ``time_reached`` (s, the last row's time) and ``units``: ``{"time": "s", column: unit}``
+    for every column of ``results.csv``, each as its FMU's modelDescription gives it (``""``
+    when it gives none), there from the run's start on. The units sit beside the CSV, not in
+    it: a second header row would be read as a data row by ``fmpy.util.read_csv``
+    (``numpy.genfromtxt``) and by ``pandas.read_csv``, and would change ``results.csv``. Written atomically (a temporary file renamed over it): ``"running"`` when the
     run starts, then ``"ok"``, ``"failed"`` or ``"interrupted"`` (SIGINT, SIGTERM). A folder
     still saying ``"running"`` that no process owns was killed: :meth:`Result.load` reports it
     as ``"interrupted"``.
@@ -242,6 +246,9 @@ class Result:
     """A run's results: ``result["plant.p_tool"]`` is an (n, 2) array, ``result.time`` (n,).
 
     ``result["plant.p_tool[1]"]`` gives one column; a scalar variable gives an (n,) array.
+    ``units`` the unit of ``time`` and of every column (``{"plant.p_tool[1]": "m", ...}``,
+    ``""`` for none; empty for a folder written before run.json had them), ``metric_units``
+    each metric's (``"1"``: dimensionless). :meth:`to_pandas` gives a ``pandas.DataFrame``.
     ``status`` is ``"ok"`` only for a run that ended ok with all its rows; otherwise
     ``error`` says why (and :meth:`load` warns). The one container of a run's results: as a
     run returns it (:func:`orchestration.master.run_loaded`: ``wall_time`` the seconds the
@@ -253,12 +260,13 @@ class Result:
     columns: list[str]
     data: np.ndarray                      # (n, len(columns))
     metrics: dict[str, float] = field(default_factory=dict)
-    units: dict[str, str] = field(default_factory=dict)      # metric name -> unit ("" if none)
+    metric_units: dict[str, str] = field(default_factory=dict)   # metric name -> unit ("" if none)
     against: dict[str, str] = field(default_factory=dict)    # metric name -> truth | reference | ...
     status: str = "ok"
     error: str | None = None
     warnings: list[str] = field(default_factory=list)
     wall_time: float = float("nan")
+    units: dict[str, str] = field(default_factory=dict)      # "time" and column -> unit ("" if none)
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "time":
@@ -275,8 +283,27 @@ class Result:
     def set_metrics(self, described: dict[str, dict[str, Any]]) -> None:
         """Take the ``metrics.json`` entries ``{name: {"value", "unit", "against", ...}}``."""
         self.metrics = {name: e["value"] for name, e in described.items()}
-        self.units = {name: e.get("unit", "") for name, e in described.items()}
+        self.metric_units = {name: e.get("unit", "") for name, e in described.items()}
         self.against = {name: e["against"] for name, e in described.items()}
+
+    def to_pandas(self) -> Any:
+        """A ``pandas.DataFrame`` of the rows: the column ``time`` then one column per recorded
+        scalar, as in ``results.csv``; ``frame.attrs["units"]`` is :attr:`units`.
+
+        Raises
+        ------
+        ImportError
+            pandas is not installed (it is no dependency of flexfusion).
+        """
+        try:
+            import pandas as pd
+        except ImportError:
+            raise ImportError("Result.to_pandas() needs pandas, which is not installed "
+                              "(install it with pip: pip install pandas)") from None
+        frame = pd.DataFrame(np.column_stack([self.time, self.data]) if len(self.columns) else
+                             self.time[:, None], columns=["time", *self.columns])
+        frame.attrs["units"] = dict(self.units)
+        return frame
 
     def __contains__(self, name: str) -> bool:
         try:
@@ -333,7 +360,7 @@ class Result:
                           + ("; a torn last row was left out" if torn else ""), ResultWarning,
                           stacklevel=2)
         return cls(out_dir, data[:, 0].copy(), columns, data[:, 1:], metrics, units, against, status,
-                   error, info.get("warnings", []))
+                   error, info.get("warnings", []), units=info.get("units", {}))
 
 
 __all__ = ["CsvWriter", "Result", "ResultWarning", "OutputError", "own_folder", "read_results_csv",

@@ -221,6 +221,16 @@ class Scenario:
             cols += [f"{comp}.{s}" for s in self.components[comp].group(var)]
         return cols
 
+    def column_units(self) -> dict[str, str]:
+        """The unit of ``time`` (``"s"``) and of every :meth:`record_columns` column, as its
+        FMU's modelDescription gives it (the variable's ``unit``, else its ``declaredType``'s);
+        ``""`` for a variable without one."""
+        units = {"time": "s"}
+        for col in self.record_columns():
+            comp, scalar = col.split(".", 1)
+            units[col] = self.components[comp].variables[scalar].unit or ""
+        return units
+
     def describe(self) -> dict[str, Any]:
         """A JSON-able summary (for ``run.json``)."""
         return {
@@ -482,7 +492,8 @@ def _flatten_parameters(where: str, comp: Component, params: dict[str, Any]) -> 
             if not group or group == [name]:
                 if name in comp.variables:
                     raise ScenarioError(f"{where}: parameter '{name}' is a scalar, got the list {value!r}")
-                raise ScenarioError(f"{where}: component '{comp.name}' has no parameter '{name}'")
+                raise ScenarioError(f"{where}: component '{comp.name}' has no parameter '{name}'"
+                                    + did_you_mean(name, _parameter_names(comp, name)))
             if len(group) != len(value):
                 raise ScenarioError(f"{where}: parameter '{name}' has {len(group)} elements, "
                                     f"got {len(value)}: {value!r}")
@@ -495,7 +506,8 @@ def _flatten_parameters(where: str, comp: Component, params: dict[str, Any]) -> 
         for scalar, v in pairs:
             info = comp.variables.get(scalar)
             if info is None:
-                raise ScenarioError(f"{where}: component '{comp.name}' has no parameter '{scalar}'")
+                raise ScenarioError(f"{where}: component '{comp.name}' has no parameter '{scalar}'"
+                                    + did_you_mean(scalar, _parameter_names(comp, scalar)))
             if info.causality != "parameter":
                 raise ScenarioError(f"{where}: '{comp.name}.{scalar}' is an {info.causality}, "
                                     "not a parameter")
@@ -544,6 +556,21 @@ def _resolve_fmu(where: str, spec: Any, base_dir: Path) -> Path:
     return path
 
 
+def did_you_mean(name: str, choices: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` naming the up to three ``choices`` closest to ``name``
+    (:func:`difflib.get_close_matches`, its default cutoff 0.6), or ``""`` if none is close."""
+    import difflib
+    close = difflib.get_close_matches(name, sorted(set(choices)), n=3)
+    return f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
+
+
+def _parameter_names(comp: Component, name: str) -> list[str]:
+    """A component's parameters as a user names them: whole vectors (``p_tool0``), or their
+    elements (``p_tool0[1]``) when ``name`` is an element."""
+    scalars = [s for s, info in comp.variables.items() if info.causality == "parameter"]
+    return scalars if name.endswith("]") else [s.split("[", 1)[0] for s in scalars]
+
+
 def _split_ref(where: str, ref: Any) -> tuple[str, str]:
     if not isinstance(ref, str) or "." not in ref:
         raise ScenarioError(f"{where}: {ref!r} is not of the form component.variable")
@@ -556,11 +583,12 @@ def _lookup(where: str, components: dict[str, Component], ref: str) -> tuple[Com
     comp = components.get(comp_name)
     if comp is None:
         raise ScenarioError(f"{where}: unknown component '{comp_name}' (components: "
-                            f"{', '.join(components) or 'none'})")
+                            f"{', '.join(components) or 'none'})" + did_you_mean(comp_name, components))
     group = comp.group(var)
     if not group:
         raise ScenarioError(f"{where}: component '{comp_name}' ({comp.model_identifier}) has no "
-                            f"variable '{var}'")
+                            f"variable '{var}'" + did_you_mean(var, [v if var.endswith("]") else
+                                                                     v.split("[", 1)[0] for v in comp.variables]))
     return comp, var, group
 
 
@@ -578,7 +606,8 @@ def _check_keys(where: str, table: Any, allowed: Iterable[str]) -> None:
     unknown = sorted(set(table) - set(allowed))
     if unknown:
         raise ScenarioError(f"{where}: unknown key(s) {', '.join(unknown)} "
-                            f"(allowed: {', '.join(sorted(allowed))})")
+                            f"(allowed: {', '.join(sorted(allowed))})"
+                            + "".join(did_you_mean(k, allowed) for k in unknown[:1]))
 
 
 def scenario_document(source: str | Path | dict[str, Any], overrides: Overrides = ()) -> dict[str, Any]:
@@ -650,14 +679,15 @@ def _apply_override(text: str, head: dict[str, Any], sets: dict[str, dict[str, A
     if cname == "scenario":
         if pname not in _SCENARIO_KEYS - {"include"} or index is not None:
             raise ScenarioError(f"{where}: unknown scenario key '{pname}' (allowed: "
-                                "seed, stop_time, base_step, name, description)")
+                                "seed, stop_time, base_step, name, description)"
+                                + did_you_mean(pname, _SCENARIO_KEYS - {"include"}))
         head[pname] = value
         return
     if cname == "parameter_sets":
         sname, _, key = pname.partition(".")
         if sname not in sets:
             raise ScenarioError(f"{where}: unknown parameter set '{sname}' (defined: "
-                                f"{', '.join(sets) or 'none'})")
+                                f"{', '.join(sets) or 'none'})" + did_you_mean(sname, sets))
         if not key:
             sets[sname] = _parameter_sets(where, {sname: value}, base_dir)[sname]
         else:
@@ -665,7 +695,7 @@ def _apply_override(text: str, head: dict[str, Any], sets: dict[str, dict[str, A
         return
     if cname not in comps_doc:
         raise ScenarioError(f"{where}: unknown component '{cname}' (components: "
-                            f"{', '.join(comps_doc)})")
+                            f"{', '.join(comps_doc)})" + did_you_mean(cname, comps_doc))
     if pname == "parameter_sets" and index is None:
         comps_doc[cname]["parameter_sets"] = value
         return
@@ -743,7 +773,7 @@ def _set_parameters(where: str, comp: Component, names: Any, sets: dict[str, dic
     for sname in names:
         if sname not in sets:
             raise ScenarioError(f"{where}: unknown parameter set '{sname}' (defined: "
-                                f"{', '.join(sets) or 'none'})")
+                                f"{', '.join(sets) or 'none'})" + did_you_mean(sname, sets))
         users.setdefault(sname, []).append(comp)
         declared = {k: v for k, v in sets[sname].items() if _declares(comp, k)}
         out.update(_flatten_parameters(f"{where}: parameter set '{sname}'", comp, declared))

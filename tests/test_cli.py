@@ -229,3 +229,106 @@ def test_every_help_exits_0_and_reads_as_text(capsys, command):
     assert out.startswith("usage: flexfusion")
     assert "{'" not in out and "Traceback" not in out
     assert not re.search(r"issue\s*#?\d", out, re.I)
+
+
+def test_version_is_the_distributions(capsys):
+    from importlib import metadata
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out == f"flexfusion {metadata.version('flexfusion')}\n"
+
+
+def test_stop_time_is_scenario_stop_time_after_every_set(tmp_path, capsys):
+    path = write(tmp_path, GOOD)
+    assert main(["run", str(path), "--out", str(tmp_path / "a"), "--no-progress", "--stop-time", "0.05"]) == 0
+    assert main(["run", str(path), "--out", str(tmp_path / "b"), "--no-progress",
+                 "--set", "scenario.stop_time=0.05"]) == 0
+    assert main(["run", str(path), "--out", str(tmp_path / "c"), "--no-progress",
+                 "--set", "scenario.stop_time=0.1", "--stop-time", "0.05"]) == 0
+    a = (tmp_path / "a" / "results.csv").read_bytes()
+    assert a == (tmp_path / "b" / "results.csv").read_bytes() == (tmp_path / "c" / "results.csv").read_bytes()
+    assert a.count(b"\n") == 1 + 51                      # header, t = 0 .. 0.05 at 1 ms
+    assert json.loads((tmp_path / "c" / "run.json").read_text())["overrides"][-1] == "scenario.stop_time=0.05"
+    capsys.readouterr()
+    assert main(["run", str(path), "--out", str(tmp_path / "d"), "--no-progress", "--stop-time", "-1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "stop_time" in err and "> 0" in err, err
+
+
+@pytest.mark.parametrize("override, message", [
+    ("scr.gain=1", "unknown component 'scr' (components: src, g) (did you mean 'src'?)"),
+    ("g.gian=1", "component 'g' has no parameter 'gian' (did you mean 'gain'?)"),
+    ("scenario.stop_tim=1", "unknown scenario key 'stop_tim' (allowed: seed, stop_time, base_step, "
+     "name, description) (did you mean 'stop_time'?)"),
+    ("g.xyzzy=1", "component 'g' has no parameter 'xyzzy'\n"),       # nothing close: no guess
+])
+def test_did_you_mean_for_a_misspelt_override(tmp_path, capsys, override, message):
+    path = write(tmp_path, GOOD)
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-progress", "--set", override]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("change, message", [
+    (('variables = ["src.ys"', 'variables = ["src.yss"'),
+     "component 'src' (Source) has no variable 'yss' (did you mean 'ys'"),
+    (('estimate = "g.yv"', 'estimate = "gg.yv"'), "unknown component 'gg' (components: src, g) (did you mean 'g'?)"),
+    (("seed = 4", "seed = 4\nstop_tme = 1"), "(did you mean 'stop_time'?)"),
+])
+def test_did_you_mean_in_a_scenario_file(tmp_path, capsys, change, message):
+    path = write(tmp_path, GOOD.replace(*change, 1))
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and message in err, err
+
+
+@pytest.mark.parametrize("workers", ["0", "-3"])
+@pytest.mark.parametrize("command", [
+    ["run", "{s}", "--save-state-at", "0.1", "--forks", "2", "--out", "{tmp}/o"],
+    ["study", "montecarlo", "{s}", "--runs", "2", "--out", "{tmp}/o"],
+])
+def test_workers_below_one_is_refused_before_anything_runs(tmp_path, capsys, workers, command):
+    s = write(tmp_path, GOOD)
+    argv = [a.format(s=s, tmp=tmp_path) for a in command] + ["--workers", workers]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: --workers must be at least 1, not {workers}\n"
+    assert not (tmp_path / "o").exists()
+
+
+def test_verbosity_flags_set_the_log_level_and_quiet_drops_the_progress_bar(tmp_path, capsys):
+    import logging
+    path = write(tmp_path, GOOD)
+    package = logging.getLogger("orchestration")
+    try:
+        assert main(["-v", "run", str(path), "--out", str(tmp_path / "v"), "--no-progress"]) == 0
+        assert package.level == logging.INFO
+        err = capsys.readouterr().err
+        assert "INFO: scenario toy from" in err and "stop_time 0.2 s" in err, err
+        assert main(["run", str(path), "--out", str(tmp_path / "q"), "-q"]) == 0
+        assert package.level == logging.ERROR
+        captured = capsys.readouterr()
+        assert captured.err == "" and "toy: 201 rows" in captured.out     # no bar, no log line
+        assert main(["run", str(path), "--out", str(tmp_path / "w"), "--no-progress"]) == 0
+        assert package.level == logging.WARNING and capsys.readouterr().err == ""
+        assert main(["--log-level", "debug", "run", str(path), "--out", str(tmp_path / "d"),
+                     "--no-progress", "-q"]) == 0                      # --log-level wins over -q
+        assert package.level == logging.DEBUG and "INFO: scenario toy" in capsys.readouterr().err
+        assert main(["-vv", "plot", str(tmp_path / "v")]) == 0
+        assert package.level == logging.DEBUG
+        capsys.readouterr()
+        assert main(["study", "montecarlo", str(path), "--runs", "2", "--out", str(tmp_path / "m"),
+                     "--workers", "0", "-q"]) == 2                     # after `study KIND` too
+        assert package.level == logging.ERROR and "--workers" in capsys.readouterr().err
+    finally:
+        package.setLevel(logging.NOTSET)
+
+
+def test_help_has_examples(capsys):
+    for command in ([], ["run"]):
+        with pytest.raises(SystemExit):
+            main(command + ["--help"])
+        out = capsys.readouterr().out
+        assert "examples:\n  flexfusion " in out and "--stop-time" in out

@@ -207,6 +207,8 @@ def test_the_shipped_example_runs_the_estimators_on_the_log(tmp_path: Path) -> N
     saved = json.loads((tmp_path / "metrics.json").read_text())
     assert saved["ekf_nis"]["dof"] == 4 and saved["ekf_nis"]["against"] == "innovations"
     assert saved["ekf_angle_nees"]["dof"] == 2 and saved["ekf_angle_nees"]["covariance"] == "ekf.P_x"
+    # dimensionless (an error normalised by its covariance), not the estimate's rad
+    assert {e["unit"] for n, e in saved.items() if e["kind"] in ("nees", "nis")} == {"1"}
     assert saved["ekf_angle_nees"]["band_95"] == pytest.approx([0.0506, 7.378], rel=1e-3)
     assert 0.0 <= r.metrics["ekf_nis_in_band"] <= 1.0 and r.metrics["ekf_nis"] > 0.0
 

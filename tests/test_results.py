@@ -117,6 +117,10 @@ def test_load_reads_a_run_folder(tmp_path) -> None:
     assert r.metrics == {"ekf_rmse": 1e-4, "old_style": 2.0}
     assert r.against == {"ekf_rmse": "truth"}
     assert (r.status, r.error, r.warnings) == ("failed", "ekf: diverged at t = 0.004 s", ["w"])
+    assert r.units == {} and r.metric_units == {"ekf_rmse": ""}     # a run.json from before units
+    units = {"time": "s", **{c: "rad" for c in COLUMNS}}
+    write_json(tmp_path / RUN_NAME, {"status": "ok", "rows": len(rows), "units": units})
+    assert Result.load(tmp_path).units == units
     with pytest.raises(FileNotFoundError, match="not a run folder"):
         Result.load(tmp_path / "nowhere")
 

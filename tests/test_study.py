@@ -76,7 +76,7 @@ dof = 1
     mem = study.simulate(path)
     disk = run(path, out_dir=tmp_path / "out")
     assert set(mem.metrics) >= {"gap", "n"}
-    assert (mem.metrics, mem.units, mem.against) == (disk.metrics, disk.units, disk.against)
+    assert (mem.metrics, mem.metric_units, mem.against) == (disk.metrics, disk.metric_units, disk.against)
     keep = mem.time >= 0.5 - 1e-12
     assert_allclose(mem.metrics["gap"], np.sqrt(np.mean((mem["a.x"][keep] - mem["b.x"][keep]) ** 2)))
 

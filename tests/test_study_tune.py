@@ -106,7 +106,7 @@ def test_a_failing_candidate_costs_the_penalty_and_bad_bounds_are_refused(tmp_pa
     assert st.parse_param("pole_freq[2]=0.5:40") == ("pole_freq[2]", (0.5, 40.0))
 
 
-def test_sensor_floors_bound_the_ekf_measurement_noise() -> None:
+def test_sensor_floors_bound_the_ekf_measurement_noise(fmu_env) -> None:
     """Encoder: sqrt(noise^2 + step^2 / 12) (white noise plus uniform rounding error), and
     lambda5's low bound puts sqrt(lambda5) * r_motor exactly there; a noisier encoder raises it."""
     from fmus.robot_plant.sensor_model import EncoderParameters

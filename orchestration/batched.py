@@ -40,6 +40,7 @@ import numpy as np
 
 from fmus.common.fmi import nominal_step
 
+from .fmu_annotation import describe
 from .master import RunError
 from .scenario import Component, Scenario, load_scenario, scenario_document
 from .schedule import Schedule
@@ -290,8 +291,18 @@ class _EkfAccelerometer(_Batched):
         return self.pack(self.model.outputs(self.wanted))
 
 
-#: The vectorised kernels, by model identifier.
+#: The vectorised kernels, by the name an FMU declares for its own (``batched`` of its class, in
+#: its modelDescription's vendor annotation: :mod:`orchestration.fmu_annotation`).
 KERNELS: dict[str, type[_Batched]] = {"Encoder": _Encoder, "Imu": _Imu, "EkfAccelerometer": _EkfAccelerometer}
+
+
+def _kernel(comp: Component) -> type[_Batched] | None:
+    """The batched kernel the component's FMU declares, or None."""
+    name = describe(comp.fmu).batched
+    if name is not None and name not in KERNELS:
+        raise BatchError(f"component '{comp.name}' ({comp.model_identifier}) declares the batched kernel "
+                         f"'{name}', which is not one of {', '.join(KERNELS)}")
+    return None if name is None else KERNELS[name]
 
 
 class _Groups(_Kernel):
@@ -556,8 +567,8 @@ class BatchedRuns:
             elif n not in varying:
                 kernels[n] = _Slaves([comp], in_names, needed[n], sc.stop_time)
                 shared.append(n)
-            elif comp.model_identifier in KERNELS:
-                kernels[n] = _Groups(KERNELS[comp.model_identifier], [s.components[n] for s in scenarios],
+            elif _kernel(comp) is not None:
+                kernels[n] = _Groups(_kernel(comp), [s.components[n] for s in scenarios],
                                      in_names, needed[n], sc.stop_time)
                 batched.append(n)
             elif comp.model_identifier in no_loop:

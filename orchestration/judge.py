@@ -97,6 +97,12 @@ def _kind(doc: dict[str, Any], component: str) -> str:
     return Path(str(doc["components"][component].get("fmu", ""))).stem
 
 
+def _role(doc: dict[str, Any], component: str) -> str:
+    """The role the component's FMU declares (:mod:`orchestration.fmu_annotation`)."""
+    from .fmu_annotation import describe_entry
+    return describe_entry(doc, component).role
+
+
 def log_feeds(columns: str, var: str) -> bool:
     """Whether a LogReplay's column map ``columns`` (``output = column [unit]; ...``) feeds its
     output ``var`` (it declares every contract signal; reading one no column feeds is an error)."""
@@ -121,16 +127,13 @@ def reference_components(doc: dict[str, Any]) -> list[str]:
     """The components of a scenario document that measure the tool as a reference system, in
     file order: those whose FMU's role is ``reference`` (the Tracker), and a LogReplay whose
     column map feeds ``p_tool_meas`` (a recorded laser tracker)."""
-    from .roles import ROLES
     return [c for c in doc.get("components", {})
-            if ROLES.get(_kind(doc, c)) == "reference"
-            or (ROLES.get(_kind(doc, c)) == "log" and _log_reference(doc, c))]
+            if _role(doc, c) == "reference" or (_role(doc, c) == "log" and _log_reference(doc, c))]
 
 
 def truth_components(doc: dict[str, Any]) -> list[str]:
     """The components whose FMU's role is ``plant`` (the truth of the tool position)."""
-    from .roles import ROLES
-    return [c for c in doc.get("components", {}) if ROLES.get(_kind(doc, c)) == "plant"]
+    return [c for c in doc.get("components", {}) if _role(doc, c) == "plant"]
 
 
 def judge(doc: dict[str, Any], against: str = "reference", truth: str | None = None) -> Judge:
@@ -151,7 +154,6 @@ def judge(doc: dict[str, Any], against: str = "reference", truth: str | None = N
     JudgeError
         An unknown ``against``; no reference (or several) in the scenario; no plant.
     """
-    from .roles import ROLES
     if truth is not None:
         comp, _, var = truth.partition(".")
         if comp not in doc.get("components", {}):
@@ -160,7 +162,7 @@ def judge(doc: dict[str, Any], against: str = "reference", truth: str | None = N
         kind = _kind(doc, comp)
         if var == REFERENCE_POSITION and comp in reference_components(doc):
             return _reference_judge(doc, comp)
-        role = ROLES.get(kind, "estimator")
+        role = _role(doc, comp)
         return Judge("truth" if role in ("plant", "environment") else role, comp, truth, None, kind)
     if against == "reference":
         refs = reference_components(doc)
@@ -186,9 +188,8 @@ def _reference_judge(doc: dict[str, Any], comp: str) -> Judge:
     """The judge of a reference component: the Tracker's ``p_tool_meas`` at its stamps
     ``t_meas``; a log's ``p_tool_meas`` at its ``t_tool_meas`` when its column map feeds them
     (else at every row: a log without the tracker's stamps)."""
-    from .roles import ROLES
     kind = _kind(doc, comp)
-    if ROLES.get(kind) == "log":
+    if _role(doc, comp) == "log":
         stamp = LOG_REFERENCE_STAMP if log_feeds(_parameter(doc, comp, "columns") or "", LOG_REFERENCE_STAMP) else None
     else:
         stamp = REFERENCE_STAMP

@@ -10,38 +10,19 @@ the MotionController may read the plant's ``q_m`` (an ideal encoder; it has no s
 forms the speed from the angle). Every shipped scenario connects an Encoder's ``q_m_meas``
 instead (``tests/test_honest_signals.py``).
 
-An FMU not in :data:`ROLES` (a user's own) counts as an estimator/controller.
+A component's role is what its FMU declares in its modelDescription's FlexFusion vendor
+annotation (:mod:`orchestration.fmu_annotation`, docs/fmu_annotation.md); an FMU without one (a
+user's own) counts as an estimator/controller.
 """
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Iterable
 
+from .fmu_annotation import describe
+
 if TYPE_CHECKING:
     from .scenario import Component, Connection
 
-#: Role of each FlexFusion FMU, by model identifier.
-ROLES: dict[str, str] = {
-    "FlexibleRobot2DOF": "plant",
-    "ContactEnvironment": "environment",
-    "ForcePulse": "environment",
-    "Encoder": "sensor",
-    "Imu": "sensor",
-    "ForceTorqueSensor": "sensor",
-    "Tracker": "reference",
-    "MotionController": "controller",
-    "ImpedanceController": "controller",
-    "RigidKinematics": "estimator",
-    "EkfAccelerometer": "estimator",
-    "ParticleFilter": "estimator",
-    "EkfComplete": "estimator",
-    "EkfMotor": "estimator",
-    "EkfIntegrated": "estimator",
-    "AccelerationObserver": "estimator",
-    "ComplementaryFilter": "estimator",
-    "ImuEkf": "estimator",
-    "ForceObserver": "estimator",
-    "LogReplay": "log",
-}
 #: Roles whose outputs are the truth.
 TRUTH_ROLES = frozenset({"plant", "environment"})
 #: Roles that may take a truth output as input.
@@ -60,8 +41,9 @@ class HonestSignalWarning(UserWarning):
 
 def role(component: "Component") -> str:
     """``plant``, ``environment``, ``sensor``, ``reference``, ``controller``, ``log`` (a
-    recorded log's player) or ``estimator`` (also for an FMU this table does not know)."""
-    return ROLES.get(component.model_identifier, "estimator")
+    recorded log's player) or ``estimator`` (also for an FMU that does not say): what the
+    component's FMU declares (:func:`orchestration.fmu_annotation.describe`)."""
+    return describe(component.fmu).role
 
 
 def against(component: "Component") -> str:
@@ -89,5 +71,5 @@ def dishonest_connections(connections: Iterable["Connection"], components: dict[
     return [c for c in connections if not is_honest(c, components)]
 
 
-__all__ = ["ROLES", "TRUTH_ROLES", "TRUTH_READERS", "LOG_TRUTH", "DRIVE_FEEDBACK", "HonestSignalWarning",
+__all__ = ["TRUTH_ROLES", "TRUTH_READERS", "LOG_TRUTH", "DRIVE_FEEDBACK", "HonestSignalWarning",
            "role", "against", "is_honest", "dishonest_connections"]

@@ -97,6 +97,7 @@ from typing import Any, Iterable, Union
 import numpy as np
 
 from . import roles
+from .fmu_annotation import describe
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_FMU_DIR = REPO / "dist" / "fmus"
@@ -837,6 +838,7 @@ def _components(label: str, comps_doc: dict[str, Any], sets: dict[str, dict[str,
         ratio = _multiple(f"{where}: step", step, base_step)
         try:
             ident, guid, variables = read_variables(fmu)
+            describe(fmu)                 # its vendor annotation: a malformed one is an error here
         except ScenarioError:
             raise
         except Exception as exc:  # noqa: BLE001 - a broken FMU file is a user error

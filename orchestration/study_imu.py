@@ -57,7 +57,6 @@ import numpy as np
 
 from .metrics import rmse
 from .study import StudyError, add_executor_arguments, map_jobs, open_executor, simulate
-from .study_tune import DEFAULT_BOUNDS
 
 REPO = Path(__file__).resolve().parent.parent
 SCENARIOS = REPO / "orchestration" / "scenarios"
@@ -77,11 +76,6 @@ LABELS = {"fk": "forward kinematics", "cf_paper": "CF (the paper's: one split, 2
           "ekf": "IMU EKF", "cf": "CF, tuned, two splits (extension)",
           "cf_same": "CF, tuned, one split (extension)", "truth": "true tool position"}
 
-#: Search ranges of the tuning (log10 search): the shared tuner's defaults for the two FMU
-#: types; the one-split CF without the orientation's own cut-off.
-CF_BOUNDS = DEFAULT_BOUNDS["ComplementaryFilter"]
-CF_SAME_BOUNDS = {k: v for k, v in CF_BOUNDS.items() if k != "cutoff_orientation"}
-EKF_BOUNDS = DEFAULT_BOUNDS["ImuEkf"]
 #: Noise seeds of the tuning (the evaluation runs seed 1, the scenarios' own): the cost is
 #: that of seed 2; seeds 3 and 4 are held out (never seen by the optimiser).
 TUNE_SEEDS = (2,)
@@ -371,8 +365,18 @@ def judged_line(j: Any) -> str:
 # ---------------------------------------------------------------------------------------------
 # tuning (the project's tuner)
 # ---------------------------------------------------------------------------------------------
-#: The tuned estimators (the paper's CF, ``cf_paper``, is not tuned) and their search ranges.
-TUNED_BOUNDS = {"cf": CF_BOUNDS, "cf_same": CF_SAME_BOUNDS, "ekf": EKF_BOUNDS}
+#: The tuned estimators (the paper's CF, ``cf_paper``, is not tuned), components of the ISO path.
+TUNED = ("cf", "cf_same", "ekf")
+
+
+def tuned_bounds(kind: str) -> dict[str, tuple[float, float]]:
+    """Search ranges of the tuning of ``kind`` (one of :data:`TUNED`; log10 search): the shared
+    tuner's defaults, those its FMU declares (:func:`orchestration.study_tune.default_bounds`);
+    the one-split CF without the orientation's own cut-off."""
+    from .scenario import scenario_document
+    from .study_tune import default_bounds
+    bounds = default_bounds(scenario_document(PATHS["iso"]), kind)
+    return {k: v for k, v in bounds.items() if not (kind == "cf_same" and k == "cutoff_orientation")}
 
 
 def tune_filters(out_dir: Path, *, seeds: Sequence[int] = TUNE_SEEDS,
@@ -397,19 +401,19 @@ def tune_filters(out_dir: Path, *, seeds: Sequence[int] = TUNE_SEEDS,
     result: dict[str, Any] = {"seeds": list(seeds), "holdout_seeds": list(holdout_seeds), "path": "iso"}
     previous = out_dir / "tuning.json"
     if only is not None and previous.exists():
-        result.update({k: v for k, v in json.loads(previous.read_text()).items() if k in TUNED_BOUNDS})
+        result.update({k: v for k, v in json.loads(previous.read_text()).items() if k in TUNED})
     with open_executor(workers=workers or 2, scheduler=scheduler) as ex:
-        for kind, bounds in TUNED_BOUNDS.items():
+        for kind in TUNED:
             if only is not None and kind not in only:
                 continue
-            r = tune(PATHS["iso"], kind, bounds, after=AFTER, maxiter=maxiter, popsize=popsize,
+            r = tune(PATHS["iso"], kind, tuned_bounds(kind), after=AFTER, maxiter=maxiter, popsize=popsize,
                      executor=ex, progress=progress, overrides=_overrides(stop_time),
                      seeds=seeds, holdout_seeds=holdout_seeds)
             result[kind] = {"params": r.params, "rmse": r.cost, "holdout_rmse": r.holdout_cost,
                             "n_evals": r.n_evals, "failed": r.failed, "against": r.against, "judge": r.judge}
     result["wall_time"] = time.perf_counter() - t0
     parts = []
-    for kind in TUNED_BOUNDS:
+    for kind in TUNED:
         if kind in result:
             f = write_include(out_dir / f"tuned_{kind}.toml", kind, result[kind]["params"],
                               f"RMSE {result[kind]['rmse'] * 1e3:.4f} mm, held out "
@@ -472,4 +476,4 @@ def register(subparsers: Any) -> None:
 
 
 __all__ = ["run_study", "judged_line", "tune_filters", "table1", "findings", "format_table", "plot_figures",
-           "register", "PAPER_TABLE1", "ESTIMATES", "LABELS", "TUNED_BOUNDS"]
+           "register", "PAPER_TABLE1", "ESTIMATES", "LABELS", "TUNED", "tuned_bounds"]

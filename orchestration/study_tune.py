@@ -78,25 +78,6 @@ from .scenario import connection_key, copy_document, toml_value
 from .study import (CHECK_RTOL, ENGINES, StudyError, add_engine_arguments, add_executor_arguments,
                     check_against_fmus, check_engine, map_jobs, open_executor, simulate, submit)
 
-#: Default search ranges per estimator FMU type (model identifier), used when no --param is
-#: given. The observer: four pole pairs (Hz, damping), section III-C-2. The EKFs: the five
-#: covariance scalings of section III-C-1, searched over eight decades around the initial guess.
-DEFAULT_BOUNDS: dict[str, dict[str, tuple[float, float]]] = {
-    "AccelerationObserver": {
-        **{f"pole_freq[{i}]": (0.3, 60.0) for i in range(1, 5)},
-        **{f"pole_damping[{i}]": (0.2, 3.0) for i in range(1, 5)},
-    },
-    **{ekf: {f"lambda{i}": (1e-4, 1e4) for i in range(1, 6)}
-       for ekf in ("EkfComplete", "EkfMotor", "EkfIntegrated")},
-    # the IMU paper's filters: the CF's position split (cut-off, damping) and its own orientation
-    # split (our extension; the paper's single split is cutoff_orientation = 0, not tuned); the
-    # IMU EKF's process noise and forward-kinematics noise (the IMU's noise is its data sheet's)
-    "ComplementaryFilter": {"cutoff": (0.2, 30.0), "damping": (0.3, 3.0),
-                            "cutoff_orientation": (0.005, 30.0)},
-    "ImuEkf": {"sigma_jerk": (1.0, 1e5), "sigma_alpha": (0.1, 1e4), "r_position": (1e-6, 1e-2),
-               "r_orientation": (1e-6, 1e-1)},
-}
-
 METRICS = ("rmse", "bandpass_mean", "bandpass_max")
 #: What a candidate is judged by: its error against the judge (the reference system by default,
 #: :mod:`orchestration.judge`), or the consistency and whiteness of its innovations (no judge:
@@ -269,7 +250,10 @@ def sensor_floors(doc: dict[str, Any]) -> dict[str, float]:
 
 
 def default_bounds(doc: dict[str, Any], component: str) -> dict[str, tuple[float, float]]:
-    """:data:`DEFAULT_BOUNDS` of the component's FMU type; for an EKF, ``lambda5`` (the
+    """The default search ranges the component's FMU declares (``param(..., search=...)``, in
+    its modelDescription's vendor annotation: :mod:`orchestration.fmu_annotation`; e.g. the
+    observer's four pole pairs, section III-C-2, the EKFs' five covariance scalings of section
+    III-C-1 over eight decades around the initial guess); for an EKF, ``lambda5`` (the
     motor-angle measurement variance scaling) starts at the Encoder's floor,
     ``(sensor_floors(doc)["encoder"] / r_motor)^2``, so the tuned std ``sqrt(lambda5) r_motor``
     is never below the encoder's physical error.
@@ -279,11 +263,12 @@ def default_bounds(doc: dict[str, Any], component: str) -> dict[str, tuple[float
     StudyError
         If there are none for that type (then give the bounds explicitly).
     """
+    from .fmu_annotation import describe_entry
     kind = fmu_type(doc, component)
-    if kind not in DEFAULT_BOUNDS:
-        raise StudyError(f"no default tuning parameters for '{component}' ({kind}); give them "
-                         f"with --param NAME=LOW:HIGH (defaults exist for {', '.join(DEFAULT_BOUNDS)})")
-    bounds = dict(DEFAULT_BOUNDS[kind])
+    bounds = dict(describe_entry(doc, component).search)
+    if not bounds:
+        raise StudyError(f"no default tuning parameters for '{component}' ({kind}): its FMU declares "
+                         "none (docs/fmu_annotation.md); give them with --param NAME=LOW:HIGH")
     floors = sensor_floors(doc)
     if "lambda5" in bounds and "encoder" in floors:
         from fmus.estimators.ekf_flexible_model import EkfMotorParameters
@@ -667,8 +652,8 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
         The estimator's component name. With the default ``estimate`` it must meet the estimator
         contract (docs/estimator_contract.md; checked as ``flexfusion study sweep`` does).
     bounds
-        ``{parameter: (low, high)}``; a vector element as ``name[i]``. Default: the FMU type's
-        :data:`DEFAULT_BOUNDS`.
+        ``{parameter: (low, high)}``; a vector element as ``name[i]``. Default: those the FMU
+        declares (:func:`default_bounds`).
     truth, against
         What the estimate is judged against (:func:`orchestration.judge.judge`): ``against``
         ``"reference"`` (default: the scenario's reference system, the Tracker, its fresh
@@ -1010,4 +995,4 @@ def register(subparsers: Any) -> None:
 
 __all__ = ["tune", "TuneResult", "Score", "CRITERIA", "nis_output", "judged_by", "write_include", "evaluate", "cost_of", "checked_quantities", "ENGINES",
            "CHECK_CANDIDATES", "CHECK_RTOL", "prune", "load_document",
-           "default_bounds", "sensor_floors", "parameter_value", "parse_seeds", "DEFAULT_BOUNDS", "register", "PENALTY"]
+           "default_bounds", "sensor_floors", "parameter_value", "parse_seeds", "register", "PENALTY"]

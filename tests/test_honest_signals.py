@@ -115,12 +115,14 @@ def test_an_oracle_that_is_not_a_connection_is_an_error(fmu_env, oracles, match)
         load_scenario(arm(oracles=oracles))
 
 
-def test_an_unknown_fmu_counts_as_an_estimator():
-    def comp(ident):
-        return Component("x", Path("x.fmu"), 1e-3, 1, {}, ident, "", {})
-    assert roles.role(comp("SomebodysFilter")) == "estimator"
-    assert [roles.against(comp(i)) for i in ("FlexibleRobot2DOF", "ContactEnvironment", "Tracker",
-                                              "MotionController")] == \
+def test_an_unknown_fmu_counts_as_an_estimator(fmu_env, third_party_fmus):
+    """A component's role is its FMU's own declaration (its modelDescription's vendor
+    annotation); an FMU without one (a third party's) is an estimator."""
+    def comp(fmu):
+        return Component("x", fmu, 1e-3, 1, {}, fmu.stem, "", {})
+    assert roles.role(comp(third_party_fmus["ThirdPartyEstimator"])) == "estimator"
+    assert [roles.against(comp(fmu_env / f"{i}.fmu")) for i in ("FlexibleRobot2DOF", "ContactEnvironment",
+                                                                 "Tracker", "MotionController")] == \
         ["truth", "truth", "reference", "controller"]
 
 

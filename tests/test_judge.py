@@ -1,5 +1,5 @@
 """orchestration/judge.py: what a study judges an estimate against (the reference system by
-default), on scenario documents (no run)."""
+default), on scenario documents (no run; the roles come from the built FMUs)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -18,7 +18,7 @@ def _doc(name: str) -> dict:
     return scenario_document(SCENARIOS / name)
 
 
-def test_the_reference_is_the_default_judge_and_the_truth_on_request() -> None:
+def test_the_reference_is_the_default_judge_and_the_truth_on_request(fmu_env) -> None:
     for name in ("flagship.toml", "henriksson2009_p1.toml", "henriksson2009_p2.toml", "imu2019_iso.toml",
                  "imu2019_square.toml"):
         j = judge(_doc(name))
@@ -33,7 +33,7 @@ def test_the_reference_is_the_default_judge_and_the_truth_on_request() -> None:
                                                           "stamp": None}
 
 
-def test_no_reference_two_references_or_an_unknown_judge_are_one_message() -> None:
+def test_no_reference_two_references_or_an_unknown_judge_are_one_message(fmu_env) -> None:
     with pytest.raises(JudgeError, match="no reference measurement system.*--against truth"):
         judge(_doc("axelsson2012.toml"))
     doc = copy_document(_doc("flagship.toml"))
@@ -46,7 +46,7 @@ def test_no_reference_two_references_or_an_unknown_judge_are_one_message() -> No
         judge(_doc("flagship.toml"), truth="nope.p_tool")
 
 
-def test_a_logs_tracker_columns_make_it_the_reference() -> None:
+def test_a_logs_tracker_columns_make_it_the_reference(fmu_env) -> None:
     doc = _doc("replay_log.toml")
     assert reference_components(doc) == []
     assert judge(doc, truth="log.p_tool").against == "log"

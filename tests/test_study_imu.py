@@ -8,6 +8,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from orchestration import study_imu
+from orchestration.scenario import scenario_document
 
 
 def fake_run(n=200, fk=1e-3, cf=0.5e-3, ekf=0.6e-3, cf_paper=1.1e-3, cf_same=0.7e-3):
@@ -122,8 +123,9 @@ def test_tuning_goes_through_the_shared_tuner(fmu_dir, tmp_path, monkeypatch):
     res = study_imu.tune_filters(tmp_path, maxiter=1, popsize=1, workers=2, progress=False,
                                  stop_time=0.8, only=["cf_same"], holdout_seeds=(3,))
     p = res["cf_same"]["params"]
-    assert set(p) == set(study_imu.CF_SAME_BOUNDS) == {"cutoff", "damping"}
-    for name, (lo, hi) in study_imu.CF_SAME_BOUNDS.items():
+    bounds = study_imu.tuned_bounds("cf_same")
+    assert set(p) == set(bounds) == {"cutoff", "damping"}
+    for name, (lo, hi) in bounds.items():
         assert lo <= p[name] <= hi
     assert res["seeds"] == [2] and res["holdout_seeds"] == [3]
     assert res["cf_same"]["against"] == "reference" and res["cf_same"]["judge"]["component"] == "tracker"
@@ -150,7 +152,7 @@ def test_cli_tunes_several_estimators_in_one_call(fmu_dir, tmp_path, monkeypatch
     printed = capsys.readouterr().out
     for comp, kind in (("cf", "ComplementaryFilter"), ("ekf", "ImuEkf")):
         res = json.loads((tmp_path / f"tune_{comp}.json").read_text())
-        bounds = study_tune.DEFAULT_BOUNDS[kind]
+        bounds = study_tune.default_bounds(scenario_document(study_imu.PATHS["iso"]), comp)
         assert set(res["params"]) == set(bounds)
         for name, value in res["params"].items():
             assert bounds[name][0] <= value <= bounds[name][1], (comp, name)

@@ -39,7 +39,7 @@ def _toy(tmp_path: Path) -> Path:
     return p
 
 
-def test_prune_keeps_what_the_estimate_needs(tmp_path) -> None:
+def test_prune_keeps_what_the_estimate_needs(fmu_env, tmp_path) -> None:
     doc = st.load_document(_toy(tmp_path))
     small = st.prune(doc, ["g.yv", "src.ys"])
     assert set(small["components"]) == {"src", "g"}
@@ -49,7 +49,10 @@ def test_prune_keeps_what_the_estimate_needs(tmp_path) -> None:
     small = st.prune(p1, ["observer.p_tool_hat", "plant.p_tool"])
     assert set(small["components"]) == {"controller", "plant", "pulses", "encoder", "imu", "observer"}
     bounds = st.default_bounds(p1, "observer")
-    assert bounds == st.DEFAULT_BOUNDS["AccelerationObserver"] and len(bounds) == 8
+    # the ranges the observer FMU declares (its vendor annotation), pole pairs of section III-C-2
+    assert bounds == {**{f"pole_freq[{i}]": (0.3, 60.0) for i in range(1, 5)},
+                      **{f"pole_damping[{i}]": (0.2, 3.0) for i in range(1, 5)}}
+    assert list(bounds) == [*(f"pole_freq[{i}]" for i in range(1, 5)), *(f"pole_damping[{i}]" for i in range(1, 5))]
     with pytest.raises(StudyError, match="no default tuning parameters"):
         st.default_bounds(p1, "plant")
 
@@ -103,7 +106,7 @@ def test_a_failing_candidate_costs_the_penalty_and_bad_bounds_are_refused(tmp_pa
     assert st.parse_param("pole_freq[2]=0.5:40") == ("pole_freq[2]", (0.5, 40.0))
 
 
-def test_sensor_floors_bound_the_ekf_measurement_noise() -> None:
+def test_sensor_floors_bound_the_ekf_measurement_noise(fmu_env) -> None:
     """Encoder: sqrt(noise^2 + step^2 / 12) (white noise plus uniform rounding error), and
     lambda5's low bound puts sqrt(lambda5) * r_motor exactly there; a noisier encoder raises it."""
     from fmus.robot_plant.sensor_model import EncoderParameters

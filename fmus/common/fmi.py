@@ -102,6 +102,13 @@ def known_units() -> tuple[str, ...]:
     return tuple(_UNITS)
 
 
+#: The roles a component may declare (docs/fmu_annotation.md).
+ROLES = ("plant", "environment", "sensor", "reference", "controller", "estimator", "log")
+#: The vendor annotation's tool name and schema version (docs/fmu_annotation.md).
+ANNOTATION_TOOL = "flexfusion"
+ANNOTATION_VERSION = "1"
+
+
 # attributes that are declarations, not state (see FlexFusionSlave._get_fmu_state)
 _NOT_STATE = frozenset({"vars", "log_queue", "instance_name", "resources", "visible", "guid",
                         "_units", "_inputs", "_depends", "_arrays", "_output_vrs", "_host_log",
@@ -248,6 +255,16 @@ class FlexFusionSlave(Fmi2Slave):
     ``nan_outputs``
         ``"error"`` (default): reading a non-finite output is an FMI error naming it;
         ``"pass"``: allowed (a test toy standing for a third-party FMU that outputs NaN).
+    ``role``
+        What the component is for the orchestration (:data:`ROLES`; ``"estimator"`` by
+        default): the honest-signals rule, the judge and the studies read it.
+    ``batched``
+        The name of the component's batched kernel in :mod:`orchestration.batched`, or None.
+
+    The role, the batched kernel and the default search ranges of the tuner (``param(...,
+    search=(low, high))`` of ``parameters_class``) go into the modelDescription as the vendor
+    annotation ``<Tool name="flexfusion">`` (:meth:`self_description`, docs/fmu_annotation.md),
+    which is what the orchestration reads, from our FMUs and a third party's alike.
 
     The constructor takes pythonfmu's ``kwargs`` (``instance_name``, ``resources``, ``logger``,
     ...), passes them on to :class:`pythonfmu.Fmi2Slave` and declares the parameters of
@@ -257,6 +274,8 @@ class FlexFusionSlave(Fmi2Slave):
     parameters_class: type | None = None
     nan_inputs: str = "error"
     nan_outputs: str = "error"
+    role: str = "estimator"
+    batched: str | None = None
     author = "FlexFusion"
     license = "MIT"
 
@@ -784,6 +803,41 @@ class FlexFusionSlave(Fmi2Slave):
             super().set_real(vrs, values)
 
     # ---- modelDescription ----------------------------------------------------------------
+    @classmethod
+    def self_description(cls) -> dict[str, Any]:
+        """What the FMU declares about itself: ``{"role": str, "batched": str | None,
+        "search": {scalar name: (low, high)}}``, the search ranges of ``parameters_class``'s
+        fields in declaration order (a vector's element by element, ``name[1]``, ...)."""
+        if cls.role not in ROLES:
+            raise ValueError(f"{cls.__name__}.role = {cls.role!r} is not one of {', '.join(ROLES)}")
+        search: dict[str, tuple[float, float]] = {}
+        if cls.parameters_class is not None:
+            defaults = cls.parameters_class()
+            for f in _parameters.fields(cls.parameters_class):
+                bounds = f.metadata.get("search")
+                if bounds is None:
+                    continue
+                value = getattr(defaults, f.name)
+                names = ([f"{f.name}[{i + 1}]" for i in range(len(value))] if isinstance(value, tuple)
+                         else [f.name])
+                for n in names:
+                    search[n] = bounds
+        return {"role": cls.role, "batched": cls.batched, "search": search}
+
+    def _vendor_annotation(self) -> Element:
+        """``<VendorAnnotations><Tool name="flexfusion"><Component .../></Tool>`` of
+        :meth:`self_description` (schema: docs/fmu_annotation.md)."""
+        described = self.self_description()
+        annotations = Element("VendorAnnotations")
+        tool = SubElement(annotations, "Tool", name=ANNOTATION_TOOL)
+        attrs = {"version": ANNOTATION_VERSION, "role": described["role"]}
+        if described["batched"] is not None:
+            attrs["batched"] = described["batched"]
+        comp = SubElement(tool, "Component", attrs)
+        for name, (low, high) in described["search"].items():
+            SubElement(comp, "Tune", name=name, low=repr(low), high=repr(high))
+        return annotations
+
     def to_xml(self, model_options: dict[str, str] = dict()) -> Element:  # noqa: B006 - pythonfmu's signature
         """pythonfmu's modelDescription (``model_options`` passed on) with what it lacks: FMU
         state support, units and ``<UnitDefinitions>``, fixed String parameters and each
@@ -811,6 +865,10 @@ class FlexFusionSlave(Fmi2Slave):
             SubElement(ue, "BaseUnit", {k: str(v) for k, v in _UNITS[u].items()})
         position = list(root).index(root.find("CoSimulation")) + 1
         root.insert(position, units)
+        # VendorAnnotations go right before ModelVariables (FMI 2.0 schema order)
+        if root.find("VendorAnnotations") is not None:
+            raise ValueError("pythonfmu wrote VendorAnnotations: merge ours into them")
+        root.insert(list(root).index(root.find("ModelVariables")), self._vendor_annotation())
         # real direct-feedthrough dependencies of every output
         input_indices: dict[str, list[int]] = {}
         for attr in self._inputs:
@@ -833,4 +891,4 @@ class FlexFusionSlave(Fmi2Slave):
         return root
 
 
-__all__ = ["FlexFusionSlave", "known_units", "nominal_step"]
+__all__ = ["ANNOTATION_TOOL", "ANNOTATION_VERSION", "FlexFusionSlave", "ROLES", "known_units", "nominal_step"]

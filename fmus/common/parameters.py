@@ -21,7 +21,8 @@ class ParameterError(ValueError):
 
 def param(default: Any, unit: str = "1", description: str = "", *, low: float | None = None,
           high: float | None = None, low_inclusive: bool = True, high_inclusive: bool = True,
-          choices: Sequence[str] | None = None, source: str = "", tunable: bool = False) -> Any:
+          choices: Sequence[str] | None = None, source: str = "", tunable: bool = False,
+          search: tuple[float, float] | None = None) -> Any:
     """Declare a parameter field.
 
     Parameters
@@ -41,12 +42,17 @@ def param(default: Any, unit: str = "1", description: str = "", *, low: float | 
     tunable
         FMI variability ``tunable`` instead of ``fixed``: the host may change it between steps
         (FMI 2.0, section 2.2.7); the FMU then calls its ``tuned(name)`` (fmus.common.fmi).
+    search
+        ``(low, high)``: the default search range of the tuner (``flexfusion tune``) for every
+        element; the FMU writes it into its modelDescription's vendor annotation
+        (docs/fmu_annotation.md). ``None``: not tuned by default.
     """
     if isinstance(default, list):
         default = tuple(default)
     meta = dict(unit=unit, description=description, low=low, high=high,
                 low_inclusive=low_inclusive, high_inclusive=high_inclusive,
-                choices=tuple(choices) if choices else None, source=source, tunable=tunable)
+                choices=tuple(choices) if choices else None, source=source, tunable=tunable,
+                search=None if search is None else (float(search[0]), float(search[1])))
     return dataclasses.field(default=default, metadata=meta)
 
 

@@ -104,11 +104,12 @@ class AccelerationObserverParameters(RobotAtInitialPose):
 
     pole_freq: tuple = param((0.5, 2.0, 0.5, 2.0), "Hz", "eigenfrequencies of the observer's "
                              "error poles: joint 1 pair a, joint 1 pair b, joint 2 pair a, joint 2 "
-                             "pair b", low=0.0, low_inclusive=False, high=400.0,
+                             "pair b", low=0.0, low_inclusive=False, high=400.0, search=(0.3, 60.0),
                              source=f"{PAPER}, section III-C-2; hand-tuned for the 3-30 Hz band on P1 (study_tune "
                              "refines them)")
     pole_damping: tuple = param((0.7, 0.7, 0.7, 0.7), "1", "damping ratios of the four pole pairs "
                                 "(>= 1: two real poles)", low=0.0, low_inclusive=False, high=20.0,
+                                search=(0.2, 3.0),
                                 source=f"{PAPER}, section III-C-2")
     singular_threshold: float = param(0.05, "m", "smallest singular value of the sensor Jacobian "
                                       "below which the inverse is damped (damped least squares)",

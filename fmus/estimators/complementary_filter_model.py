@@ -65,13 +65,14 @@ class ComplementaryFilterParameters:
     """Parameters of the complementary filter."""
 
     cutoff: float = param(28.0, "Hz", "cut-off (natural) frequency of the second-order split G(s) "
-                          "of the position", low=0.0, low_inclusive=False,
+                          "of the position", low=0.0, low_inclusive=False, search=(0.2, 30.0),
                           source=f"{PAPER}: 'a cut-off frequency of slightly less than 30 Hz'")
-    damping: float = param(0.7, "1", "damping ratio of G(s)", low=0.0, low_inclusive=False,
+    damping: float = param(0.7, "1", "damping ratio of G(s)", low=0.0, low_inclusive=False, search=(0.3, 3.0),
                            source="assumed (well damped)")
     cutoff_orientation: float = param(0.0, "Hz", "cut-off of the orientation split (0: the same as "
                                       "'cutoff', as in the paper: 'the same filter was used for all "
-                                      "estimated states')", low=0.0, source=PAPER)
+                                      "estimated states')", low=0.0, source=PAPER,
+                                      search=(0.005, 30.0))   # our extension: the paper's is 0
     lever_arm: tuple = param((-0.15, 0.0, 0.05), "m", "IMU position relative to the tool point, in "
                              "the tool frame (x, y, z)",
                              source="the robot's sensor_offset (x, z) on the wrist flange")

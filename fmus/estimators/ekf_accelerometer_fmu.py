@@ -33,6 +33,7 @@ _WHERE = {em.TIME_UPDATE: "EKF diverged in the time update",
 
 class EkfAccelerometer(FilterAdapter):
     """Arm angles, velocities and accelerations from motor angles and a tool accelerometer (EKF)."""
+    batched = "EkfAccelerometer"
 
     parameters_class = am.EkfAccelerometerParameters
     description = "EKF of arm angles from motor angles and a tool accelerometer (Axelsson et al. 2012)"

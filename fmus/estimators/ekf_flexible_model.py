@@ -111,7 +111,7 @@ def _lambda(i: int, default: float):
               4: "motor-velocity (dq_m)", 5: "motor-angle measurement"}
     what = "process noise" if i <= 4 else "measurement noise"
     return param(default, "1", f"scaling lambda{i} of the {blocks[i]} {what} block (section III-C)",
-                 low=0.0, low_inclusive=False,
+                 low=0.0, low_inclusive=False, search=(1e-4, 1e4),
                  source=f"{PAPER}, section III-C; default 1 (see DEFAULT_LAMBDAS)")
 
 

@@ -60,19 +60,20 @@ class ImuEkfParameters:
     """Noise levels (standard deviations; the filter's tuning), initial uncertainty and mount."""
 
     sigma_jerk: float = param(300.0, "m/s3", "process noise: jerk of the IMU point, std per sample "
-                              "(held over the sample)", low=0.0, low_inclusive=False,
+                              "(held over the sample)", low=0.0, low_inclusive=False, search=(1.0, 1e5),
                               source=f"{PAPER}: tuned (the paper: process noise far above the "
                               "measurement noise)")
     sigma_alpha: float = param(50.0, "rad/s2", "process noise: angular acceleration, std per sample",
-                               low=0.0, low_inclusive=False, source="tuned")
+                               low=0.0, low_inclusive=False, source="tuned", search=(0.1, 1e4))
     sigma_bias_acc: float = param(1e-3, "m/s2/s0.5", "accelerometer bias random-walk intensity",
                                   low=0.0, low_inclusive=False, source="the Imu's acc_bias_rw")
     sigma_bias_gyro: float = param(1e-4, "rad/s/s0.5", "gyro bias random-walk intensity",
                                    low=0.0, low_inclusive=False, source="the Imu's gyro_bias_rw")
     r_position: float = param(3e-4, "m", "forward-kinematics position error std", low=0.0,
-                              low_inclusive=False, source="tuned (FK error is deflection, not white)")
+                              low_inclusive=False, source="tuned (FK error is deflection, not white)",
+                              search=(1e-6, 1e-2))
     r_orientation: float = param(3e-4, "rad", "forward-kinematics orientation error std", low=0.0,
-                                 low_inclusive=False, source="tuned")
+                                 low_inclusive=False, source="tuned", search=(1e-6, 1e-1))
     r_acc: float = param(0.02, "m/s2", "accelerometer noise std", low=0.0, low_inclusive=False,
                          source="the Imu's acc_noise")
     r_gyro: float = param(0.005, "rad/s", "gyro noise std", low=0.0, low_inclusive=False,

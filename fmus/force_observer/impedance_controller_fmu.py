@@ -25,6 +25,7 @@ class ImpedanceController(FlexFusionSlave):
     Bad input: a non-finite input or ``force_fault > 0`` holds ``dp_ref`` and the integrator,
     sets ``fault`` and logs a warning when the episode begins. No NaN ever leaves.
     """
+    role = "controller"
 
     parameters_class = imp.ImpedanceControllerParameters
     nan_inputs = "pass"

@@ -16,6 +16,7 @@ class ContactEnvironment(FlexFusionSlave):
     over a step samples the half-sine (a 5 ms pulse at a 1 ms step keeps its impulse within a
     few percent).
     """
+    role = "environment"
 
     parameters_class = ContactEnvironmentParameters
     description = "Contact environment: one-sided spring-damper wall and rubber-hammer pulses"

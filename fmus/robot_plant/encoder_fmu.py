@@ -21,6 +21,8 @@ class Encoder(FlexFusionSlave):
     ``sample_rate``. The tunable ``reseed`` restarts the noise streams from a new seed
     (:mod:`fmus.common.noise`).
     """
+    role = "sensor"
+    batched = "Encoder"
 
     parameters_class = EncoderParameters
     description = "Motor-side angle encoders of joints 2 and 3: quantisation, noise, sample-and-hold"

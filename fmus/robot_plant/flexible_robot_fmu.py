@@ -29,6 +29,7 @@ class FlexibleRobot2DOF(FlexFusionSlave):
     their samples carry the right time under any master's coupling scheme (a Jacobi master such
     as libcosim hands a sensor the plant's outputs one step later than ours).
     """
+    role = "plant"
 
     parameters_class = PlantParameters
     description = "Flexible two-axis industrial robot (axes 2 and 3), nonlinear gearbox springs"

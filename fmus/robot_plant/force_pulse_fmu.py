@@ -14,6 +14,7 @@ class ForcePulse(FlexFusionSlave):
     delivers each strike's impulse exactly; before the first step it is the value at the start
     time. ``f_ext`` depends directly on ``f_in``.
     """
+    role = "environment"
 
     parameters_class = ForcePulseParameters
     description = "Rubber-hammer force pulses on the tool (half-sine), optionally added to f_in"

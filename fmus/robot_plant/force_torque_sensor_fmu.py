@@ -18,6 +18,7 @@ class ForceTorqueSensor(FlexFusionSlave):
     cut-off checks need the communication step and so happen at the first ``doStep``. The
     tunable ``reseed`` restarts the noise streams from a new seed (:mod:`fmus.common.noise`).
     """
+    role = "sensor"
 
     parameters_class = ForceTorqueSensorParameters
     description = "Wrist force sensor: contact force + tool inertia + tool weight, sensor frame"

@@ -25,6 +25,8 @@ class Imu(FlexFusionSlave):
     tunable ``reseed`` restarts both sensors' noise streams from a new seed
     (:mod:`fmus.common.noise`).
     """
+    role = "sensor"
+    batched = "Imu"
 
     parameters_class = ImuParameters
     description = "Tool IMU: 3-axis accelerometer (specific force) and 3-axis gyro, sensor frame"

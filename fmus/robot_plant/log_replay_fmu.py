@@ -34,6 +34,7 @@ class LogReplay(FlexFusionSlave):
     ``log_file`` (the default) every output is 0 and ``t_meas`` unstamped (-1), so that an FMI
     host can run the FMU with its defaults.
     """
+    role = "log"
 
     parameters_class = LogReplayParameters
     description = "Plays a recorded log (CSV, HDF5) as measurement and truth outputs"

@@ -34,6 +34,7 @@ class MotionController(FlexFusionSlave):
     adds a random-phase multisine torque (``excitation_band``, ``excitation_period``,
     ``excitation_seed``) to the PID output.
     """
+    role = "controller"
 
     parameters_class = MotionControllerParameters
     description = "Motion controller: smooth Cartesian paths, IK, flexible-joint feed-forward, motor PID"

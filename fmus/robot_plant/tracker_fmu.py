@@ -20,6 +20,7 @@ class Tracker(FlexFusionSlave):
     No direct feedthrough. The tunable ``reseed`` restarts the noise stream from a new seed
     (:mod:`fmus.common.noise`).
     """
+    role = "reference"
 
     parameters_class = TrackerParameters
     description = "Laser tracker (reference system): noisy, sampled, time-skewed tool position"

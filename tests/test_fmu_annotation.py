@@ -57,7 +57,7 @@ def _arm_with(sensor_fmu: Path, sensor_input: str) -> dict:
     kinematics, a tracker as the reference."""
     return {
         "connections": ["controller.tau_m -> plant.tau_m", "plant.q_m -> controller.q_m",
-                        "plant.dq_m -> controller.dq_m", f"plant.q_m -> sensor.{sensor_input}",
+                        f"plant.q_m -> sensor.{sensor_input}",
                         "plant.p_tool -> tracker.p_tool"],
         "scenario": {"name": "arm", "stop_time": 0.01, "base_step": 0.001, "seed": 1},
         "components": {"controller": {"fmu": "MotionController", "parameters": {"path": "square"}},

@@ -110,6 +110,14 @@ def assert_same_document(got, ref, rtol: float, scales: dict[str, str] | None = 
         assert got == ref, path
 
 
+def save_cases(path: Path, cases, record_case, **stored: np.ndarray) -> None:
+    """Write ``record_case(name)``'s arrays of every case in ``cases`` to ``path`` (npz, keys
+    ``<case>/<array>``), beside ``stored`` (arrays kept as they are, e.g. recorded inputs)."""
+    for name in cases:
+        stored.update({f"{name}/{key}": v for key, v in record_case(name).items()})
+    np.savez_compressed(path, **stored)
+
+
 def record(names: list[str]) -> None:
     """Re-record the references ``names`` (all if empty) from the working tree."""
     unknown = [n for n in names if n not in REFERENCES]

@@ -27,7 +27,7 @@ from numpy.testing import assert_array_equal
 from fmus.estimators import axelsson2012_model as am
 from fmus.estimators import ekf_accelerometer_model as em
 from fmus.estimators.ekf_accelerometer_fmu import EkfAccelerometer
-from references import KERNEL_RTOL, assert_near
+from references import KERNEL_RTOL, assert_near, save_cases
 from toys import InProcess
 
 REFERENCE = Path(__file__).parent / "data" / "ekf_step_reference.npz"
@@ -107,10 +107,7 @@ def save(results_csv: str | None = None) -> None:
         head = [h.strip('"') for h in head]
         data = np.loadtxt(results_csv, delimiter=",", skiprows=1, max_rows=10 * STEPS // 4 + 1)
         inputs = data[:, [head.index(c) for c in COLUMNS]]
-    stored = {"inputs": inputs}
-    for name in CASES:
-        stored.update({f"{name}/{key}": v for key, v in record(name, inputs).items()})
-    np.savez_compressed(REFERENCE, **stored)
+    save_cases(REFERENCE, CASES, lambda name: record(name, inputs), inputs=inputs)
 
 
 def _plain_covariances(name: str, inputs: np.ndarray) -> np.ndarray:

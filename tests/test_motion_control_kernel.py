@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from references import KERNEL_RTOL, assert_near
+from references import KERNEL_RTOL, assert_near, save_cases
 
 from fmus.robot_plant.motion_control_model import MotionControllerParameters, build_controller
 
@@ -54,7 +54,7 @@ def record(name: str, n_steps: int = 120, dt: float = 1e-3) -> dict[str, np.ndar
 
 
 def save() -> None:
-    np.savez_compressed(REFERENCE, **{f"{name}/{key}": v for name in CASES for key, v in record(name).items()})
+    save_cases(REFERENCE, CASES, record)
 
 
 @pytest.mark.parametrize("name", sorted(CASES))

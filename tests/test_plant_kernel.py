@@ -18,7 +18,7 @@ from numpy.testing import assert_array_equal
 
 from fmus.robot_plant import plant_dynamics
 from fmus.robot_plant.plant_model import PlantParameters
-from references import KERNEL_RTOL, assert_near
+from references import KERNEL_RTOL, assert_near, save_cases
 
 REFERENCE = Path(__file__).parent / "data" / "plant_kernel_reference.npz"
 
@@ -47,7 +47,7 @@ def record(name: str, n_steps: int = 80) -> dict[str, np.ndarray]:
 
 
 def save() -> None:
-    np.savez_compressed(REFERENCE, **{f"{name}/{key}": v for name in CASES for key, v in record(name).items()})
+    save_cases(REFERENCE, CASES, record)
 
 
 @pytest.mark.parametrize("name", sorted(CASES))

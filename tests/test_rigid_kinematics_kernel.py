@@ -19,7 +19,7 @@ from fmus.common import dynamics, kinematics
 from fmus.common.robot_params import RobotParameters
 from fmus.estimators.rigid_kinematics_model import arm_angles
 
-from references import KERNEL_RTOL, assert_near
+from references import KERNEL_RTOL, assert_near, save_cases
 
 REFERENCE = Path(__file__).parent / "data" / "rigid_kinematics_reference.npz"
 
@@ -41,7 +41,7 @@ def record(name: str, n: int = 300) -> dict[str, np.ndarray]:
 
 
 def save() -> None:
-    np.savez_compressed(REFERENCE, **{f"{name}/{key}": v for name in CASES for key, v in record(name).items()})
+    save_cases(REFERENCE, CASES, record)
 
 
 @pytest.mark.parametrize("name", sorted(CASES))

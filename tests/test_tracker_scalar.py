@@ -16,7 +16,7 @@ import pytest
 
 from fmus.robot_plant.tracker_model import TrackerModel
 
-from references import KERNEL_RTOL, assert_near
+from references import KERNEL_RTOL, assert_near, save_cases
 
 REFERENCE = Path(__file__).parent / "data" / "tracker_reference.npz"
 
@@ -38,7 +38,7 @@ def record(name: str, n_steps: int = 300) -> dict[str, np.ndarray]:
 
 
 def save() -> None:
-    np.savez_compressed(REFERENCE, **{f"{name}/{key}": v for name in CASES for key, v in record(name).items()})
+    save_cases(REFERENCE, CASES, record)
 
 
 @pytest.mark.parametrize("name", sorted(CASES))

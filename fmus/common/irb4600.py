@@ -230,10 +230,10 @@ def arm(robot: RobotParameters | None = None, tool_mass: float = TOOL_MASS, tool
         # axes 1, 4, 5, 6: estimates (docs/six_axis.md); axes 2, 3: [RP]
         gear_ratio=np.array([190.0, r[0], r[1], 120.0, 120.0, 80.0]),
         J_m=np.array([5e-3, p.J_m[0], p.J_m[1], 1.5e-3, 1.5e-3, 8e-4]),
-        k_hi=np.array([6.0e5, p.k_hi[0], p.k_hi[1], 3.0e4, 3.0e4, 5.0e3]),
-        k_lo=np.array([3.0e5, p.k_lo[0], p.k_lo[1], 1.5e4, 1.5e4, 2.5e3]),
+        k_hi=np.array([2.4e6, p.k_hi[0], p.k_hi[1], 3.0e4, 3.0e4, 5.0e3]),
+        k_lo=np.array([1.2e6, p.k_lo[0], p.k_lo[1], 1.5e4, 1.5e4, 2.5e3]),
         delta=np.array([2e-4, p.delta[0], p.delta[1], 2e-4, 2e-4, 2e-4]),
-        d=np.array([1500.0, p.d[0], p.d[1], 20.0, 20.0, 5.0]),
+        d=np.array([3000.0, p.d[0], p.d[1], 20.0, 20.0, 5.0]),
         f_v=np.array([1e-3, p.f_v[0], p.f_v[1], 5e-4, 5e-4, 3e-4]),
         f_c=np.array([0.2, p.f_c[0], p.f_c[1], 0.08, 0.08, 0.05]),
         g=float(p.g),

@@ -17,8 +17,11 @@ bearings, about the axes orthogonal to the actuated one), the elasticity no enco
   (``fore_twist``, about its long axis x).
 
 The wrist's compliance is axes 4-6's gearboxes. With the motors locked the modes the passive
-joints strain most lie at 13-50 Hz over the workspace, ``upper_twist``'s at 80-90 Hz
-(``docs/six_axis.md`` gives the poses and the figures).
+joints strain most lie at 9-40 Hz where the arm loads them (each joint's lowest over five
+poses: 9-29 Hz for the bending and tilt joints) and up to 100-180 Hz where only a light body
+turns on them (the twists about the links' own axes); the lowest mode of the arm stays its
+axis-2/3 gearboxes' (6.7-8.7 Hz, within 7 % of the same arm without passive joints;
+``docs/six_axis.md`` gives the poses, the figures and the reasoning).
 
 The drive train's realism, each with its own switch (``ideal = true`` turns all of it and the
 passive joints off):
@@ -153,23 +156,25 @@ class SixAxisParameters(RobotParameters):
                         source="the ideal case of tests")
     foundation_tilt: bool = param(True, "1", "passive joints tilt_x, tilt_y at the floor",
                                   source="[MWHB], [OHR]")
-    tilt_stiffness: tuple = param((1.5e6, 2.3e6), "N.m/rad", "foundation tilt stiffness about x, y",
+    tilt_stiffness: tuple = param((6.0e6, 9.2e6), "N.m/rad", "foundation tilt stiffness about x, y",
                                   low=0.0, low_inclusive=False,
-                                  source="[MWHB], [OHR]: with bend_stiffness, fitted so that the modes the "
-                                  "passive joints strain lie near 12-38 Hz at q0 and q = 0 (docs/six_axis.md)")
-    tilt_damping: tuple = param((400.0, 600.0), "N.m.s/rad", "foundation tilt damping about x, y", low=0.0,
-                                source="about 2 % of critical at 25 Hz, 2 zeta k / (2 pi 25 Hz) (bolted steel on concrete)")
+                                  source="[MWHB], [OHR]: with bend_stiffness, chosen so that the passive joints "
+                                  "lower the arm's lowest mode (its axis-2/3 gearboxes') by at most 7 % and "
+                                  "their own lowest modes lie at 9-40 Hz (docs/six_axis.md, 'Passive joints')")
+    tilt_damping: tuple = param((800.0, 1200.0), "N.m.s/rad", "foundation tilt damping about x, y", low=0.0,
+                                source="about 2 % of critical at 50 Hz, 2 zeta k / (2 pi 50 Hz) (bolted steel on concrete)")
     arm_bending: bool = param(True, "1", "passive joints upper_bend, upper_twist, fore_bend, fore_twist",
                               source="[MWHB]")
-    bend_stiffness: tuple = param((4.7e5, 2.0e5, 1.6e5, 1.7e5), "N.m/rad", "stiffness of the upper "
+    bend_stiffness: tuple = param((1.9e6, 8.0e5, 6.4e5, 6.8e5), "N.m/rad", "stiffness of the upper "
                                   "arm's out-of-plane bending and torsion, the forearm's out-of-plane bending "
                                   "and torsion", low=0.0, low_inclusive=False,
-                                  source="[MWHB]: with tilt_stiffness, fitted so that the modes the "
-                                  "passive joints strain lie near 12-38 Hz at q0 and q = 0 (docs/six_axis.md)")
-    bend_damping: tuple = param((120.0, 50.0, 40.0, 40.0), "N.m.s/rad", "damping of the four arm "
-                                "bending joints", low=0.0, source="about 2 % of critical at 25 Hz, 2 zeta k / (2 pi 25 Hz) (structural)")
+                                  source="[MWHB]: with tilt_stiffness, chosen so that the passive joints lower the "
+                                  "arm's lowest mode by at most 7 % and their own lowest modes lie at 9-40 Hz "
+                                  "(docs/six_axis.md, 'Passive joints')")
+    bend_damping: tuple = param((240.0, 100.0, 80.0, 80.0), "N.m.s/rad", "damping of the four arm "
+                                "bending joints", low=0.0, source="about 2 % of critical at 50 Hz, 2 zeta k / (2 pi 50 Hz) (structural)")
     hysteresis: bool = param(True, "1", "gearbox hysteresis / lost motion (Bouc-Wen element)", source="[RV]")
-    hysteresis_torque: tuple = param((30.0, 40.0, 12.0, 1.5, 1.5, 0.25), "N.m", "half-height T_h of "
+    hysteresis_torque: tuple = param((120.0, 40.0, 12.0, 1.5, 1.5, 0.25), "N.m", "half-height T_h of "
                                      "the gearbox's hysteresis loop, arm side", low=0.0,
                                      source="[RV]: T_h = 1e-4 rad x k_lo, a loop 2 T_h / k_lo = 2e-4 rad "
                                      "(0.7 arcmin) wide at zero torque, within the catalogue's 1 arcmin lost motion")

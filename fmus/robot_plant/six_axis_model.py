@@ -44,17 +44,13 @@ passive joints off):
 Rigid-body dynamics of the tree (6 actuated + up to 6 passive revolute joints, any tree: a joint
 is a parent, an origin in the parent's frame and a unit axis) by Featherstone's algorithms
 (Featherstone 2008, *Rigid Body Dynamics Algorithms*: RNEA, section 5.3; CRBA, section 6.2) in
-world coordinates (spatial vectors at the world origin, angular part first). Their recursions
-over the tree are sums along paths: with the ancestor matrix ``A`` (``A_ij = 1`` when joint ``j``
-is joint ``i`` or one of its ancestors), the forward recursion ``v_i = v_parent + S_i dq_i`` is
-``v = A (S dq)`` and the backward one ``f_i = f_i^B + sum_children f_c`` is ``f = A^T f^B``: the
-same sums, in matrix products.
-
-* RNEA: ``v = A (S dq)``, ``a = a_0 + A (S ddq + v_parent x S dq)`` (``a_0 = (0, -g)``: gravity
-  as the base's acceleration upward), ``f^B = I a + v x* I v``, ``tau = S . (A^T f^B)``.
-* CRBA: composite inertias ``I^c = A^T I``, ``M_ij = S_j . I^c_i S_i`` for ``j`` an ancestor of
-  ``i`` (or ``i``), ``M_ji = M_ij``, zero for unrelated joints.
-* forward dynamics ``ddq = M^-1 (tau - RNEA(q, dq, 0))`` (Cholesky of ``M``).
+world coordinates (spatial vectors at the world origin, angular part first), forward dynamics
+``ddq = M^-1 (tau - RNEA(q, dq, 0))`` by Cholesky of ``M``. They, the right side and the RK4 step
+are computed once, in the compiled kernel ``fmus/robot_plant/six_axis_kernels.pyx``
+(:func:`kernels`; :attr:`SixAxisPlant.kernel`): this module sets the plant up (the tree, the
+parameters, the static equilibrium, the step count) and analyses it (energy, linearisation,
+modes) through the kernel's functions. The numpy form the kernel was written from is the tests'
+oracle (``tests/six_axis_reference.py``), and Pinocchio is the tests' second implementation.
 
 State ``x = (q (n), q_m (6), dq (n), dq_m (6), z (6))``: the tree's joint angles in tree order
 (:attr:`SixAxisPlant.names`), the motor angles (motor side), their rates and the hysteresis
@@ -93,11 +89,12 @@ are this project's estimates in their ranges, each chosen as its parameter's sou
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 
-from fmus.common import dynamics, irb4600
+from fmus.common import cython_kernels, dynamics, irb4600
 from fmus.common.parameters import ParameterError, param
 from fmus.common.robot_params import RobotParameters
 
@@ -116,6 +113,19 @@ CURRENT_STEP_LIMIT = math.pi
 #: motor friction smoothing of axes 1, 4-6 [rad/s] (axes 2, 3: RobotParameters.w_c; the same)
 W_C_OTHER = 0.5
 _X, _Y, _Z = np.eye(3)
+_NO_WRENCH = np.zeros(6)
+_KERNELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()   # SixAxisPlant -> its compiled Plant
+
+
+def kernels():
+    """The compiled kernel module ``fmus/robot_plant/six_axis_kernels.pyx`` (loaded once)."""
+    return cython_kernels.load("robot_plant.six_axis_kernels")
+
+
+#: the plant's outputs in :meth:`SixAxisPlant.outputs`' order: (name, size); the kernel's
+OUTPUTS = (("q_m", 6), ("dq_m", 6), ("q_a", 6), ("dq_a", 6), ("tau_s", 6), ("p_tool", 3), ("quat_tool", 4),
+           ("v_tool", 3), ("a_tool", 3), ("omega_tool", 3), ("p_sensor", 3), ("a_sensor", 3))
+OUTPUT_SIZE = sum(k for _, k in OUTPUTS)
 _spring_inverse = getattr(dynamics.spring_inverse, "py_func", dynamics.spring_inverse)
 
 
@@ -314,126 +324,6 @@ def arm_tree(arm: irb4600.Arm, p: SixAxisParameters) -> Tree:
                 limits=np.array([r[5] for r in rows], float))
 
 
-_P1, _P2 = [1, 2, 0], [2, 0, 1]
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross products of (n, 3) arrays ``a x b`` (cheaper than np.cross for small n)."""
-    return a[:, _P1] * b[:, _P2] - a[:, _P2] * b[:, _P1]
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``[v]x`` (n, 3, 3) of the rows of ``v`` (n, 3)."""
-    K = np.zeros(v.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return K
-
-
-def _crm(v: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """Spatial motion cross product ``v x m`` of rows (n, 6): ``(w x a, w x b + u x a)`` for
-    ``v = (w, u)``, ``m = (a, b)`` (Featherstone 2008, eq. 2.31); one call of :func:`_cross`."""
-    n = len(v)
-    w, u, a, b = v[:, :3], v[:, 3:], m[:, :3], m[:, 3:]
-    c = _cross(np.concatenate([w, w, u]), np.concatenate([a, b, a]))
-    return np.concatenate([c[:n], c[n:2 * n] + c[2 * n:]], axis=1)
-
-
-def _crf(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """Spatial force cross product ``v x* f`` of rows (n, 6): ``(w x n + u x f, w x f)`` for
-    ``v = (w, u)``, ``f = (n, f)`` (Featherstone 2008, eq. 2.32); one call of :func:`_cross`."""
-    n = len(v)
-    w, u, nf, fl = v[:, :3], v[:, 3:], f[:, :3], f[:, 3:]
-    c = _cross(np.concatenate([w, u, w]), np.concatenate([nf, fl, fl]))
-    return np.concatenate([c[:n] + c[n:2 * n], c[2 * n:]], axis=1)
-
-
-class RigidBodyDynamics:
-    """RNEA, CRBA and forward dynamics of a :class:`Tree` ``tree`` in world coordinates (the
-    module docstring); methods take the joint angles ``q`` [rad], rates ``dq`` [rad/s] and
-    accelerations ``ddq`` [rad/s^2] (n each) or the :meth:`kinematics` ``k`` of ``q``."""
-
-    def __init__(self, tree: Tree) -> None:
-        self.tree = tree
-        self.n = tree.n
-        self.A = tree.ancestors()
-        self.AT = self.A.T.copy()
-        self.has_parent = tree.parent >= 0
-        self.par = np.where(self.has_parent, tree.parent, 0)
-        self.a0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, tree.g])      # gravity: the base accelerates up
-        self.tool_path = self.A[tree.tool].copy()
-        self._K = _skew(tree.axis)                                # Rodrigues: I + sin K + (1 - cos) K^2
-        self._KK = self._K @ self._K
-        self._axis = tree.axis[:, :, None]
-        self._T = np.zeros((self.n, 4, 4))
-        self._T[:, :3, :3] = np.eye(3)
-        self._T[:, :3, 3] = tree.origin
-        self._T[:, 3, 3] = 1.0
-        self._com = tree.com[:, :, None]
-        self._m = tree.mass[:, None, None]
-        self._mI = tree.mass[:, None, None] * np.eye(3)
-
-    def kinematics(self, q) -> dict:
-        """World rotation ``R`` (n, 3, 3) and origin ``o`` (n, 3) of each body, the joint axes ``z``
-        (n, 3), the motion subspaces ``S`` (n, 6) at the world origin ``(z, o x z)``, the centres
-        of mass ``c`` (n, 3) and the spatial inertias ``I`` (n, 6, 6) at the world origin,
-        ``[[I_c + m [c]x [c]x^T, m [c]x], [m [c]x^T, m 1]]`` (Featherstone 2008, eq. 2.63), at ``q``."""
-        t = self.tree
-        qa = np.asarray(q, float)[:, None, None]
-        T = self._T.copy()                       # joint transforms: origin, then the rotation
-        T[:, :3, :3] += np.sin(qa) * self._K + (1.0 - np.cos(qa)) * self._KK
-        Ts = []
-        for i, j in enumerate(t.parent):
-            Ts.append(T[i] if j < 0 else Ts[j] @ T[i])
-        W = np.array(Ts)
-        R, o = W[:, :3, :3], W[:, :3, 3]
-        z = (R @ self._axis)[:, :, 0]
-        c = o + (R @ self._com)[:, :, 0]
-        C = _skew(c)
-        mC = self._m * C
-        I = np.empty((self.n, 6, 6))
-        I[:, :3, :3] = R @ t.inertia @ R.transpose(0, 2, 1) - mC @ C
-        I[:, :3, 3:] = mC
-        I[:, 3:, :3] = -mC
-        I[:, 3:, 3:] = self._mI
-        S = np.concatenate([z, _cross(o, z)], axis=1)
-        return dict(R=R, o=o, z=z, c=c, S=S, I=I)
-
-    def rnea(self, q, dq, ddq, k: dict | None = None) -> np.ndarray:
-        """Inverse dynamics ``tau = M ddq + C dq + G`` [N m] (Featherstone 2008, section 5.3,
-        world coordinates; the recursions as path sums through the ancestor matrix)."""
-        k = self.kinematics(q) if k is None else k
-        S, I = k["S"], k["I"]
-        Sdq = S * np.asarray(dq, float)[:, None]
-        v = self.A @ Sdq
-        vp = v - Sdq                                             # the parent's velocity
-        a = self.a0 + self.A @ (S * np.asarray(ddq, float)[:, None] + _crm(vp, Sdq))
-        f = (I @ a[:, :, None])[:, :, 0] + _crf(v, (I @ v[:, :, None])[:, :, 0])
-        return np.sum(S * (self.AT @ f), axis=1)
-
-    def mass_matrix(self, q, k: dict | None = None) -> np.ndarray:
-        """Joint-space inertia matrix ``M`` (n, n) [kg m^2] (CRBA, Featherstone 2008, section 6.2)."""
-        k = self.kinematics(q) if k is None else k
-        S = k["S"]
-        Ic = (self.AT @ k["I"].reshape(self.n, 36)).reshape(self.n, 6, 6)   # composite inertia of each subtree
-        F = (Ic @ S[:, :, None])[:, :, 0]
-        P = (S @ F.T) * self.AT                                  # P[j, i] = S_j . Ic_i S_i, j ancestor of i
-        return P + P.T - np.diag(np.diag(P))
-
-    def external(self, wrench, k: dict) -> np.ndarray:
-        """Generalised force [N m] of the ``wrench`` (force (3) [N], moment (3) [N m], world axes)
-        on the tool at its centre point: ``S_j . (m + p x f, f)`` for the tool's ancestors."""
-        w = np.asarray(wrench, float)
-        p = k["o"][self.tree.tool] + k["R"][self.tree.tool] @ self.tree.tcp
-        f0 = np.concatenate([w[3:] + np.cross(p, w[:3]), w[:3]])
-        return (k["S"] @ f0) * self.tool_path
-
-    def potential_energy(self, q, k: dict | None = None) -> float:
-        """Gravitational potential energy [J] of the bodies at ``q``: ``sum m_i g z_ci``."""
-        k = self.kinematics(q) if k is None else k
-        return float(self.tree.g * self.tree.mass @ k["c"][:, 2])
-
-
 # ---- the plant --------------------------------------------------------------------------------
 class SixAxisPlant:
     """The six-axis flexible robot of the parameters ``p`` (:class:`SixAxisParameters`, checked),
@@ -462,7 +352,6 @@ class SixAxisPlant:
             raise ParameterError(f"parameter '{name}': {exc}") from None
         a = self.arm
         self.tree = tree = arm_tree(a, p)
-        self.dyn = RigidBodyDynamics(tree)
         self.names = tree.names
         self.n = n = tree.n
         self.act = np.array([tree.names.index(f"axis_{i + 1}") for i in range(6)])
@@ -493,7 +382,7 @@ class SixAxisPlant:
         self.size = 2 * n + 18
         q = self.tree_angles(p.q0)
         try:
-            np.linalg.cholesky(self.dyn.mass_matrix(q))
+            np.linalg.cholesky(self.kernel.mass_matrix(q))
         except np.linalg.LinAlgError:
             raise ParameterError("parameters 'tool_inertia', 'base_inertia': the arm's inertia matrix at "
                                  f"q0 = {tuple(p.q0)} is not positive definite") from None
@@ -503,6 +392,32 @@ class SixAxisPlant:
         #: the elastic element its mode strains most
         self.stiffest, self.stiffest_parameter = self._stiffest()
         self._substeps: dict = {}
+
+    @property
+    def kernel(self):
+        """The compiled plant (``six_axis_kernels.Plant``) of this plant's tree and drive-train
+        arrays, built on first use. Kept beside the object, not in it (a weak map), so that the
+        plant stays plain data (an FMU's state is copied and serialised as data only): a copy
+        builds its own from its arrays."""
+        k = _KERNELS.get(self)
+        if k is None:
+            k = _KERNELS[self] = self._build_kernel()
+        return k
+
+    def update(self) -> None:
+        """Rebuild :attr:`kernel` from the tree and the drive-train arrays (``r``, ``J_m``,
+        ``k_hi``, ``d``, ``f_c``, ...: after changing one of them)."""
+        _KERNELS[self] = self._build_kernel()
+
+    def _build_kernel(self):
+        return kernels().Plant(
+            parent=self.tree.parent, origin=self.tree.origin, axis=self.tree.axis, mass=self.tree.mass,
+            com=self.tree.com, inertia=self.tree.inertia, tool=self.tree.tool, tcp=self.tree.tcp,
+            sensor=(self.p.sensor_offset[0], 0.0, self.p.sensor_offset[1]), g=self.tree.g, pas=self.pas,
+            k_p=self.k_p, d_p=self.d_p, act=self.act, r=self.r, J_m=self.J_m, k_hi=self.k_hi, k_soft=self.k_soft,
+            delta=self.delta, d=self.d, f_v=self.f_v, f_c=self.f_c, f_s=self.f_s, w_s=self.w_s, w_c=self.w_c,
+            mu_L=self.mu_L, hyst=self.hyst, k_h=self.k_h, z0=self.z0, kt=self.kt, ripple=self.ripple,
+            periods=self.periods, w_i=self.w_i, locked=self.locked)
 
     # ---- state ----------------------------------------------------------------------------
     def split(self, x) -> tuple:
@@ -522,50 +437,26 @@ class SixAxisPlant:
 
     def gearbox_torque(self, x) -> np.ndarray:
         """Arm-side gearbox torque (6) [N m] at ``x``: spring, damping and hysteresis."""
-        q, qm, dq, dqm, z = self.split(x)
-        return self._gearbox(qm / self.r - q[self.act], dqm / self.r - dq[self.act], z)
-
-    def _gearbox(self, D: np.ndarray, Dd: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """:meth:`gearbox_torque` of the deflections ``D``, their rates ``Dd`` and the hysteresis
-        variables ``z``."""
-        return self.k_hi * D - self.k_soft * self.delta * np.tanh(D / self.delta) + self.d * Dd + self.k_h * z
-
-    def motor_friction(self, dqm, tau_g) -> np.ndarray:
-        """Motor friction (6) [N m, motor side] at the motor rates ``dqm`` [rad/s] under the
-        gearbox torque ``tau_g`` [N m, arm side] ([BG]'s form; the estimators' with it off)."""
-        level = self.f_c + (self.f_s - self.f_c) * np.exp(-(dqm / self.w_s) ** 2) + self.mu_L * np.abs(tau_g) / self.r
-        return self.f_v * dqm + level * np.tanh(dqm / self.w_c)
+        y = np.empty(OUTPUT_SIZE)
+        self.kernel.outputs(np.ascontiguousarray(x, float), np.zeros(6), np.zeros(6), y)
+        return y[24:30]
 
     def derivatives(self, x, current, wrench=None) -> np.ndarray:
         """``x_dot`` at the state ``x`` with the motor ``current`` (6) and the tool ``wrench``
-        (6, or ``None``: none)."""
-        n = self.n
-        q, qm, dq, dqm, z = self.split(x)
-        k = self.dyn.kinematics(q)
-        D = qm / self.r - q[self.act]
-        Dd = dqm / self.r - dq[self.act]
-        tau_g = self._gearbox(D, Dd, z)
-        tau = np.zeros(n)
-        tau[self.act] = tau_g
-        tau[self.pas] = -self.k_p * q[self.pas] - self.d_p * dq[self.pas]
-        if wrench is not None:
-            tau += self.dyn.external(wrench, k)
-        rhs = tau - self.dyn.rnea(q, dq, np.zeros(n), k)
-        M = self.dyn.mass_matrix(q, k)
-        ddq = np.zeros(n)
-        f = self.free
-        if f.all():
-            ddq = np.linalg.solve(M, rhs)
-        else:
-            ddq[f] = np.linalg.solve(M[np.ix_(f, f)], rhs[f])
-        applied = self.kt * np.asarray(current, float) + self.ripple * np.sin(self.periods * qm)
-        ddqm = (applied - self.motor_friction(dqm, tau_g) - tau_g / self.r) / self.J_m
-        ddqm[self.locked] = 0.0
-        if self.hyst:
-            dz = Dd - (np.abs(Dd) * z + Dd * np.abs(z)) / (2.0 * self.z0)
-        else:
-            dz = np.zeros(6)
-        return np.concatenate([dq, dqm, ddq, ddqm, dz])
+        (6, or ``None``: none); the kernel's."""
+        out = np.empty(self.size)
+        w = _NO_WRENCH if wrench is None else np.ascontiguousarray(wrench, float)
+        self.kernel.derivatives(np.ascontiguousarray(x, float), np.ascontiguousarray(current, float), w, out)
+        return out
+
+    def outputs(self, x=None, current=None, wrench=None) -> np.ndarray:
+        """The plant's outputs (:data:`OUTPUTS`, 52 values) at the state ``x`` (default: now)
+        with the motor ``current`` (default: now) and the tool ``wrench`` (6, or ``None``)."""
+        y = np.empty(OUTPUT_SIZE)
+        w = _NO_WRENCH if wrench is None else np.ascontiguousarray(wrench, float)
+        self.kernel.outputs(np.ascontiguousarray(self.x if x is None else x, float),
+                            np.ascontiguousarray(self.current if current is None else current, float), w, y)
+        return y
 
     def current_at(self, i0, tau_m, t: float) -> np.ndarray:
         """The current loop's output [N m] a time ``t`` [s] after it was ``i0`` with the command
@@ -613,20 +504,10 @@ class SixAxisPlant:
         and the tool ``wrench`` (6, or ``None``) held: :meth:`substeps_for` RK4 steps, the
         current loop exact at each stage's time."""
         s = self.substeps_for(dt)
-        h = dt / s
-        x, i0 = self.x, self.current
-        for k in range(s):
-            t0 = k * h
-            c0 = self.current_at(i0, tau_m, t0)
-            cm = self.current_at(i0, tau_m, t0 + 0.5 * h)
-            c1 = self.current_at(i0, tau_m, t0 + h)
-            k1 = self.derivatives(x, c0, wrench)
-            k2 = self.derivatives(x + 0.5 * h * k1, cm, wrench)
-            k3 = self.derivatives(x + 0.5 * h * k2, cm, wrench)
-            k4 = self.derivatives(x + h * k3, c1, wrench)
-            x = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        self.x = x
-        self.current = self.current_at(i0, tau_m, dt)
+        w = _NO_WRENCH if wrench is None else np.ascontiguousarray(wrench, float)
+        x, current = np.array(self.x, float), np.array(self.current, float)
+        self.kernel.step(x, current, np.ascontiguousarray(tau_m, float), w, float(dt), s)
+        self.x, self.current = x, current
         self.t += dt
 
     # ---- analysis -------------------------------------------------------------------------
@@ -636,12 +517,12 @@ class SixAxisPlant:
         it: ``(x, current)``."""
         q = self.tree_angles(q_arm)
         for _ in range(100):
-            G = self.dyn.rnea(q, np.zeros(self.n), np.zeros(self.n))
+            G = self.kernel.rnea(q, np.zeros(self.n), np.zeros(self.n))
             old = q[self.pas].copy()
             q[self.pas] = -G[self.pas] / self.k_p
             if np.all(np.abs(q[self.pas] - old) < 1e-15):
                 break
-        G = self.dyn.rnea(q, np.zeros(self.n), np.zeros(self.n))
+        G = self.kernel.rnea(q, np.zeros(self.n), np.zeros(self.n))
         tau_g = G[self.act]
         D = np.array([_spring_inverse(self.k_hi[i], self.k_soft[i], self.delta[i], float(tau_g[i]), 0.0, False)
                       for i in range(6)])
@@ -654,23 +535,20 @@ class SixAxisPlant:
         """Kinetic, gravity and spring energy [J] at ``x``, with the ripple's potential
         ``(A / n) cos(n q_m)`` (the ripple torque ``A sin(n q_m)`` is its negative gradient)."""
         q, qm, dq, dqm, _ = self.split(x)
-        k = self.dyn.kinematics(q)
         D = qm / self.r - q[self.act]
-        kin = 0.5 * dq @ self.dyn.mass_matrix(q, k) @ dq + 0.5 * np.sum(self.J_m * dqm ** 2)
+        kin = 0.5 * dq @ self.kernel.mass_matrix(np.ascontiguousarray(q)) @ dq + 0.5 * np.sum(self.J_m * dqm ** 2)
         u = np.abs(D / self.delta)
         log_cosh = u + np.log1p(np.exp(-2.0 * u)) - math.log(2.0)          # without overflow
         spring = np.sum(0.5 * self.k_hi * D ** 2 - self.k_soft * self.delta ** 2 * log_cosh)
         passive = 0.5 * np.sum(self.k_p * q[self.pas] ** 2)
         ripple = np.sum(self.ripple / self.periods * np.cos(self.periods * qm))
-        return float(kin + self.dyn.potential_energy(q, k) + spring + passive + ripple)
+        return float(kin + self.kernel.potential_energy(np.ascontiguousarray(q)) + spring + passive + ripple)
 
     def tool_position(self, x, point=None) -> np.ndarray:
         """World position [m] of the tool centre point (or of ``point`` [m], in the tool frame)
         at the state ``x``."""
-        k = self.dyn.kinematics(self.split(x)[0])
-        t = self.tree.tool
         r = self.tree.tcp if point is None else self.tree.tcp + np.asarray(point, float)
-        return k["o"][t] + k["R"][t] @ r
+        return self.kernel.point(np.ascontiguousarray(self.split(x)[0]), np.ascontiguousarray(r, float))
 
     def jacobian(self, x, current=None, h: float = 1e-7) -> np.ndarray:
         """``d x_dot / d x`` at ``x`` with the ``current`` held (the holding current when
@@ -715,7 +593,7 @@ class SixAxisPlant:
         m_all = self.n + 6
         f = list(range(m_all)) if free is None else list(free)
         M = np.zeros((m_all, m_all))
-        M[:self.n, :self.n] = self.dyn.mass_matrix(self.split(x)[0])
+        M[:self.n, :self.n] = self.kernel.mass_matrix(np.ascontiguousarray(self.split(x)[0]))
         M[self.n:, self.n:] = np.diag(self.J_m)
         F = M @ self.jacobian(x)[m_all:2 * m_all]
         Mff = M[np.ix_(f, f)]
@@ -734,4 +612,4 @@ class SixAxisPlant:
 
 
 __all__ = ["TILT", "BEND", "RK4_STEP_LIMIT", "CURRENT_STEP_LIMIT", "SixAxisParameters", "Tree", "arm_tree", "rotation",
-           "RigidBodyDynamics", "SixAxisPlant"]
+           "SixAxisPlant", "OUTPUTS", "OUTPUT_SIZE", "kernels"]

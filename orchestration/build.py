@@ -102,10 +102,23 @@ def _stage_package(stage: Path) -> Path:
         out = target / f.relative_to(FMU_SOURCES)
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(_vendored(f.read_text(), target.name))
+    for f in cython_sources(FMU_SOURCES):        # verbatim: kernels never name the package
+        out = target / f.relative_to(FMU_SOURCES)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(f, out)
     (target / BUNDLE_ID_FILE).write_text(bundle_id + "\n")
     (stage / "requirements.txt").write_text("\n".join(FMU_REQUIREMENTS) + "\n")
     (stage / "optional-requirements.txt").write_text("\n".join(FMU_OPTIONAL_REQUIREMENTS) + "\n")
     return target
+
+
+def cython_sources(package: Path) -> list[Path]:
+    """The Cython kernel sources below the package folder ``package`` (``*.pyx``, ``*.pxd``,
+    ``*.pxi``; :mod:`fmus.common.cython_kernels`), sorted: vendored beside the Python sources,
+    where a built FMU's loader finds and compiles them into its private cache on first use
+    (until the build compiles them itself), and a part of every FMU's manifest entry."""
+    return sorted(p for ext in ("pyx", "pxd", "pxi") for p in package.rglob(f"*.{ext}")
+                  if "__pycache__" not in p.parts)
 
 
 def kernel_sources(package: Path) -> list[Path]:
@@ -356,7 +369,8 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     dest.mkdir(parents=True, exist_ok=True)
     manifest = _read_manifest(dest)
     common = {"build": _digest(*BUILD_SCRIPTS), "tools": _tools(), "native": library.parent.name,
-              "package": package_digest(FMU_SOURCES), "kernels": kernels_key(FMU_SOURCES) or "none"}
+              "package": package_digest(FMU_SOURCES), "kernels": kernels_key(FMU_SOURCES) or "none",
+              "cython": _digest(*cython_sources(FMU_SOURCES))}
     parts = {p: {**common, "script": _digest(p)} for p in selected}
     kept: dict[Path, Path] = {}
     reasons: dict[Path, str] = {}

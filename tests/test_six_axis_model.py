@@ -333,6 +333,8 @@ def test_bad_input_is_refused_naming_the_parameter() -> None:
         SixAxisPlant(replace(P, q0=(0.0, 0.3, 1.5, 0.0, 0.0, 0.0)))
     with pytest.raises(ParameterError, match="'tool_inertia'.*not a physical inertia"):
         SixAxisPlant(replace(P, tool_inertia=(0.01, 0.01, 0.5)))
+    with pytest.raises(ParameterError, match="parameter 'l1': planar upper arm l1 = 0.95 m is not the data sheet's"):
+        SixAxisPlant(replace(P, l1=0.95))
     with pytest.raises(ParameterError, match="'base_inertia'.*not a physical inertia"):
         SixAxisPlant(replace(P, base_inertia=(6.4, -1.0, 6.9)))
     with pytest.raises(ParameterError, match=r"'bend_stiffness\[4\]'.*needs \d+ RK4 substeps.*'max_substeps' = 64"):

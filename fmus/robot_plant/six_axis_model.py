@@ -348,7 +348,9 @@ class SixAxisPlant:
             self.arm = irb4600.arm(p.robot(), tool_mass=p.tool_mass, tool_com=p.tool_com,
                                    tool_inertia=p.tool_inertia)
         except ValueError as exc:
-            name = "tool_mass" if "tool mass" in str(exc) else "tool_inertia" if "tool" in str(exc) else "m2"
+            text = str(exc)
+            name = ("l1" if " l1 " in text else "l2" if " l2 " in text else "tool_mass" if "tool mass" in text
+                    else "tool_inertia" if "tool" in text else "m2")
             raise ParameterError(f"parameter '{name}': {exc}") from None
         a = self.arm
         self.tree = tree = arm_tree(a, p)

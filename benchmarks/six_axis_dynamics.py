@@ -13,7 +13,17 @@ one ``@njit`` function around the kernel, and the simulated second they cost at 
 CPU time (``time.process_time``), per call: the best of ``--repeat`` runs of ``--number`` calls
 (the machine is shared; the best run is the least disturbed).
 
-Run: ``.venv/bin/python benchmarks/six_axis_dynamics.py [--number 20000] [--repeat 5] [--substeps 2]``
+Then the plants as FMUs (``--fmu-seconds``, default 10): ``FlexibleRobot6DOF`` (its compiled
+kernel, ``fmus/robot_plant/six_axis_kernels.pyx``) and ``FlexibleRobot2DOF`` in the same run,
+each alone under fmpy's FMU2Slave at a 1 kHz communication step for 10 s simulated (setReal of
+every input, doStep, getReal of every output at each step, as a master does), held at rest by
+their holding torques: CPU time per simulated second (the issue's goal: the whole six-axis
+flagship at least 10 times faster than real time, 0.1 s CPU per simulated second, so the plant
+must take well under that), and the six-axis model's step called directly (``SixAxisPlant.step``).
+The FMUs are built into ``dist/fmus`` first if missing or stale (``flexfusion build``'s
+incremental build).
+
+Run: ``.venv/bin/python benchmarks/six_axis_dynamics.py [--number 20000] [--repeat 5] [--substeps 2] [--fmu-seconds 10]``
 """
 from __future__ import annotations
 
@@ -287,6 +297,79 @@ def locked_modes(pin, model, arm, q) -> np.ndarray:
     return np.sort(np.sqrt(np.abs(w2))) / (2 * np.pi)
 
 
+def fmu_cpu(fmu: Path, hold: dict[str, list[float]], seconds: float) -> float:
+    """CPU seconds per simulated second of the FMU ``fmu`` alone under fmpy's FMU2Slave at 1 kHz
+    for ``seconds`` simulated: each step setReal of every input (``hold``: name -> values, the
+    others 0), doStep, getReal of every output."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(fmu))
+    ins = [v for v in md.modelVariables if v.causality == "input"]
+    outs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    values = []
+    for v in ins:
+        name, _, index = v.name.partition("[")
+        values.append(float(hold.get(name, [0.0] * 9)[int(index[:-1]) - 1]) if index else 0.0)
+    refs = [v.valueReference for v in ins]
+    s = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu)), modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="plant")
+    s.instantiate()
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    s.exitInitializationMode()
+    n = int(round(seconds / 1e-3))
+    for k in range(100):                                     # warm-up (first loads, caches)
+        s.setReal(refs, values)
+        s.doStep(currentCommunicationPoint=k * 1e-3, communicationStepSize=1e-3)
+        s.getReal(outs)
+    t0 = time.process_time()
+    for k in range(100, 100 + n):
+        s.setReal(refs, values)
+        s.doStep(currentCommunicationPoint=k * 1e-3, communicationStepSize=1e-3)
+        s.getReal(outs)
+    cpu = time.process_time() - t0
+    s.terminate()
+    s.freeInstance()
+    return cpu / seconds
+
+
+def plant_fmus(seconds: float) -> None:
+    """Print the two plants' FMU cost (module docstring)."""
+    from fmus.common.parameters import as_array
+    from fmus.robot_plant import plant_dynamics
+    from fmus.robot_plant.plant_model import PlantParameters
+    from fmus.robot_plant.six_axis_model import SixAxisParameters, SixAxisPlant
+    from orchestration.build import DEFAULT_DEST, build_all
+
+    built = {p.stem: p for p in build_all(DEFAULT_DEST, only=["FlexibleRobot6DOF", "FlexibleRobot2DOF"], quiet=True)}
+    p2 = PlantParameters()
+    two = plant_dynamics.plant_model(p2)
+    hold2 = list(as_array(two.spring_torques()) / as_array(p2.gear_ratio))
+    model = SixAxisPlant(SixAxisParameters())
+    tau, w = model.current.copy(), np.zeros(6)
+    for _ in range(100):
+        model.step(tau, w, 1e-3)
+    t0 = time.process_time()
+    n = int(round(seconds / 1e-3))
+    for _ in range(n):
+        model.step(tau, w, 1e-3)
+    direct = (time.process_time() - t0) / seconds
+    rows = [("FlexibleRobot6DOF FMU (fmpy FMU2Slave: setReal, doStep, getReal of 59 outputs)",
+             fmu_cpu(built["FlexibleRobot6DOF"], {"tau_m": list(tau)}, seconds)),
+            ("six-axis model's step called directly (SixAxisPlant.step, the kernel's RK4)", direct),
+            ("FlexibleRobot2DOF FMU (fmpy FMU2Slave: setReal, doStep, getReal of 24 outputs)",
+             fmu_cpu(built["FlexibleRobot2DOF"], {"tau_m": hold2}, seconds))]
+    print()
+    print(f"Plants at 1 kHz, {seconds:g} s simulated each, held at rest by their holding torques, "
+          f"{model.substeps_for(1e-3)} RK4 substeps for the six-axis plant; CPU time (process_time):")
+    print()
+    print("| plant | ms CPU per simulated second | times faster than real time |")
+    print("| --- | ---: | ---: |")
+    for name, cpu in rows:
+        print(f"| {name} | {cpu * 1e3:.1f} | {1.0 / cpu:.0f} |")
+
+
 def per_call(fn, number: int, repeat: int) -> float:
     """Best CPU time per call [us] over ``repeat`` runs of ``number`` calls."""
     t = timeit.Timer(fn, timer=time.process_time)
@@ -299,6 +382,8 @@ def main(argv=None) -> int:
     ap.add_argument("--number", type=int, default=20000, help="calls per run")
     ap.add_argument("--repeat", type=int, default=5, help="runs; the best is reported")
     ap.add_argument("--substeps", type=int, default=2, help="RK4 substeps per 1 ms plant step")
+    ap.add_argument("--fmu-seconds", type=float, default=10.0, help="simulated seconds of each plant FMU "
+                    "(0: skip the FMUs)")
     args = ap.parse_args(argv)
     import pinocchio as pin
 
@@ -367,6 +452,8 @@ def main(argv=None) -> int:
     print("| --- | --- |")
     for pose in POSES:
         print(f"| {tuple(float(v) for v in pose)} | {', '.join(f'{f:.1f}' for f in locked_modes(pin, model, arm, pose))} |")
+    if args.fmu_seconds > 0:
+        plant_fmus(args.fmu_seconds)
     return 0
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import functools
 import re
 from pathlib import Path
 
@@ -206,6 +207,7 @@ SECTIONS = {
 }
 
 
+@functools.cache
 def loader_keys() -> dict[str, set[str]]:
     """The keys ``orchestration/scenario.py`` accepts, per section of the reference: the sets
     every ``_check_keys(where, table, ALLOWED)`` call is given (a set literal or a module

@@ -67,7 +67,8 @@ def anchors(path: Path) -> set[str]:
 
 
 def test_slug_matches_github() -> None:
-    """The anchors GitHub gives these headings (checked by hand on GitHub's rendering)."""
+    """GitHub's rule on the kinds of heading the docs have: code marks and punctuation dropped,
+    each space a ``-`` (so ``: `--set` `` gives three)."""
     assert slug("Overrides: `--set` and Python") == "overrides---set-and-python"
     assert slug("`[[metrics]]`") == "metrics"
     assert slug("What the simulation knows and the estimators don't") == \

@@ -6,12 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from fmus.common.fmi import FlexFusionSlave
-from fmus.robot_plant.six_axis_model import OUTPUT_SIZE, OUTPUTS, SixAxisParameters, SixAxisPlant, kernels
-
-# The compiled kernel is loaded when the script loads, while the folder it is loaded from exists
-# (a host may delete an extraction folder after the first instance, whose modules later
-# instances of the same build reuse).
-kernels()
+from fmus.robot_plant.six_axis_model import OUTPUT_SIZE, OUTPUTS, SixAxisParameters, SixAxisPlant
 
 #: the scenarios' base step [s]: at initialisation the plant's stiffest mode is checked against
 #: the automatic substeps at it (the host's own step is checked again at the first doStep)

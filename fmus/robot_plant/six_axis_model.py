@@ -117,9 +117,18 @@ _NO_WRENCH = np.zeros(6)
 _KERNELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()   # SixAxisPlant -> its compiled Plant
 
 
+#: the compiled kernel module ``six_axis_kernels.pyx``, loaded with this module: an FMU's package
+#: is imported once per process, from an extraction folder the host may delete after that FMU's
+#: run (fmpy's simulate_fmu does), while another FMU of the same build may build this plant later;
+#: nothing of the folder may be looked up after the import (every FMU script imports every module
+#: of its package when it loads). Compiled into the private cache on the first load (about 40 s
+#: here once per content), an import from it afterwards.
+_KERNEL_MODULE = cython_kernels.load("robot_plant.six_axis_kernels")
+
+
 def kernels():
-    """The compiled kernel module ``fmus/robot_plant/six_axis_kernels.pyx`` (loaded once)."""
-    return cython_kernels.load("robot_plant.six_axis_kernels")
+    """The compiled kernel module ``fmus/robot_plant/six_axis_kernels.pyx``."""
+    return _KERNEL_MODULE
 
 
 #: the plant's outputs in :meth:`SixAxisPlant.outputs`' order: (name, size); the kernel's

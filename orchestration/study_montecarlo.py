@@ -31,6 +31,13 @@ Fig. 4).
   our FMU folder, ``dist/fmus`` or ``$FLEXFUSION_FMU_DIR``, where a model identifier is looked
   up) the study says so in one line and runs every run through the FMUs (``engine.fallback``):
   those runs give every estimator's numbers at once.
+* A scenario with a reference measurement system (a Tracker measuring the tool, as
+  ``axelsson2012_realistic.toml``): every filter with a ``p_tool_hat`` is judged on the tool,
+  against the tracker first (``rmse_tool_position``: its fresh samples at their stamps, which
+  must fall on the filters' instants; :func:`orchestration.judge.aligned`) and against the
+  plant's ``p_tool`` beside it (``rmse_tool_position_truth``); ``tool_judge`` in ``study.json``
+  names both. The arm estimates, Table 1 and the NEES need the true states: they stay against
+  the truth.
 * Timing: the master steps a component with communication step ``T = n h`` at ``t_j = j T``
   after the faster producers have made their step to ``t_j + h``, so a filter's estimate fuses
   the measurements of ``t_j + h`` (see :mod:`orchestration.master`). The errors are taken at
@@ -53,7 +60,8 @@ Fig. 4).
   attains it and does not beat it.
 * Consistency (``anees``): for an EKF whose covariance ``P_x`` is recorded, the NEES of its
   6 states against the truth (:func:`nees`), averaged over the runs per time (ANEES), its time
-  average and the fraction of times inside the 95 % chi-square band.
+  average, the fraction of times inside the 95 % chi-square band, and a ``verdict``
+  (:func:`verdict`: consistent, over-confident or under-confident against that band).
 * The ``q_jerk`` sweep (``q_jerk_sweep``): ``sweep_runs`` runs per value of ``q_jerk`` (set on
   every EKF; the paper's 4e-6 of eq. 26 always its own row), RMSE and ANEES per value, and the
   value selected by consistency: the worse EKF's time-averaged ANEES closest to 6.
@@ -981,6 +989,6 @@ def format_summary(data: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["run_study", "run_one", "run_batched", "checked_quantities", "ENGINES", "CHECK_SEEDS", "CHECK_RTOL", "nees", "findings", "register", "main", "format_summary", "PAPER_TABLE1",
+__all__ = ["run_study", "run_one", "run_batched", "checked_quantities", "ENGINES", "CHECK_SEEDS", "CHECK_RTOL", "nees", "findings", "verdict", "register", "main", "format_summary", "PAPER_TABLE1",
            "PAPER_TABLE1_RUNS", "PAPER_FIG4_RUNS", "PAPER_Q_JERK", "PAPER_R_MOTOR", "PAPER_R_ACC",
            "Q_JERK_SWEEP", "FilterInfo"]

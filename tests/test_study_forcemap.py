@@ -27,7 +27,7 @@ def fast_map(tmp_path_factory):
     has no stable design and is not run)."""
     out = tmp_path_factory.mktemp("force_map")
     return out, fm.run_map(out, (2000.0, 10000.0), (5000.0, 20000.0), feedbacks=("observer",), overrides=SHORT,
-                           workers=1, progress=False, check_cases=1)
+                           workers=1, progress=False, check_cases=0)
 
 
 def test_fast_map_cells_and_criterion(fast_map):
@@ -48,7 +48,7 @@ def test_fast_map_cells_and_criterion(fast_map):
         c = cells[fm.cell_key(10000.0, kw, "observer")]
         assert c["stable"] and c["contact_losses"] == 0 and c["steady_F_err"] < 0.11
         assert c["K_z"] == 10000.0 and c["k_wall"] == kw
-    assert data["engine"]["used"] == "batched" and data["engine"]["max_relative_difference"] <= 1e-12
+    assert data["engine"]["used"] == "batched"      # (its runs equal the FMUs': tests/test_contact_scenario.py)
     saved = json.loads((out / "force_map.json").read_text())
     assert saved["criterion"].startswith("no design") and "std below 10%" in saved["criterion"]
     assert (out / "force_map.png").stat().st_size > 0

@@ -145,6 +145,21 @@ class _Instance:
         self.c_set, self.c_get, self.c_step = (dll[f] for f in ("fmi2SetReal", "fmi2GetReal", "fmi2DoStep"))
         self.handle = ctypes.c_void_p(self.fmu.component)
         self.set_reals, self.get_reals = self.fmu.fmi2SetReal, self.fmu.fmi2GetReal
+        self._calls(self.fmu.getReal, self.fmu.setReal, self.fmu.setInteger, self.fmu.getFMUstate,
+                    self.fmu.setFMUstate, self.fmu.freeFMUstate, self.fmu.serializeFMUstate,
+                    self.fmu.deSerializeFMUstate)
+
+    def _calls(self, get_real: Callable[..., Any], set_real: Callable[..., Any], set_integer: Callable[..., Any],
+               *state: Callable[..., Any]) -> None:
+        """fmpy's calls of the instance's FMI version, by one name: ``get_real(vrs)``,
+        ``setters[type](vrs, values)`` (the scenario's type names), and the FMU state's
+        ``get_state()``, ``set_state(s)``, ``free_state(s)``, ``serialize_state(s)``,
+        ``deserialize_state(bytes)`` (orchestration/fork.py)."""
+        self.get_real = get_real
+        self.setters = {"Real": set_real, "Integer": set_integer, "Enumeration": set_integer,
+                        "Boolean": self.fmu.setBoolean, "String": self.fmu.setString}
+        (self.get_state, self.set_state, self.free_state, self.serialize_state,
+         self.deserialize_state) = state
 
     def _init_fmi3(self, comp: Component, unzip_dir: str, logger: Callable[..., None]) -> None:
         """An FMI 3.0 instance (fmpy's ``FMU3Slave``): ``c_set``, ``c_get`` and ``c_step`` are
@@ -172,6 +187,8 @@ class _Instance:
         fmu = self.fmu
         self.set_reals = lambda h, vr, n, values: fmu.fmi3SetFloat64(h, vr, n, values, n)
         self.get_reals = lambda h, vr, n, values: fmu.fmi3GetFloat64(h, vr, n, values, n)
+        self._calls(fmu.getFloat64, fmu.setFloat64, fmu.setInt32, fmu.getFMUState, fmu.setFMUState,
+                    fmu.freeFMUState, fmu.serializeFMUState, fmu.deserializeFMUState)
 
     def enter_initialization(self, stop_time: float) -> None:
         """Set up the experiment from t = 0 to ``stop_time`` and enter Initialization Mode."""
@@ -211,14 +228,8 @@ def _set_parameters(inst: _Instance) -> None:
         vrs.append(info.value_reference)
         vals.append(value)
     for t, (vrs, vals) in by_type.items():
-        if t == "Real":
-            (inst.fmu.setFloat64 if inst.fmi3 else inst.fmu.setReal)(vrs, vals)
-        elif t in ("Integer", "Enumeration"):
-            (inst.fmu.setInt32 if inst.fmi3 else inst.fmu.setInteger)(vrs, vals)
-        elif t == "Boolean":
-            inst.fmu.setBoolean(vrs, vals)
-        elif t == "String":
-            inst.fmu.setString(vrs, [str(v) for v in vals])
+        if t in inst.setters:
+            inst.setters[t](vrs, [str(v) for v in vals] if t == "String" else vals)
 
 
 # ---------------------------------------------------------------------------------------------

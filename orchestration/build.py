@@ -1,4 +1,4 @@
-"""Build every FlexFusion FMU into ``dist/fmus`` and validate each with fmpy.
+"""Build every FlexFusion FMU into ``dist/fmus`` and validate each with fmpy (FMI 2.0, and 3.0 on request).
 
 An FMU script is any ``fmus/<group>/*_fmu.py``; its model identifier is the name of its
 FMU class. Each FMU carries ``resources/requirements.txt`` naming the third-party packages the
@@ -30,6 +30,10 @@ every build of the same kernels: the next ``flexfusion build``, the test suite's
 (tests/conftest.py), another package name. If that compilation fails (or with
 ``FLEXFUSION_NO_AOT=1``) the build says why and goes on: its FMUs compile their kernels with
 numba at run time, as the working tree does.
+
+FMI 3.0 (``--fmi 3`` or ``both``; :func:`build_all`'s ``fmi``): each FMU's FMI 2.0 FMU
+translated by :mod:`orchestration.fmi3` into ``<dest>/fmi3/<model>.fmu`` (its modelDescription
+in FMI 3.0, our FMI 3.0 layer as its binary, ``resources/`` as they are).
 
 Incremental: the destination folder keeps a manifest (:data:`MANIFEST`) of what each FMU was
 made of (its script, the vendored package, the compiled kernels, the native FMI layer, this

@@ -9,6 +9,7 @@ our master (fmpy's FMU3Slave) on the flagship, equal to the FMI 2.0 run.
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -170,3 +171,29 @@ def test_fmi3_misuse_is_an_error_never_a_crash(fmi3_dir: Path, tmp_path: Path) -
     assert lines == ["step 0 0.001", "wrong_time 3", "step 0 0.002", "time 0 0.002", "arrays 3",
                      "after_free 3 3", "end"], r.stdout
     assert "this instance was freed by fmi2FreeInstance; the call is refused" in r.stderr
+
+
+REFERENCE_FMUS = os.environ.get("FLEXFUSION_REFERENCE_FMUS")
+
+
+@pytest.mark.skipif(not REFERENCE_FMUS, reason="FLEXFUSION_REFERENCE_FMUS (a folder of the Reference FMUs "
+                    "built as FMI 3.0: BouncingBall.fmu, Dahlquist.fmu) is not set")
+def test_reference_fmus_in_our_master_give_fmpys_answer() -> None:
+    """FMUs nobody here wrote (modelica/Reference-FMUs, FMI 3.0, built from their sources with
+    cmake -DFMI_VERSION=3): the bouncing ball at 10 ms and the Dahlquist test equation at
+    100 ms in one scenario of our master give fmpy.simulate_fmu's outputs bit for bit (each
+    alone in fmpy; unconnected, so the master's order changes nothing)."""
+    folder = Path(REFERENCE_FMUS)
+    doc = {"connections": [],
+           "scenario": {"name": "reference_fmus", "stop_time": 3.0, "base_step": 0.01, "seed": 1},
+           "components": {"ball": {"fmu": str(folder / "BouncingBall.fmu")},
+                          "dahlquist": {"fmu": str(folder / "Dahlquist.fmu"), "step": 0.1}},
+           "record": {"variables": ["ball.h", "ball.v", "dahlquist.x"]}}
+    ours = study.simulate(doc)
+    assert ours.status == "ok" and len(ours.time) == 301
+    ball = fmpy.simulate_fmu(str(folder / "BouncingBall.fmu"), stop_time=3.0, step_size=0.01, output_interval=0.01)
+    dahlquist = fmpy.simulate_fmu(str(folder / "Dahlquist.fmu"), stop_time=3.0, step_size=0.1, output_interval=0.1)
+    assert_array_equal(ours["ball.h"], ball["h"])
+    assert_array_equal(ours["ball.v"], ball["v"])
+    assert_array_equal(ours["dahlquist.x"][::10], dahlquist["x"])
+    assert ball["h"].min() < 0.5 < ball["h"].max() and np.ptp(dahlquist["x"]) > 0.5   # they bounce, decay

@@ -22,8 +22,43 @@
  *    successful time.
  *
  * Only the fmi3* functions are exported (orchestration/native.py links with a version script);
- * the fmi2* ones are internal to the library.
+ * the fmi2* ones are internal to the library. Messages name the FMI 3.0 function the host
+ * called (FMI3_NAME_* below), except the slave's own (fmus/common/fmi.py).
  */
+/* the FMI 3.0 function a message of the FMI 2.0 layer names (FMI_NAME in fmi2_python.c) */
+#define FMI3_NAMES
+#define FMI3_NAME_Instantiate "fmi3InstantiateCoSimulation"
+#define FMI3_NAME_FreeInstance "fmi3FreeInstance"
+#define FMI3_NAME_SetDebugLogging "fmi3SetDebugLogging"
+#define FMI3_NAME_SetupExperiment "fmi3EnterInitializationMode"
+#define FMI3_NAME_EnterInitializationMode "fmi3EnterInitializationMode"
+#define FMI3_NAME_ExitInitializationMode "fmi3ExitInitializationMode"
+#define FMI3_NAME_Terminate "fmi3Terminate"
+#define FMI3_NAME_Reset "fmi3Reset"
+#define FMI3_NAME_DoStep "fmi3DoStep"
+#define FMI3_NAME_GetReal "fmi3GetFloat64"
+#define FMI3_NAME_GetRealStatus "fmi3GetFloat64"        /* reads `time`, the last successful time */
+#define FMI3_NAME_SetReal "fmi3SetFloat64"
+#define FMI3_NAME_GetInteger "fmi3GetInt32"
+#define FMI3_NAME_SetInteger "fmi3SetInt32"
+#define FMI3_NAME_GetBoolean "fmi3GetBoolean"
+#define FMI3_NAME_SetBoolean "fmi3SetBoolean"
+#define FMI3_NAME_GetString "fmi3GetString"
+#define FMI3_NAME_SetString "fmi3SetString"
+#define FMI3_NAME_GetFMUstate "fmi3GetFMUState"
+#define FMI3_NAME_SetFMUstate "fmi3SetFMUState"
+#define FMI3_NAME_SerializedFMUstateSize "fmi3SerializedFMUStateSize"
+#define FMI3_NAME_SerializeFMUstate "fmi3SerializeFMUState"
+#define FMI3_NAME_DeSerializeFMUstate "fmi3DeserializeFMUState"
+/* FMI 2.0 functions no FMI 3.0 call reaches */
+#define FMI3_NAME_GetStatus "fmi2GetStatus"
+#define FMI3_NAME_GetIntegerStatus "fmi2GetIntegerStatus"
+#define FMI3_NAME_GetBooleanStatus "fmi2GetBooleanStatus"
+#define FMI3_NAME_GetStringStatus "fmi2GetStringStatus"
+#define FMI3_NAME_GetDirectionalDerivative "fmi2GetDirectionalDerivative"
+#define FMI3_NAME_SetRealInputDerivatives "fmi2SetRealInputDerivatives"
+#define FMI3_NAME_GetRealOutputDerivatives "fmi2GetRealOutputDerivatives"
+#define FMI3_NAME_CancelStep "fmi2CancelStep"
 #include "fmi2_python.c"
 
 #include "fmi3Functions.h"

@@ -10,6 +10,7 @@ our master (fmpy's FMU3Slave) on the flagship, equal to the FMI 2.0 run.
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -170,7 +171,27 @@ def test_fmi3_misuse_is_an_error_never_a_crash(fmi3_dir: Path, tmp_path: Path) -
     lines = r.stdout.splitlines()
     assert lines == ["step 0 0.001", "wrong_time 3", "step 0 0.002", "time 0 0.002", "arrays 3",
                      "after_free 3 3", "end"], r.stdout
-    assert "this instance was freed by fmi2FreeInstance; the call is refused" in r.stderr
+    # the layer's messages name the FMI 3.0 functions called (fmi3_python.c's FMI3_NAME_*)
+    assert "[careless] status 3 logStatusError: fmi3DoStep: this instance was freed by fmi3FreeInstance; " \
+           "the call is refused" in r.stderr, r.stderr[-2000:]
+    assert "fmi3FreeInstance: this instance was freed by fmi3FreeInstance" in r.stderr
+    assert "fmi3Terminate: this instance was freed" in r.stderr and "fmi2" not in r.stderr
+
+
+def test_fmi3_layer_compiles_without_warnings_and_exports_fmi3_only(tmp_path: Path) -> None:
+    """As the FMI 2.0 layer (tests/test_native.py), with -Werror; every function of the FMI 3.0
+    headers is exported (fmpy loads them all), nothing else."""
+    library = tmp_path / "l.so"
+    (tmp_path / "v.map").write_text(native.VERSION_SCRIPT3)
+    command = [*native.c_compiler(), *native.CFLAGS, "-Werror", f"-I{native.python_include()}",
+               f"-I{native.NATIVE}", str(native.NATIVE / "fmi3_python.c"), "-o", str(library),
+               f"-Wl,--version-script={tmp_path / 'v.map'}"]
+    result = subprocess.run(command, capture_output=True, text=True)
+    assert result.returncode == 0 and result.stderr == "", result.stderr
+    exported = subprocess.run(["nm", "-D", "--defined-only", str(library)], capture_output=True,
+                              text=True).stdout.split()[2::3]
+    declared = re.findall(r"FMI3_Export\s+fmi3\w+TYPE\s+(fmi3\w+);", (native.NATIVE / "fmi3Functions.h").read_text())
+    assert len(declared) == 75 and sorted(exported) == sorted(declared)   # FMI 3.0: 75 functions
 
 
 REFERENCE_FMUS = os.environ.get("FLEXFUSION_REFERENCE_FMUS")

@@ -81,6 +81,9 @@ def model_description(fmi2: bytes) -> bytes:
     for name in ("LogCategories", "DefaultExperiment"):
         if src.find(name) is not None:
             root.append(src.find(name))
+    for category in root.iterfind("LogCategories/Category"):     # "... with fmi2Warning status."
+        if category.get("description"):
+            category.set("description", category.get("description").replace("fmi2", "fmi3"))
 
     variables2 = list(src.find("ModelVariables"))
     variables = ET.SubElement(root, "ModelVariables")

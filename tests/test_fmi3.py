@@ -105,6 +105,24 @@ def test_flagship_with_fmi3_fmus_in_our_master_equals_the_fmi2_run(
     assert three.metrics == two.metrics and len(three.time) == 501
 
 
+def test_an_ssp_of_fmi3_fmus_runs_in_our_master_as_the_fmi2_scenario(
+        fmu_dir: Path, fmi3_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``export-ssp`` packs the FMI 3.0 FMUs (the SSD is the same for either version) and the
+    package runs in our master as the scenario does with the FMI 2.0 FMUs: results.csv equal."""
+    from orchestration.cli import main
+    short = ["--set", "scenario.stop_time=0.6", "--no-progress"]     # the metrics start at 0.5 s
+    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmu_dir))
+    assert main(["run", str(FLAGSHIP), "--out", str(tmp_path / "fmi2"), *short]) == 0
+    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(fmi3_dir))
+    assert main(["export-ssp", str(FLAGSHIP), "-o", str(tmp_path / "f.ssp")]) == 0
+    with zipfile.ZipFile(tmp_path / "f.ssp") as z:
+        assert {fmi3.PLATFORM in n for n in zipfile.ZipFile(z.open("resources/Encoder.fmu")).namelist()
+                if n.startswith("binaries/")} == {True}
+    monkeypatch.setenv("FLEXFUSION_FMU_DIR", str(tmp_path / "none"))     # the package's own FMUs only
+    assert main(["run", str(tmp_path / "f.ssp"), "--out", str(tmp_path / "ssp"), *short]) == 0
+    assert (tmp_path / "ssp" / "results.csv").read_bytes() == (tmp_path / "fmi2" / "results.csv").read_bytes()
+
+
 def test_a_fork_of_fmi3_fmus_equals_the_uninterrupted_run(
         fmi3_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """FMU state get/set/serialise through FMI 3.0 (fmi3GetFMUState, fmi3SerializeFMUState,

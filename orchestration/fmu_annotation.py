@@ -93,7 +93,9 @@ def _parse(fmu: Path) -> dict[str, Any]:
     """:func:`describe`'s fields from the modelDescription (JSON for the disk cache)."""
     with zipfile.ZipFile(fmu) as z:
         root = ElementTree.fromstring(z.read("modelDescription.xml"))
-    comp = root.find(f"VendorAnnotations/Tool[@name='{TOOL}']/Component")
+    comp = root.find(f"VendorAnnotations/Tool[@name='{TOOL}']/Component")         # FMI 2.0
+    if comp is None:
+        comp = root.find(f"Annotations/Annotation[@type='{TOOL}']/Component")     # FMI 3.0
     if comp is None:
         return {"role": DEFAULT_ROLE, "batched": None, "search": [], "annotated": False}
     where = f"{fmu}: <Tool name=\"{TOOL}\"> annotation"

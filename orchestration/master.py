@@ -105,7 +105,8 @@ _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 
 
 class _Instance:
-    """One FMU2Slave instance with its log, buffers and raw FMI function pointers."""
+    """One FMU2Slave (or, for an FMI 3.0 FMU, FMU3Slave) instance with its log, buffers and raw
+    FMI function pointers."""
 
     def __init__(self, comp: Component, unzip_dir: str) -> None:
         from fmpy import calloc, free
@@ -114,12 +115,18 @@ class _Instance:
         self.comp = comp
         self.name = comp.name
         self.log: list[str] = []
+        self.fmi3 = comp.fmi_version.startswith("3")
 
         def logger(env: Any, instance: bytes, status: int, category: bytes, message: bytes) -> None:
             text = message.decode(errors="replace") if message else ""
             label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
             self.log.append(f"[{label}] {text}")
 
+        self.instantiated = False
+        self.initialized = False
+        if self.fmi3:
+            self._init_fmi3(comp, unzip_dir, logger)
+            return
         cb = fmi2CallbackFunctions()
         cb.logger = fmi2CallbackLoggerTYPE(logger)
         cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
@@ -128,8 +135,6 @@ class _Instance:
         self._logger = logger
         self.fmu = FMU2Slave(guid=comp.guid, unzipDirectory=unzip_dir,
                              modelIdentifier=comp.model_identifier, instanceName=comp.name)
-        self.instantiated = False
-        self.initialized = False
         self.fmu.instantiate(callbacks=cb, loggingOn=True)
         self.instantiated = True
         # The stepping loop's FMI functions: fresh pointers into the library (``CDLL[name]``),
@@ -139,6 +144,60 @@ class _Instance:
         dll = self.fmu.dll
         self.c_set, self.c_get, self.c_step = (dll[f] for f in ("fmi2SetReal", "fmi2GetReal", "fmi2DoStep"))
         self.handle = ctypes.c_void_p(self.fmu.component)
+        self.set_reals, self.get_reals = self.fmu.fmi2SetReal, self.fmu.fmi2GetReal
+        self._calls(self.fmu.getReal, self.fmu.setReal, self.fmu.setInteger, self.fmu.getFMUstate,
+                    self.fmu.setFMUstate, self.fmu.freeFMUstate, self.fmu.serializeFMUstate,
+                    self.fmu.deSerializeFMUstate)
+
+    def _calls(self, get_real: Callable[..., Any], set_real: Callable[..., Any], set_integer: Callable[..., Any],
+               *state: Callable[..., Any]) -> None:
+        """fmpy's calls of the instance's FMI version, by one name: ``get_real(vrs)``,
+        ``setters[type](vrs, values)`` (the scenario's type names), and the FMU state's
+        ``get_state()``, ``set_state(s)``, ``free_state(s)``, ``serialize_state(s)``,
+        ``deserialize_state(bytes)`` (orchestration/fork.py)."""
+        self.get_real = get_real
+        self.setters = {"Real": set_real, "Integer": set_integer, "Enumeration": set_integer,
+                        "Boolean": self.fmu.setBoolean, "String": self.fmu.setString}
+        (self.get_state, self.set_state, self.free_state, self.serialize_state,
+         self.deserialize_state) = state
+
+    def _init_fmi3(self, comp: Component, unzip_dir: str, logger: Callable[..., None]) -> None:
+        """An FMI 3.0 instance (fmpy's ``FMU3Slave``): ``c_set``, ``c_get`` and ``c_step`` are
+        the raw ``fmi3SetFloat64``, ``fmi3GetFloat64`` and ``fmi3DoStep`` behind the FMI 2.0
+        signatures the Python stepping loop calls (scalars: as many values as references; the
+        step's event, termination, early-return and time results are not read). The C loop
+        calls FMI 2.0 functions only: a run with an FMI 3.0 FMU steps in Python (_stepper)."""
+        from fmpy.fmi3 import FMU3Slave
+
+        def log_message(env: Any, status: int, category: bytes, message: bytes) -> None:
+            logger(env, b"", status, category, message)
+        self._logger = log_message
+        self.fmu = FMU3Slave(guid=comp.guid, unzipDirectory=unzip_dir,
+                             modelIdentifier=comp.model_identifier, instanceName=comp.name)
+        self.fmu.instantiate(loggingOn=True, logMessage=log_message)
+        self.instantiated = True
+        dll = self.fmu.dll
+        raw_set, raw_get, raw_step = (dll[f] for f in ("fmi3SetFloat64", "fmi3GetFloat64", "fmi3DoStep"))
+        flags = [ctypes.byref(ctypes.c_bool()) for _ in range(3)]
+        last = ctypes.byref(ctypes.c_double())
+        self.c_set = lambda h, vr, n, values: raw_set(h, vr, n, values, n)
+        self.c_get = lambda h, vr, n, values: raw_get(h, vr, n, values, n)
+        self.c_step = lambda h, t, dt, no_set_prior: raw_step(h, t, dt, no_set_prior, *flags, last)
+        self.handle = ctypes.c_void_p(self.fmu.component)
+        fmu = self.fmu
+        self.set_reals = lambda h, vr, n, values: fmu.fmi3SetFloat64(h, vr, n, values, n)
+        self.get_reals = lambda h, vr, n, values: fmu.fmi3GetFloat64(h, vr, n, values, n)
+        self._calls(fmu.getFloat64, fmu.setFloat64, fmu.setInt32, fmu.getFMUState, fmu.setFMUState,
+                    fmu.freeFMUState, fmu.serializeFMUState, fmu.deserializeFMUState)
+
+    def enter_initialization(self, stop_time: float) -> None:
+        """Set up the experiment from t = 0 to ``stop_time`` and enter Initialization Mode."""
+        if self.fmi3:
+            self.fmu.enterInitializationMode(startTime=0.0, stopTime=stop_time)
+        else:
+            self.fmu.setupExperiment(startTime=0.0, stopTime=stop_time)
+            self.fmu.enterInitializationMode()
+        self.initialized = True
 
     def log_text(self, last: int = 5) -> str:
         """The FMU's last log messages on one line."""
@@ -169,14 +228,8 @@ def _set_parameters(inst: _Instance) -> None:
         vrs.append(info.value_reference)
         vals.append(value)
     for t, (vrs, vals) in by_type.items():
-        if t == "Real":
-            inst.fmu.setReal(vrs, vals)
-        elif t in ("Integer", "Enumeration"):
-            inst.fmu.setInteger(vrs, vals)
-        elif t == "Boolean":
-            inst.fmu.setBoolean(vrs, vals)
-        elif t == "String":
-            inst.fmu.setString(vrs, [str(v) for v in vals])
+        if t in inst.setters:
+            inst.setters[t](vrs, [str(v) for v in vals] if t == "String" else vals)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -256,11 +309,11 @@ def _exchange_initial_values(s: _Slot, values: np.ndarray, leave_initialisation:
     outputs into ``values`` (checked for NaN)."""
     if s.n_in:
         values.take(s.in_idx, out=s.in_view)
-        s.inst.fmu.fmi2SetReal(s.inst.handle, s.in_vr, s.n_in, s.in_buf)
+        s.inst.set_reals(s.inst.handle, s.in_vr, s.n_in, s.in_buf)
     if leave_initialisation:
         s.inst.fmu.exitInitializationMode()
     if s.n_out:
-        s.inst.fmu.fmi2GetReal(s.inst.handle, s.out_vr, s.n_out, s.out_ptr)
+        s.inst.get_reals(s.inst.handle, s.out_vr, s.n_out, s.out_ptr)
         _check_nan([s], values, 0.0)
 
 
@@ -302,9 +355,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
             inst = _instantiate(scenario.components[n])
             instances.append(inst)
             current = inst
-            inst.fmu.setupExperiment(startTime=0.0, stopTime=scenario.stop_time)
-            inst.fmu.enterInitializationMode()
-            inst.initialized = True
+            inst.enter_initialization(scenario.stop_time)
             _set_parameters(inst)
 
         by_name = {i.name: i for i in instances}
@@ -479,7 +530,7 @@ def _repaired(folder: Path, fmu: Path, platform: str) -> None:
         for m in z.infolist():
             name = m.filename
             if not name.endswith((".so", ".dll", ".dylib")) or \
-                    (name.startswith("binaries/") and not name.startswith(f"binaries/{platform}/")):
+                    (name.startswith("binaries/") and not name.startswith(_binaries(platform))):
                 continue
             path = folder / name
             try:
@@ -512,8 +563,15 @@ def _extract_linked(fmu: Path, platform: str, folder: Path) -> None:
             _link_or_extract(z, name, members, folder)
         shared = {m.filename for members in packages.values() for m in members}
         z.extractall(folder, [m for m in z.namelist() if m not in shared and (
-            not m.startswith("binaries/") or m.startswith(f"binaries/{platform}/"))])
+            not m.startswith("binaries/") or m.startswith(_binaries(platform)))])
     (folder / _COMPLETE).touch()
+
+
+def _binaries(platform: str) -> tuple[str, ...]:
+    """The folders of an FMU's binaries for ``platform`` (fmpy's FMI 2.0 name, ``linux64``):
+    FMI 2.0's and FMI 3.0's (its platform tuple, ``x86_64-linux``)."""
+    from fmpy import platform as fmi2_platform, platform_tuple
+    return (f"binaries/{platform}/",) + ((f"binaries/{platform_tuple}/",) if platform == fmi2_platform else ())
 
 
 def _packages(z: Any) -> dict[str, list[Any]]:
@@ -690,10 +748,11 @@ def _stepper(slots: list[_Slot], buffer: _Buffer, every: int,
     """``steps(k0, k1, rows)``: run base steps ``k0 .. k1-1`` of the buffer's schedule, write the
     recorded rows (t, then the recorded values) into ``rows`` and return how many, and where it
     stopped early (an FMU status above warning, a NaN on a connection) or None. The C loop
-    (:mod:`orchestration.cloop`), or where there is none, :func:`_python_steps`."""
+    (:mod:`orchestration.cloop`), or where there is none or an FMU is FMI 3.0,
+    :func:`_python_steps`."""
     from . import cloop
     lib = cloop.library()
-    if lib is None:
+    if lib is None or any(s.inst.fmi3 for s in slots):     # the C loop calls FMI 2.0 functions
         return partial(_python_steps, slots, buffer.schedule, buffer.values, buffer.record_idx, every, h)
     return cloop.CLoop(lib, slots, buffer.schedule, buffer.values_c, buffer.record_idx, every, h)
 

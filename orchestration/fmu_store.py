@@ -39,7 +39,7 @@ from typing import Any, Callable
 
 from . import archive
 
-KEEP = 32                 #: cached FMU folders kept (the last used; about 0.15 MB each, packages shared)
+KEEP = 32                 #: cached FMU folders kept (the last used that no process uses; 1-4 MB each)
 COMPLETE = ".complete"    #: the marker written last into a cached folder, and its lock file
 
 _CONTENT: dict[tuple[str, int, int], str] = {}     # FMU file version -> content key, in this process
@@ -143,20 +143,17 @@ def cached_folder(fmu: Path) -> str | None:
     this process (:func:`_hold`); None if the cache cannot be written.
 
     It is named by the FMU's content (:func:`content_key`) and the platform, whose binaries are
-    the only ones extracted. The cache's ``fmus/`` and ``packages/`` folders hold code that is
-    loaded: they are used only if private to this user
+    the only ones extracted; everything else of the FMU is extracted whole (its bundled Python
+    packages too: sharing them between folders saved a cold start 0.2-0.7 s of CPU once per FMU
+    content but nothing on a warm one, ARCHITECTURE.md "The FMU store"). The cache's ``fmus/``
+    folder holds code that is loaded: it is used only if private to this user
     (:func:`fmus.common.disk_cache.private_folder`: made 0700, owner and mode checked from the
-    cache root down), else the FMU is extracted to a temporary folder of this process. Its
-    Python packages in ``resources/`` are links to folders shared by every FMU that bundles the
-    same package (:func:`_shared_package`): our FMUs all bundle the same ``fmus_<hash>`` and
-    ``pythonfmu`` (112 of the Encoder FMU's 120 files), so a cold run extracts them once, not
-    once per FMU. A folder whose shared libraries are not whole is set aside and extracted again
-    (:func:`_repaired`). A folder is extracted under a temporary name and renamed when complete,
-    so processes extracting the same FMU at once each use a whole folder (the first rename
-    wins). Extracting a new folder removes all but the :data:`KEEP` last used ones that no
-    process uses (:func:`prune`), then the shared packages no kept folder links to
-    (:func:`_prune_packages`); a link found dangling (its package removed by hand) gets its
-    package extracted again.
+    cache root down), else the FMU is extracted to a temporary folder of this process. A folder
+    whose shared libraries are not whole is set aside and extracted again (:func:`_repaired`).
+    A folder is extracted under a temporary name and renamed when complete, so processes
+    extracting the same FMU at once each use a whole folder (the first rename wins). Extracting
+    a new folder removes all but the :data:`KEEP` last used ones that no process uses
+    (:func:`prune`).
     """
     from fmpy import platform
 
@@ -170,18 +167,12 @@ def cached_folder(fmu: Path) -> str | None:
     marker = entry / COMPLETE
     try:
         private_folder(root, cache_root())      # code is loaded from it: private, or not used
-        private_folder(root.parent / "packages", cache_root())
         for _ in range(3):                      # removed between the look and the hold: again
             if marker.is_file():
                 _repaired(entry, fmu, platform)
             if not marker.is_file():
                 prune(root, KEEP - 1)
-                _prune_packages(root)
-                _publish(entry, lambda staging: _extract_linked(fmu, platform, staging), marker.is_file)
-            elif _dangling(entry):
-                with zipfile.ZipFile(fmu) as z:
-                    for name, members in _packages(z).items():
-                        _shared_package(z, name, members)
+                _publish(entry, lambda staging: _extract(fmu, platform, staging), marker.is_file)
             if _hold(entry):
                 break
         else:
@@ -306,107 +297,44 @@ def set_aside(entry: str | Path) -> bool:
 
 
 def _repaired(entry: Path, fmu: Path, platform: str) -> None:
-    """Set a cached FMU folder aside (with the shared packages concerned) if one of its shared
-    libraries (``*.so``/``*.dll``/``*.dylib``: its binary for ``platform``, a package's
-    compiled kernels) is not the size it has in the FMU ``fmu``: a library truncated by a full
-    disk or a killed copy makes the process that loads it die (a bus error, no message), so
-    the folder is extracted again instead. Set aside = renamed to a hidden name, which
-    :func:`prune` removes an hour later (a process that has the library loaded keeps it)."""
+    """Set a cached FMU folder aside if one of its shared libraries (``*.so``/``*.dll``/
+    ``*.dylib``: its binary for ``platform``, a package's compiled kernels) is not the size it
+    has in the FMU ``fmu``: a library truncated by a full disk or a killed copy makes the
+    process that loads it die (a bus error, no message), so the folder is extracted again
+    instead. Set aside = renamed to a hidden name, which :func:`prune` removes an hour later (a
+    process that has the library loaded keeps it)."""
     import warnings
-    bad, packages = [], set()
+    bad = []
     with zipfile.ZipFile(fmu) as z:
         for m in z.infolist():
             name = m.filename
             if not name.endswith((".so", ".dll", ".dylib")) or \
                     (name.startswith("binaries/") and not name.startswith(f"binaries/{platform}/")):
                 continue
-            path = entry / name
             try:
-                if path.stat().st_size == m.file_size:
+                if (entry / name).stat().st_size == m.file_size:
                     continue
             except FileNotFoundError:
-                continue            # not extracted here (another platform's) or a dangling link
+                continue            # not extracted here (another platform's)
             bad.append(name)
-            real = path.resolve()
-            for parent in real.parents:
-                if parent.parent.name == "packages":
-                    packages.add(parent)
-                    break
     if not bad:
         return
-    stamp = f".bad-{int(time.time())}-{os.getpid()}-"
     _release(entry)
-    for e in (*sorted(packages), entry):
-        os.replace(e, e.with_name(stamp + e.name))
+    os.replace(entry, entry.with_name(f".bad-{int(time.time())}-{os.getpid()}-{entry.name}"))
     warnings.warn(f"{entry}: {', '.join(bad)} not whole (truncated?): set aside, the FMU is extracted again",
                   stacklevel=4)
 
 
 # ---------------------------------------------------------------------------------------------
-# extraction, shared packages
+# extraction
 # ---------------------------------------------------------------------------------------------
-def _extract_linked(fmu: Path, platform: str, staging: Path) -> None:
-    """Extract the FMU into ``staging``: its packages linked (:func:`_link_or_extract`), its
-    binaries for ``platform`` only, the marker of a complete folder last."""
+def _extract(fmu: Path, platform: str, staging: Path) -> None:
+    """Extract the FMU into ``staging``, its binaries for ``platform`` only, the marker of a
+    complete folder last."""
     with zipfile.ZipFile(fmu) as z:
-        packages = _packages(z)
-        for name, members in packages.items():
-            _link_or_extract(z, name, members, staging)
-        shared = {m.filename for members in packages.values() for m in members}
-        z.extractall(staging, [m for m in z.namelist() if m not in shared and (
-            not m.startswith("binaries/") or m.startswith(f"binaries/{platform}/"))])
+        z.extractall(staging, [m for m in z.namelist()
+                               if not m.startswith("binaries/") or m.startswith(f"binaries/{platform}/")])
     (staging / COMPLETE).touch()
-
-
-def _packages(z: Any) -> dict[str, list[Any]]:
-    """The zip members of each Python package in an FMU's ``resources/`` (a folder with an
-    ``__init__.py``), by package name."""
-    names = {m.filename.split("/")[1] for m in z.infolist()
-             if m.filename.count("/") == 2 and m.filename.startswith("resources/")
-             and m.filename.endswith("/__init__.py")}
-    packages: dict[str, list[Any]] = {name: [] for name in sorted(names)}
-    for m in z.infolist():
-        parts = m.filename.split("/", 2)
-        if len(parts) == 3 and parts[0] == "resources" and parts[1] in packages:
-            packages[parts[1]].append(m)
-    return packages
-
-
-def _link_or_extract(z: Any, name: str, members: list[Any], staging: Path) -> None:
-    """The FMU folder being extracted, ``staging``, gets ``resources/<name>``: a relative
-    symbolic link to the package's shared copy (relative: the cache root may be moved or
-    mounted elsewhere whole), or, where the file system has no symbolic links, a copy of its
-    own. Symbolic, not hard links: one link per package instead of one per file and folder
-    (about 120 of them), and one copy where Python writes the bytecode it compiles, for all."""
-    link = staging / "resources" / name
-    link.parent.mkdir(exist_ok=True)
-    try:
-        os.symlink(os.path.relpath(_shared_package(z, name, members), link.parent), link,
-                   target_is_directory=True)
-    except OSError:
-        z.extractall(staging, members)
-
-
-def _shared_package(z: Any, name: str, members: list[Any]) -> Path:
-    """The shared copy of the package ``name`` made of the zip ``members``:
-    ``<cache root>/packages/<name>-<key>/resources/<name>``, the key hashing the members'
-    names, sizes and CRC-32s; extracted now if it is not there (under a temporary name,
-    renamed when complete: the first rename wins), its entry's modification time marking its
-    last use (:func:`_prune_packages`). The copy's own folder keeps the package's name: the
-    package finds itself by its resolved path (:mod:`fmus.common.jit`: its compiled module
-    and kernel cache)."""
-    from fmus.common.disk_cache import cache_root
-    from fmus.common.disk_cache import content_key as key_of
-
-    key = key_of(name, sorted((m.filename, m.file_size, m.CRC) for m in members))
-    packages = cache_root() / "packages"
-    entry = packages / f"{name}-{key}"
-    try:
-        os.utime(entry)
-    except FileNotFoundError:
-        packages.mkdir(parents=True, exist_ok=True)
-        _publish(entry, lambda staging: z.extractall(staging, members), entry.is_dir)
-    return entry / "resources" / name
 
 
 def _publish(final: Path, fill: Callable[[Path], None], published: Callable[[], bool]) -> None:
@@ -423,53 +351,6 @@ def _publish(final: Path, fill: Callable[[Path], None], published: Callable[[], 
                 raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-
-
-def _dangling(entry: Path) -> bool:
-    """Whether one of a cached FMU folder's links to a shared package leads nowhere."""
-    try:
-        with os.scandir(entry / "resources") as entries:
-            return any(e.is_symlink() and not e.is_dir() for e in entries)
-    except OSError:
-        return False
-
-
-def _prune_packages(fmus: Path, unused_s: float | None = None) -> None:
-    """Remove the shared packages (and temporary folders) that no folder in ``fmus`` (kept or
-    being extracted) links to and that were not used for ``unused_s`` seconds (default
-    :data:`~fmus.common.disk_cache.STALE_TEMPORARY_S`). A package is renamed away before it is
-    removed, then given back if a process took it up again meanwhile (its last use moved:
-    :func:`_shared_package` marks it before it links to it, and extracts a package it finds
-    gone again), so no process links to a package being removed."""
-    from fmus.common.disk_cache import STALE_TEMPORARY_S
-
-    packages = fmus.parent / "packages"
-    if not packages.is_dir():
-        return
-    linked = set()        # the parts of every link's path: the entries' names among them
-    for entry in fmus.iterdir():
-        try:
-            with os.scandir(entry / "resources") as entries:
-                linked.update(part for e in entries if e.is_symlink() for part in Path(os.readlink(e.path)).parts)
-        except OSError:
-            continue
-    stale = time.time() - (STALE_TEMPORARY_S if unused_s is None else unused_s)
-    for entry in packages.iterdir():
-        try:
-            if entry.name in linked or entry.stat().st_mtime >= stale:
-                continue
-            if entry.name.startswith("."):   # left by a process that died
-                shutil.rmtree(entry, ignore_errors=True)
-                continue
-            trash = Path(tempfile.mkdtemp(prefix=".removing-", dir=packages))
-            try:
-                entry.rename(trash / entry.name)
-                if (trash / entry.name).stat().st_mtime >= stale:    # taken up again meanwhile
-                    (trash / entry.name).rename(entry)
-            finally:
-                shutil.rmtree(trash, ignore_errors=True)
-        except OSError:
-            continue
 
 
 def _still_read(member: str) -> bool:

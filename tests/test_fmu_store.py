@@ -1,6 +1,6 @@
 """The FMU store (orchestration/fmu_store.py) on toy FMUs (tests/fmus): extraction into the cache
-by content, shared packages, temporary folders without a cache, pruning that never removes what
-another process uses, repair of a truncated library."""
+by content, temporary folders without a cache, pruning that never removes what another process
+uses, repair of a truncated library."""
 from __future__ import annotations
 
 import json
@@ -119,75 +119,32 @@ def test_fmus_are_extracted_once_into_the_cache_by_content(tmp_path, toy_dir):
     assert Path(moved["g1"]["folder"]) not in folders.values()
 
 
-def bundled(folder: Path) -> dict[str, Path]:
-    """The Python packages in an FMU folder's ``resources/`` (``pythonfmu``, ``fmus_<hash>``),
-    each with the folder it really is."""
-    return {p.name: p.resolve() for p in (folder / "resources").iterdir() if (p / "__init__.py").is_file()}
-
-
 def files_below(folder: Path) -> set[str]:
-    """Every file below ``folder`` (through links), relative, without the bytecode Python wrote."""
+    """Every file below ``folder``, relative, without the bytecode Python wrote."""
     import os
-    return {Path(d, f).relative_to(folder).as_posix() for d, _, names in os.walk(folder, followlinks=True)
+    return {Path(d, f).relative_to(folder).as_posix() for d, _, names in os.walk(folder)
             for f in names if not f.endswith(".pyc") and f != ".complete"}
 
 
-def test_a_cold_cache_extracts_each_bundled_package_once(tmp_path, toy_dir, no_cache):
-    """Every FMU bundles the same packages: a cold run extracts each once into ``packages/``
-    and links it from each FMU folder (relative links); each folder still holds all of its
-    FMU (this platform's binaries), and the run's results are those of a run without a cache."""
-    import os
+def test_a_cached_folder_holds_the_whole_fmu_and_runs_as_without_a_cache(tmp_path, toy_dir, no_cache):
+    """Each cached FMU folder holds all of its FMU (this platform's binaries; no links), and the
+    run's results are those of a run without a cache."""
     cache = tmp_path / "cache"
     scenario = write(tmp_path, CHAIN)
     seen = folders_of_a_run(scenario, tmp_path / "a", {"FLEXFUSION_CACHE_DIR": str(cache)})
-    folders = {Path(f["folder"]) for f in seen.values()}
-    packages = [bundled(f) for f in folders]
-    assert len(folders) == 2 and packages[0] == packages[1]
-    assert {"pythonfmu"} < set(packages[0]) and any(n.startswith("fmus_") for n in packages[0])
-    assert {p.parent.parent for p in packages[0].values()} == set((cache / "packages").iterdir())
-    for folder in folders:
-        for name in packages[0]:
-            link = folder / "resources" / name
-            assert link.is_symlink() and not Path(os.readlink(link)).is_absolute()
-    copies = sum(names.count("fmi2slave.py") for _, _, names in os.walk(cache))     # links not followed
-    assert copies == 1
     source = next(Path(f["folder"]) for f in seen.values() if "source_fmu" in str(f["resources"]))
     with zipfile.ZipFile(toy_dir / "Source.fmu") as z:
         whole = {m for m in z.namelist() if not m.endswith(("/", ".pyc"))
                  and (not m.startswith("binaries/") or m.startswith("binaries/linux64/"))}
     assert files_below(source) == whole
+    assert not any(p.is_symlink() for p in source.rglob("*"))
     folders_of_a_run(scenario, tmp_path / "b", no_cache)
     assert (tmp_path / "a" / "results.csv").read_bytes() == (tmp_path / "b" / "results.csv").read_bytes()
 
 
-def test_fmus_share_a_bundled_package_only_when_it_is_the_same(tmp_path, toy_dir, monkeypatch):
-    """A second FMU with the same bundle reuses the extracted packages; one whose bundle
-    differs (a file more in ``pythonfmu``) gets its own copy of that package only."""
-    import shutil
-    from orchestration import fmu_store
-    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
-    fmus = {name: tmp_path / f"{name}.fmu" for name in ("gain", "documented", "changed")}
-    for path in fmus.values():
-        shutil.copy(toy_dir / "Gain.fmu", path)
-    with zipfile.ZipFile(fmus["documented"], "a") as z:
-        z.writestr("documentation/notes.txt", "changed")
-    with zipfile.ZipFile(fmus["changed"], "a") as z:
-        z.writestr("resources/pythonfmu/extra.py", "x = 1\n")
-    gain, documented, changed = (Path(fmu_store.cached_folder(p)) for p in fmus.values())
-    assert len({gain, documented, changed}) == 3
-    assert bundled(documented) == bundled(gain)
-    (fmus_hash,) = (n for n in bundled(gain) if n.startswith("fmus_"))
-    assert bundled(changed)[fmus_hash] == bundled(gain)[fmus_hash]
-    assert bundled(changed)["pythonfmu"] != bundled(gain)["pythonfmu"]
-    assert (changed / "resources" / "pythonfmu" / "extra.py").is_file()
-    assert not (gain / "resources" / "pythonfmu" / "extra.py").exists()
-    assert len(list((tmp_path / "cache" / "packages").iterdir())) == 3
-
-
 def test_processes_extracting_the_same_fmus_at_once_all_succeed(tmp_path, toy_dir):
     """Three fresh processes fill one empty cache at the same time: each run works with the
-    same results, and the cache ends with one folder per FMU, one copy per package and no
-    temporary folder."""
+    same results, and the cache ends with one folder per FMU and no temporary folder."""
     import os
     import subprocess
     env = {**os.environ, "FLEXFUSION_CACHE_DIR": str(tmp_path / "cache")}
@@ -200,85 +157,103 @@ def test_processes_extracting_the_same_fmus_at_once_all_succeed(tmp_path, toy_di
     results = {(tmp_path / str(i) / "results.csv").read_bytes() for i in range(3)}
     assert len(results) == 1
     assert len(os.listdir(tmp_path / "cache" / "fmus")) == 2
-    assert len(os.listdir(tmp_path / "cache" / "packages")) == 2
 
 
-def test_a_package_another_process_extracted_first_is_used(tmp_path, toy_dir, monkeypatch):
-    """The loser of a race: its package was not there when it looked, and another process
-    published it before this one's rename; this one links to that copy and leaves no
-    temporary folder."""
+def variant(toy_dir: Path, folder: Path, tag: str) -> Path:
+    """A copy of the toy Gain FMU with one more file: another FMU content (as another
+    checkout's build of it)."""
+    import shutil
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"Gain-{tag}.fmu"
+    shutil.copy(toy_dir / "Gain.fmu", path)
+    with zipfile.ZipFile(path, "a") as z:
+        z.writestr("documentation/tag.txt", tag)
+    return path
+
+
+HOLD = """
+import sys, time
+from pathlib import Path
+from orchestration import fmu_store
+print(fmu_store.cached_folder(Path(sys.argv[1])), flush=True)
+sys.stdin.read()                      # holds the folder until the test closes stdin
+"""
+
+
+def test_pruning_never_removes_a_folder_another_process_uses(tmp_path, toy_dir, monkeypatch):
+    """A folder another process uses (holds) survives pruning down to nothing and a cache
+    clear; the others go; once that process has ended, its folder goes too."""
     import os
-    import shutil
+    import subprocess
     from orchestration import fmu_store
     monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
-    first = bundled(Path(fmu_store.cached_folder(toy_dir / "Gain.fmu")))
-    stamps = {p: p.stat().st_ino for p in first.values()}
-    shutil.rmtree(tmp_path / "cache" / "fmus")
-    utime = os.utime
+    root = tmp_path / "cache" / "fmus"
+    used = variant(toy_dir, tmp_path / "fmus", "used")
+    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(used)], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True, env=dict(os.environ))
+    try:
+        held = Path(holder.stdout.readline().strip())
+        assert held.parent == root
+        for i in range(3):
+            fmu_store.cached_folder(variant(toy_dir, tmp_path / "fmus", str(i)))
+        mine = {p for p in root.iterdir() if p != held}
+        assert len(mine) == 3
+        for folder in list(fmu_store._HELD):      # this process lets go of the folders it holds
+            fmu_store._release(Path(folder))
+        fmu_store.prune(root, 0)
+        assert list(root.iterdir()) == [held] and (held / "modelDescription.xml").is_file()
+    finally:
+        holder.communicate("", timeout=60)
+    fmu_store.prune(root, 0)
+    assert list(root.iterdir()) == []
 
-    def not_there_yet(path, *args, **kwargs):
-        if Path(path).parent.name == "packages":
-            raise FileNotFoundError(path)
-        return utime(path, *args, **kwargs)
 
-    monkeypatch.setattr(os, "utime", not_there_yet)
-    again = bundled(Path(fmu_store.cached_folder(toy_dir / "Gain.fmu")))
-    assert again == first and {p: p.stat().st_ino for p in again.values()} == stamps
-    assert all(not p.name.startswith(".") for p in (tmp_path / "cache" / "packages").iterdir())
+PRUNING_USER = """
+import sys, warnings, zipfile, shutil
+from pathlib import Path
+from orchestration import fmu_store, run
+fmu_store.KEEP = 1                   # every new folder prunes all it can
+scenario, out, toys, tag = sys.argv[1:]
+for i in range(6):
+    fmu = Path(out) / f"Gain-{tag}-{i}.fmu"
+    Path(out).mkdir(parents=True, exist_ok=True)
+    shutil.copy(Path(toys) / "Gain.fmu", fmu)
+    with zipfile.ZipFile(fmu, "a") as z:
+        z.writestr("documentation/tag.txt", f"{tag}-{i}")
+    fmu_store.cached_folder(fmu)      # a new content: extracted, pruning the other's unused folders
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run(scenario, out_dir=f"{out}/run{i}")
+print("ok")
+"""
 
 
-def test_pruning_keeps_the_packages_a_kept_folder_links_to(tmp_path, toy_dir, monkeypatch):
-    """Packages go when no FMU folder links to them and they were not used for an hour (so a
-    process that just took one up keeps it); temporary folders a dead process left go too."""
+def test_two_checkouts_using_and_pruning_one_store_at_once_both_succeed(tmp_path, toy_dir):
+    """Two processes (as two checkouts: each with FMU files of its own) share one store and
+    run at once, each extracting new FMU contents that prune all but one folder while the other
+    runs from its own: both succeed with the same results, and the store ends within its
+    bound once both have ended."""
     import os
-    import shutil
-    import time
+    import subprocess
     from orchestration import fmu_store
-    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
-    packages = tmp_path / "cache" / "packages"
-    linked = {p.parent.parent.name for p in bundled(Path(fmu_store.cached_folder(toy_dir / "Gain.fmu"))).values()}
-    hours_ago = time.time() - 7200
-    for name in ("old-1", "recent-2", ".extracting-3", "taken-up-again-4"):
-        (packages / name / "resources").mkdir(parents=True)
-    for entry in packages.iterdir():
-        if entry.name != "recent-2":
-            os.utime(entry, (hours_ago, hours_ago))
-    rename = Path.rename
-
-    def used_meanwhile(self, target):      # another process marks it between the look and the rename
-        moved = rename(self, target)
-        if self.name == "taken-up-again-4":
-            os.utime(target)
-        return moved
-
-    monkeypatch.setattr(Path, "rename", used_meanwhile)
-    fmu_store._prune_packages(tmp_path / "cache" / "fmus")
-    assert {p.name for p in packages.iterdir()} == linked | {"recent-2", "taken-up-again-4"}
-    monkeypatch.setattr(Path, "rename", rename)
-    for entry in packages.iterdir():
-        os.utime(entry, (hours_ago, hours_ago))
-    fmu_store._prune_packages(tmp_path / "cache" / "fmus")
-    assert {p.name for p in packages.iterdir()} == linked               # still linked: kept
-    shutil.rmtree(tmp_path / "cache" / "fmus")
-    (tmp_path / "cache" / "fmus").mkdir()
-    fmu_store._prune_packages(tmp_path / "cache" / "fmus")
-    assert list(packages.iterdir()) == []
-
-
-def test_a_cached_folder_whose_packages_were_removed_gets_them_again(tmp_path, toy_dir, monkeypatch):
-    import shutil
-    from orchestration import fmu_store
-    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
-    folder = Path(fmu_store.cached_folder(toy_dir / "Gain.fmu"))
-    files = files_below(folder)
-    shutil.rmtree(tmp_path / "cache" / "packages")
-    assert fmu_store.cached_folder(toy_dir / "Gain.fmu") == str(folder)
-    assert files_below(folder) == files
+    env = {**os.environ, "FLEXFUSION_CACHE_DIR": str(tmp_path / "cache")}
+    scenario = write(tmp_path, CHAIN)
+    users = [subprocess.Popen([sys.executable, "-c", PRUNING_USER, str(scenario), str(tmp_path / tag), str(toy_dir), tag],
+                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for tag in "ab"]
+    for user in users:
+        out, err = user.communicate(timeout=300)
+        assert user.returncode == 0 and out.strip().endswith("ok"), err
+    results = {(tmp_path / tag / f"run{i}" / "results.csv").read_bytes() for tag in "ab" for i in range(6)}
+    assert len(results) == 1
+    root = tmp_path / "cache" / "fmus"
+    assert len([p for p in root.iterdir() if not p.name.startswith(".")]) >= 2      # both ended holding some
+    fmu_store.prune(root, 1)
+    assert len(list(root.iterdir())) == 1
 
 
 def test_a_cached_folder_pruned_under_a_process_comes_back_at_its_path(tmp_path, monkeypatch):
-    """Another process pruned the folders this one used: its next run extracts them again,
-    at the same paths (its imported packages keep their paths), whole and with links."""
+    """A folder this process used was removed (by hand: pruning leaves it): its next run
+    extracts it again, at the same path (its imported packages keep their paths), whole."""
     import shutil
     from orchestration import fmu_store
     monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
@@ -289,24 +264,8 @@ def test_a_cached_folder_pruned_under_a_process_comes_back_at_its_path(tmp_path,
     shutil.rmtree(tmp_path / "cache" / "fmus")
     run(scenario, out_dir=tmp_path / "b")
     assert sorted(fmu_store._EXTRACTED.values()) == folders
-    assert all(Path(f, ".complete").is_file() and (Path(f) / "resources" / "pythonfmu").is_symlink() for f in folders)
+    assert all(Path(f, ".complete").is_file() and (Path(f) / "resources" / "pythonfmu").is_dir() for f in folders)
     assert (tmp_path / "a" / "results.csv").read_bytes() == (tmp_path / "b" / "results.csv").read_bytes()
-
-
-def test_without_symbolic_links_each_fmu_folder_gets_its_own_packages(tmp_path, toy_dir, monkeypatch):
-    import os
-    from orchestration import fmu_store
-    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
-    linked = Path(fmu_store.cached_folder(toy_dir / "Gain.fmu"))
-
-    def no_links(*args, **kwargs):
-        raise OSError("symbolic links are not supported here")
-
-    monkeypatch.setattr(os, "symlink", no_links)
-    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "other"))
-    own = Path(fmu_store.cached_folder(toy_dir / "Gain.fmu"))
-    assert not any(p.is_symlink() for p in (own / "resources").iterdir())
-    assert files_below(own) == files_below(linked)
 
 
 def test_a_resources_folder_is_extracted_unless_an_fmu_provided_that_package():
@@ -318,23 +277,21 @@ def test_a_resources_folder_is_extracted_unless_an_fmu_provided_that_package():
 
 
 def test_a_cache_folder_others_can_write_is_not_used_for_fmus(tmp_path, toy_dir, monkeypatch):
-    """Extracted FMUs are loaded code: a cache whose fmus/ (or packages/) folder is writable by
+    """Extracted FMUs are loaded code: a cache whose fmus/ folder is writable by
     others (or another user's) is not used; the FMU is extracted to a private temporary folder."""
     from orchestration import fmu_store
     monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
-    for name in ("fmus", "packages"):
-        (tmp_path / "cache" / name).mkdir(parents=True, exist_ok=True)
-        (tmp_path / "cache" / name).chmod(0o777)
-        assert fmu_store.cached_folder(toy_dir / "Gain.fmu") is None
-        assert list((tmp_path / "cache" / name).iterdir()) == []
-        (tmp_path / "cache" / name).chmod(0o700)
+    (tmp_path / "cache" / "fmus").mkdir(parents=True, exist_ok=True)
+    (tmp_path / "cache" / "fmus").chmod(0o777)
+    assert fmu_store.cached_folder(toy_dir / "Gain.fmu") is None
+    assert list((tmp_path / "cache" / "fmus").iterdir()) == []
+    (tmp_path / "cache" / "fmus").chmod(0o700)
     assert Path(fmu_store.cached_folder(toy_dir / "Gain.fmu")).is_relative_to(tmp_path / "cache" / "fmus")
 
 
 def test_a_truncated_library_in_a_cached_fmu_folder_is_set_aside_and_extracted_again(tmp_path, toy_dir, monkeypatch):
     """A library left truncated in the cache (a full disk, a killed copy) made every later run
-    die with a bus error: the folder (and the shared package holding a truncated library) is
-    set aside and extracted again, and a run goes on."""
+    die with a bus error: the folder is set aside and extracted again, and a run goes on."""
     import zipfile
 
     from fmpy import platform
@@ -348,7 +305,7 @@ def test_a_truncated_library_in_a_cached_fmu_folder_is_set_aside_and_extracted_a
                  and (not m.filename.startswith("binaries/") or m.filename.startswith(f"binaries/{platform}/"))}
     assert any(n.startswith("binaries/") for n in sizes)
     for name in sizes:
-        with open(folder / name, "r+b") as f:            # through the link for a package's library
+        with open(folder / name, "r+b") as f:
             f.truncate(100)
     with pytest.warns(UserWarning, match="not whole .*: set aside, the FMU is extracted again"):
         assert fmu_store.cached_folder(fmu) == str(folder)

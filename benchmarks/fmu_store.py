@@ -1,15 +1,15 @@
-"""Start-up of a flagship run with the FMU store cold or warm, with and without the shared
-packages (``orchestration/fmu_store.py``): the measurement that decided whether the shared
-packages pay (ARCHITECTURE.md, "The FMU store").
+"""Start-up of a flagship run with the FMU store (``orchestration/fmu_store.py``) cold or warm.
+
+At commit 6c15146 this script also ran the store with its shared packages (each FMU folder's
+bundled packages a link to one shared copy, ``linked``) against folders extracted whole: the
+measurement that dropped them (ARCHITECTURE.md, "The FMU store"). The store now extracts every
+folder whole, the one mode measured here.
 
 Each figure is a fresh process from its first line to the flagship's first recorded row
 (``master.run``, as ``benchmarks/flagship.py`` times it), CPU and wall time. Cold: the store's
-``fmus/`` and ``packages/`` removed before the run, every other cache (kernels, C loop,
-tables, model descriptions) warm; warm: the run right after. ``linked``: the store as it is
-(each FMU folder's bundled packages a link to one shared copy); ``whole``: each FMU folder
-extracted whole (``_link_or_extract`` replaced by a plain extraction). Least and median over
-``--repeat`` interleaved runs (the machine is shared: compare within one run of this script),
-then the store's size on disk.
+``fmus/`` removed before the run, every other cache (kernels, C loop, tables, model
+descriptions) warm; warm: the run right after. Least and median over ``--repeat`` interleaved
+runs (the machine is shared: compare within one run of this script), then the store's size.
 
 Run: ``.venv/bin/python benchmarks/fmu_store.py [--repeat N]``
 """
@@ -29,17 +29,12 @@ CHILD = r'''
 import sys, time, json
 c0, w0 = time.process_time(), time.perf_counter()
 sys.path.insert(0, sys.argv[2])
-from orchestration import fmu_store
-if sys.argv[1] == "whole":
-    def whole(z, name, members, staging):
-        z.extractall(staging, members)
-    fmu_store._link_or_extract = whole
 from flagship import run_to_first_row
 out = []
 run_to_first_row(lambda: out.extend((time.process_time() - c0, time.perf_counter() - w0)))
 print(json.dumps(out))
 '''
-MODES = ("linked", "whole")
+MODES = ("whole",)
 
 
 def _run(mode: str, cache: Path) -> list[float]:
@@ -66,8 +61,7 @@ def main() -> None:
         runs: dict[tuple[str, str], list[list[float]]] = {(m, s): [] for m in MODES for s in ("cold", "warm")}
         for _ in range(args.repeat):
             for mode, cache in caches.items():
-                for part in ("fmus", "packages"):
-                    shutil.rmtree(cache / part, ignore_errors=True)
+                shutil.rmtree(cache / "fmus", ignore_errors=True)
                 runs[(mode, "cold")].append(_run(mode, cache))
                 runs[(mode, "warm")].append(_run(mode, cache))
         print(f"flagship start-up to the first row [ms], least / median of {args.repeat}")
@@ -76,8 +70,8 @@ def main() -> None:
             print(f"  {mode:6s} {state}: CPU {cpu[0]:6.0f} / {cpu[len(cpu) // 2]:6.0f}   "
                   f"wall {wall[0]:6.0f} / {wall[len(wall) // 2]:6.0f}")
         for mode, cache in caches.items():
-            (fmb, fn), (pmb, pn) = _size(cache / "fmus"), _size(cache / "packages")
-            print(f"  {mode:6s} store: fmus/ {fmb:.1f} MB in {fn} files, packages/ {pmb:.1f} MB in {pn} files")
+            fmb, fn = _size(cache / "fmus")
+            print(f"  {mode:6s} store: fmus/ {fmb:.1f} MB in {fn} files")
 
 
 if __name__ == "__main__":

@@ -315,3 +315,24 @@ def test_a_truncated_library_in_a_cached_fmu_folder_is_set_aside_and_extracted_a
     scenario = write(tmp_path, CHAIN)
     monkeypatch.setattr(fmu_store, "_EXTRACTED", {})
     run(scenario, out_dir=tmp_path / "run")
+
+
+def test_an_fmu_beyond_the_archive_limits_is_refused_before_anything_is_extracted(tmp_path, toy_dir, monkeypatch, capsys):
+    """The limits of orchestration/archive.py hold for FMUs too: checked on the zip's central
+    directory when the FMU is first read (its content key), so nothing of it is extracted or
+    parsed; the run ends in one error line naming the FMU and the variable to set."""
+    import shutil
+
+    from orchestration.cli import main
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    fmu = tmp_path / "Many.fmu"
+    shutil.copy(toy_dir / "Gain.fmu", fmu)
+    with zipfile.ZipFile(fmu) as z:
+        entries = len(z.infolist())
+    monkeypatch.setenv("FLEXFUSION_ARCHIVE_MAX_ENTRIES", str(entries - 1))
+    scenario = write(tmp_path, f'[scenario]\nstop_time = 0.01\nbase_step = 0.001\n[components.g]\nfmu = "{fmu}"\n')
+    assert main(["run", str(scenario), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{fmu}: {entries} entries, more than the limit of {entries - 1}" in err[0]
+    assert "FLEXFUSION_ARCHIVE_MAX_ENTRIES" in err[0], err
+    assert not (tmp_path / "cache" / "fmus").exists() and not (tmp_path / "o").exists()

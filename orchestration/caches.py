@@ -9,7 +9,8 @@ Each folder of the root is one cache, cleared by the rule its use allows:
 * ``model_descriptions/``, ``fmu_annotations/``, ``tables/`` (values computed from their
   content): every entry goes; a reader that misses one computes it again, a writer replaces
   one whole (:func:`fmus.common.disk_cache.cached_json`);
-* ``loop/`` (the C loop), ``numba/`` (the kernels' numba cache): code compiled on first use;
+* ``loop/`` (the C loop), ``kernels/`` (Cython kernels), ``numba/`` (the kernels' numba cache):
+  code compiled on first use;
   a process that loaded it keeps it mapped, one that finds it gone compiles it again. An entry
   changed in the last :data:`BUSY_S` seconds is kept (a process may be writing it);
 * ``packages/`` (shared packages of an older FlexFusion, which linked to them): an entry used
@@ -36,6 +37,7 @@ KINDS = {          # folder -> (what it holds, how it is cleared)
     "tables": ("reference tables of the motion controller", "data"),
     "loop": ("the C stepping loop, compiled", "code"),
     "numba": ("kernel cache (numba)", "code"),
+    "kernels": ("compiled kernels (Cython, fmus.common.native_cache)", "code"),
     "packages": ("shared packages of an older FlexFusion", "legacy"),
     "keys": ("the key that signs study job files (not a cache: kept)", "keep"),
 }

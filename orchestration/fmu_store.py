@@ -7,7 +7,7 @@ of an FMU by its content (its parsed model description), kept across processes a
 * :func:`described`: a value parsed from an FMU once per content, kept in the disk cache
   (``<cache root>/<kind>/``: the model descriptions of :func:`orchestration.scenario.read_variables`,
   the self-descriptions of :func:`orchestration.fmu_annotation.describe`).
-* :func:`folder`: the folder an FMU is extracted to, ``<cache root>/fmus/<content>-<platform>``
+* :func:`folder`: the folder an FMU is extracted to, ``<cache root>/fmus/<content>-<platform>-2``
   (:func:`cached_folder`), one per FMU content for every process and checkout of the user;
   without a usable cache, a temporary folder of this process (removed when its last run ends,
   :func:`session`).
@@ -41,6 +41,7 @@ from . import archive
 
 KEEP = 32                 #: cached FMU folders kept (the last used that no process uses; 1-4 MB each)
 COMPLETE = ".complete"    #: the marker written last into a cached folder, and its lock file
+LAYOUT = 2                #: of a cached folder: 2 whole (1, before: bundled packages linked to ``packages/``)
 
 _CONTENT: dict[tuple[str, int, int], str] = {}     # FMU file version -> content key, in this process
 _EXTRACTED: dict[tuple[str, int, int], str] = {}   # FMU file version -> its folder in this process
@@ -138,12 +139,13 @@ def _temporary_root() -> str:
 
 
 def cached_folder(fmu: Path) -> str | None:
-    """The FMU's folder in the cache (``<cache root>/fmus/<content>-<platform>``,
+    """The FMU's folder in the cache (``<cache root>/fmus/<content>-<platform>-<layout>``,
     :mod:`fmus.common.disk_cache`), extracted now if it is not there yet, and held in use by
     this process (:func:`_hold`); None if the cache cannot be written.
 
-    It is named by the FMU's content (:func:`content_key`) and the platform, whose binaries are
-    the only ones extracted; everything else of the FMU is extracted whole (its bundled Python
+    It is named by the FMU's content (:func:`content_key`), the platform, whose binaries are
+    the only ones extracted, and the folder's :data:`LAYOUT` (a folder an older FlexFusion made,
+    with links to shared packages, is not taken for one); everything else of the FMU is extracted whole (its bundled Python
     packages too: sharing them between folders saved a cold start 0.2-0.7 s of CPU once per FMU
     content but nothing on a warm one, ARCHITECTURE.md "The FMU store"). The cache's ``fmus/``
     folder holds code that is loaded: it is used only if private to this user
@@ -163,7 +165,7 @@ def cached_folder(fmu: Path) -> str | None:
     except (OSError, zipfile.BadZipFile):
         return None      # not an FMU: the temporary extraction reports it
     root = cache_root() / "fmus"
-    entry = root / f"{key}-{platform}"
+    entry = root / f"{key}-{platform}-{LAYOUT}"
     marker = entry / COMPLETE
     try:
         private_folder(root, cache_root())      # code is loaded from it: private, or not used

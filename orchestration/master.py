@@ -7,6 +7,8 @@
   it once; an algebraic loop is rejected), initialisation in that order with one more pass
   when an edge is broken. The master follows it with the FMUs; so does the batched study
   engine (:mod:`orchestration.batched`) with its kernels.
+* Each FMU's folder (its extraction, shared by every process of the user) comes from the FMU
+  store, :mod:`orchestration.fmu_store`; the master tells it when a run begins and ends.
 * Per component and step: one batched ``fmi2SetReal`` of all connected inputs and one batched
   ``fmi2GetReal`` of all needed outputs, straight from/to one shared value buffer (ctypes arrays
   and numpy views, value references precomputed), through the library's raw functions.

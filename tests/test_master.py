@@ -234,6 +234,21 @@ fmu = "Gain"
     assert not (tmp_path / "o").exists()
 
 
+def test_a_run_computes_its_schedule_once(tmp_path, monkeypatch):
+    """``run`` checks the scenario's schedule (an algebraic loop) before anything is written and
+    steps with that same schedule: Schedule.of once per run."""
+    made = []
+    of = Schedule.of.__func__
+
+    def counted(cls, scenario):
+        made.append(scenario.name)
+        return of(cls, scenario)
+
+    monkeypatch.setattr(Schedule, "of", classmethod(counted))
+    run(write(tmp_path, CHAIN), out_dir=tmp_path / "o")
+    assert len(made) == 1
+
+
 # ---- reproducibility ------------------------------------------------------------------------
 NOISE = """
 [scenario]

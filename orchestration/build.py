@@ -72,7 +72,8 @@ BUILD_SCRIPTS = [REPO / "orchestration" / "build.py", REPO / "orchestration" / "
 # What the FMUs import besides the standard library and the bundled `fmus` package.
 FMU_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11", "numba>=0.60"]
 # What one feature imports when it is used (pyproject's optional dependencies).
-FMU_OPTIONAL_REQUIREMENTS = ["h5py>=3.8"]
+# Cython: only where an FMU's compiled kernels do not load (built for another Python), to compile them
+FMU_OPTIONAL_REQUIREMENTS = ["h5py>=3.8", "cython>=3"]
 
 
 _CLASS = re.compile(r"^class (\w+)\(", re.M)

@@ -14,7 +14,6 @@ from __future__ import annotations
 import hashlib
 import os
 import shlex
-import shutil
 import subprocess
 import sys
 import sysconfig
@@ -23,6 +22,7 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree
 
+from fmus.common import native_cache
 from orchestration.build import REPO, BuildError, rewritten
 
 NATIVE = REPO / "native"
@@ -36,20 +36,17 @@ CFLAGS = ["-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall",
 
 
 def c_compiler() -> list[str]:
-    """The system C compiler as a command (``$CC``, sysconfig's ``CC``, then cc/gcc/clang).
+    """The system C compiler as a command (:func:`fmus.common.native_cache.c_compiler`).
 
     Raises
     ------
     BuildError
         When none is installed.
     """
-    candidates = [os.environ.get("CC", ""), sysconfig.get_config_var("CC") or "", "cc", "gcc", "clang"]
-    for candidate in candidates:
-        words = shlex.split(candidate)
-        if words and shutil.which(words[0]):
-            return [shutil.which(words[0]), *words[1:]]
-    raise BuildError("no C compiler found (tried $CC, sysconfig CC, cc, gcc, clang): the native "
-                     "FMI layer needs one (Debian/Ubuntu: apt-get install gcc)")
+    try:
+        return native_cache.c_compiler()
+    except FileNotFoundError as exc:
+        raise BuildError(f"{exc}: the native FMI layer needs one") from None
 
 
 def python_include() -> Path:

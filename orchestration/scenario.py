@@ -102,7 +102,7 @@ from .fmu_annotation import describe
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_FMU_DIR = REPO / "dist" / "fmus"
 #: the most base steps a run may take: 1e8 is about a day of wall time at the flagship's
-#: ~1,400 base steps/s (11 s simulated in 7.7 s at base_step = 1 ms, README)
+#: ~1,400 base steps/s (11 s simulated in 7.7 s at base_step = 1 ms, docs/figures.md)
 MAX_STEPS = 10**8
 
 ParamValue = float | int | bool | str

@@ -14,8 +14,8 @@ from orchestration.build import FMU_OPTIONAL_REQUIREMENTS, FMU_REQUIREMENTS
 
 ROOT = Path(__file__).resolve().parent.parent
 WINGS = ("robot_plant", "estimators", "force_observer")
-THIRD_PARTY = {r.split(">")[0].split("=")[0].split("<")[0].strip()
-               for r in FMU_REQUIREMENTS + FMU_OPTIONAL_REQUIREMENTS} | {"pythonfmu"}
+THIRD_PARTY = {r.split(">")[0].split("=")[0].split("<")[0].strip().lower()
+               for r in FMU_REQUIREMENTS + FMU_OPTIONAL_REQUIREMENTS} | {"pythonfmu"}   # import names, any case
 
 
 def imports(path: Path) -> list[tuple[int, str]]:
@@ -34,7 +34,7 @@ def allowed(part: str, module: str) -> bool:
     if top == "fmus":
         group = module.split(".")[1] if "." in module else ""
         return group == "common" or (part != "common" and group == part)
-    return top in sys.stdlib_module_names or top in THIRD_PARTY
+    return top in sys.stdlib_module_names or top.lower() in THIRD_PARTY
 
 
 @pytest.mark.parametrize("part", ("common",) + WINGS)

@@ -276,7 +276,7 @@ def test_bad_arguments_are_study_errors(tmp_path):
 
 @pytest.fixture(scope="module")
 def section4(tmp_path_factory):
-    """Reduced size of the README figure (100 runs, full sweep): 30 runs, a 3-value sweep of 6 runs
+    """Reduced size of the docs/figures.md figure (100 runs, full sweep): 30 runs, a 3-value sweep of 6 runs
     each, 30 validation runs (about 3 min on 2 workers)."""
     return study_montecarlo.run_study(SCENARIO, 30, tmp_path_factory.mktemp("mc30"), workers=2,
                                       progress=False, plots=False, sweep=(0.1, 1.0, 10.0), sweep_runs=6,

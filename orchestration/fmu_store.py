@@ -10,7 +10,7 @@ of an FMU by its content (its parsed model description), kept across processes a
 * :func:`folder`: the folder an FMU is extracted to, ``<cache root>/fmus/<content>-<platform>-2``
   (:func:`cached_folder`), one per FMU content for every process and checkout of the user;
   without a usable cache, a temporary folder of this process (removed when its last run ends,
-  :func:`session`).
+  :func:`run_ended`).
 
 Safe between processes: a folder is extracted under a temporary name and renamed when whole
 (the first rename wins); every process holds a shared lock (``flock``) on the ``.complete``
@@ -23,7 +23,7 @@ load after that is reported, naming the folder and ``flexfusion cache clear``
 (:func:`set_aside`, used by the master).
 
 The C loop's library has its own entry in the same cache (:mod:`orchestration.cloop`); the
-cache's folders are listed and cleared by :mod:`orchestration.cache_cli`.
+cache's folders are listed and cleared by :mod:`orchestration.caches` (``flexfusion cache``).
 """
 from __future__ import annotations
 

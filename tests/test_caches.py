@@ -54,8 +54,8 @@ def test_clear_removes_what_no_running_process_uses_and_says_what_it_kept(cache,
     """A folder another process holds, a compiled loop changed just now, the job-signing key and
     a folder not ours are kept and named; everything else goes."""
     fmu_store.cached_folder(toy_dir / "Gain.fmu")
-    for folder in list(fmu_store._HELD):          # this process lets go: only the other one holds
-        fmu_store._release(Path(folder))
+    for folder in (cache / "fmus").iterdir():     # this process lets go: only the other one holds
+        fmu_store._release(folder)
     used = variant(toy_dir, tmp_path / "fmus", "used")
     holder = subprocess.Popen([sys.executable, "-c", HOLD, str(used)], stdin=subprocess.PIPE,
                               stdout=subprocess.PIPE, text=True, env=dict(os.environ))

@@ -6,7 +6,7 @@ Each folder of the root is one cache, cleared by the rule its use allows:
 
 * ``fmus/`` (the FMU store, :mod:`orchestration.fmu_store`): an entry goes unless a process
   holds it (its in-use lock, :func:`orchestration.fmu_store.remove_unused`);
-* ``model_descriptions/``, ``fmu_annotations/``, ``tables/`` (values computed from their
+* ``model_descriptions/``, ``fmu_annotations/``, ``tables/``, ``bandpass/`` (values computed from their
   content): every entry goes; a reader that misses one computes it again, a writer replaces
   one whole (:func:`fmus.common.disk_cache.cached_json`);
 * ``loop/`` (the C loop), ``kernels/`` (Cython kernels), ``numba/`` (the kernels' numba cache):
@@ -35,6 +35,7 @@ KINDS = {          # folder -> (what it holds, how it is cleared)
     "model_descriptions": ("model-description cache: parsed modelDescription.xml", "data"),
     "fmu_annotations": ("FMU self-descriptions: parsed flexfusion annotations", "data"),
     "tables": ("reference tables of the motion controller", "data"),
+    "bandpass": ("band-pass filter designs of the metrics", "data"),
     "loop": ("the C stepping loop, compiled", "code"),
     "numba": ("kernel cache (numba)", "code"),
     "kernels": ("compiled kernels (Cython, fmus.common.native_cache)", "code"),

@@ -253,41 +253,31 @@ class Scenario:
 # model descriptions
 # ---------------------------------------------------------------------------------------------
 _MD_CACHE: dict[str, tuple[str, str, dict[str, VariableInfo]]] = {}
-_CONTENT: dict[tuple[str, int, int], str] = {}
 MODEL_DESCRIPTIONS_KEPT = 64      # parsed model descriptions kept in the disk cache (a few kB each)
-
-
-def fmu_content_key(fmu: Path) -> str:
-    """A hash of the FMU file's content, read from the zip's own directory (every member's
-    name, size and CRC-32: no member is read), once per file version and process.
-
-    Raises
-    ------
-    OSError, zipfile.BadZipFile
-        The file cannot be read as a zip archive.
-    """
-    import hashlib
-    import zipfile
-    st = fmu.stat()
-    version = (str(fmu.resolve()), st.st_mtime_ns, st.st_size)
-    key = _CONTENT.get(version)
-    if key is None:
-        with zipfile.ZipFile(fmu) as z:
-            members = sorted((i.filename, i.file_size, i.CRC) for i in z.infolist())
-        key = _CONTENT[version] = hashlib.sha256(repr(members).encode()).hexdigest()[:32]
-    return key
 
 
 def read_variables(fmu: Path) -> tuple[str, str, dict[str, VariableInfo]]:
     """Model identifier, GUID and the variables (with feedthrough dependencies) of an FMU.
 
-    Parsed once per FMU content: kept in the disk cache (:mod:`fmus.common.disk_cache`,
-    ``model_descriptions/``), which saves a run's start-up about 3 ms per FMU."""
-    key = fmu_content_key(fmu)
+    Parsed once per FMU content: kept in the FMU store's model-description cache
+    (:func:`orchestration.fmu_store.described`, ``model_descriptions/``), which saves a run's
+    start-up about 3 ms per FMU.
+
+    Raises
+    ------
+    ScenarioError
+        Not a co-simulation FMU, or an archive beyond the limits (:mod:`orchestration.archive`).
+    OSError, zipfile.BadZipFile
+        Not a readable zip archive.
+    """
+    from . import fmu_store
+    from .archive import ArchiveError
+    try:
+        key = fmu_store.content_key(fmu)
+    except ArchiveError as exc:
+        raise ScenarioError(str(exc)) from None
     if key not in _MD_CACHE:
-        from fmus.common.disk_cache import cached_json
-        ident, guid, rows = cached_json("model_descriptions", key, lambda: _parse_variables(fmu),
-                                        MODEL_DESCRIPTIONS_KEPT)
+        ident, guid, rows = fmu_store.described(fmu, "model_descriptions", _parse_variables, MODEL_DESCRIPTIONS_KEPT)
         _MD_CACHE[key] = (ident, guid, {row[0]: VariableInfo(*row[:6], None if row[6] is None else tuple(row[6]))
                                         for row in rows})
     return _MD_CACHE[key]
@@ -301,7 +291,9 @@ def fmi_version(fmu: Path) -> str:
     content and process."""
     import zipfile
     from xml.etree import ElementTree
-    key = fmu_content_key(fmu)
+
+    from . import fmu_store
+    key = fmu_store.content_key(fmu)
     if key not in _VERSIONS:
         with zipfile.ZipFile(fmu) as z:
             _VERSIONS[key] = ElementTree.fromstring(z.read("modelDescription.xml")).get("fmiVersion", "")

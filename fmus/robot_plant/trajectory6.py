@@ -203,21 +203,31 @@ def cartesian_reference(traj: Trajectory, orientation, q_start, arm: irb4600.Arm
     arm = arm if arm is not None else irb4600.arm()
     R = irb4600._as_rotation(orientation)
     ref = np.asarray(q_start, float)
-    for w, label in zip(traj.waypoints, traj.waypoint_labels):
+    arrive = [0.0] + [m.t_end / traj.time_scale for m in traj.moves]
+    for w, label, tw in zip(traj.waypoints, traj.waypoint_labels, arrive):
         try:
             ref = irb4600.inverse_kinematics(w, R, ref, arm)
         except ValueError as exc:
-            raise ValueError(f"path '{traj.name}': {label} at {_point(w)}: {exc}") from None
+            raise ValueError(f"path '{traj.name}': {label} at {_point(w)} (t = {tw:.3f} s): {exc}") from None
     t = grid(traj.duration) if t is None else np.asarray(t, float)
     p, v, a, j = traj.evaluate_many(t)
     q = np.empty((t.shape[0], 6))
     ref = np.asarray(q_start, float)
     for k in range(t.shape[0]):
         try:
-            ref = q[k] = irb4600.inverse_kinematics(p[k], R, ref, arm)
+            q[k] = irb4600.inverse_kinematics(p[k], R, ref, arm)
         except ValueError as exc:
             raise ValueError(f"path '{traj.name}': the point {_point(p[k])} at t = {t[k]:.3f} s on "
                              f"{_where(traj, t[k])}: {exc}") from None
+        if k > 0:       # the nearest solution leaps: the path needs a change of configuration
+            leap = np.abs(q[k] - ref) > 2.0 * arm.dq_max * (t[k] - t[k - 1]) + 1e-9
+            if leap.any():
+                i = int(np.argmax(leap))
+                raise ValueError(f"path '{traj.name}': the point {_point(p[k])} at t = {t[k]:.3f} s on "
+                                 f"{_where(traj, t[k])} needs axis {i + 1} to leap from {ref[i]:.4g} to "
+                                 f"{q[k, i]:.4g} rad (a change of configuration: a working range's end or a "
+                                 "singularity on the way)")
+        ref = q[k]
     zero = np.zeros_like(v)
     dq, ddq, dddq = joint_derivatives(q, np.hstack([v, zero]), np.hstack([a, zero]), np.hstack([j, zero]), arm)
     _check_joints(traj.name, t, q, dq, arm, traj)

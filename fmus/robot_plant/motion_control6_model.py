@@ -13,11 +13,15 @@ axes, layer by layer:
    scaled by its ``mass_scale``; never the plant's): rigid-body inverse dynamics
    ``tau_a = M(q) ddq + C(q, dq) dq + g(q)`` (Featherstone's RNEA,
    :class:`fmus.robot_plant.six_axis_model.RigidBodyDynamics` on the rigid arm's tree), then per
-   axis the gearbox law of Axelsson et al. (2012), eqs. 10-11, inverted for the deflection as
-   the two-axis controller does: ``tau_s(D) + d dD/dt = tau_a`` (the nominal spring
-   ``k_hi D - (k_hi - k_lo) delta tanh(D / delta)`` by Newton's method
-   (:func:`fmus.common.dynamics.spring_inverse`), the damping by fixed-point iteration),
-   ``q_m_ref = r (q + D)``, and the motor equation along it,
+   axis the gearbox law of Axelsson et al. (2012), eqs. 10-11, inverted for the deflection:
+   ``tau_s(D) + d dD/dt = tau_a`` with the nominal spring ``k_hi D - (k_hi - k_lo) delta
+   tanh(D / delta)`` is a first-order lag of ``D`` behind ``tau_a`` (time constant ``d / k``,
+   0.6-2 ms), integrated by RK4 on the grid from the static deflection at the start
+   (:func:`fmus.common.dynamics.spring_inverse`), ``dD/dt`` from the law itself. (The two-axis
+   controller's fixed-point iteration on the damping term leaves, on P1 here, up to 12.5 N m of
+   the 540 N m of axis 2's gearbox law unmet where the jerk is large: it converges only for
+   content below ``k / (2 pi d)``, 85 Hz on axis 2, and the grid's differences of the jerk's
+   kinks are above it.) Then ``q_m_ref = r (q + D)``, and the motor equation along it,
    ``tau_ff = J_m ddq_m_ref + f_v dq_m_ref + f_c tanh(dq_m_ref / w_c) + tau_a / r``.
    The plant's passive joints, hysteresis, Stribeck and load-dependent friction, ripple,
    torque-constant error and current loop are unknown to it.
@@ -146,21 +150,29 @@ def reference_table(ref: JointReference, arm: irb4600.Arm, w_c: np.ndarray) -> n
     tau_arm = np.array([dyn.rnea(ref.q[k], ref.dq[k], ref.ddq[k]) for k in range(n)])
     k_soft = arm.k_hi - arm.k_lo
 
-    def deflection(tau: np.ndarray, D0: np.ndarray | None) -> np.ndarray:
-        return np.array([[spring_inverse(arm.k_hi[i], k_soft[i], arm.delta[i], float(tau[k, i]),
-                                         0.0 if D0 is None else float(D0[k, i]), D0 is not None)
-                          for i in range(N)] for k in range(n)])
+    def spring(D: np.ndarray) -> np.ndarray:
+        return arm.k_hi * D - k_soft * arm.delta * np.tanh(D / arm.delta)
 
-    D = deflection(tau_arm, None)
-    for _ in range(3):
-        dD = np.gradient(D, dt, axis=0, edge_order=2)
-        D = deflection(tau_arm - arm.d * dD, D)
-    dD = np.gradient(D, dt, axis=0, edge_order=2)
+    def rate(D: np.ndarray, tau: np.ndarray) -> np.ndarray:       # the gearbox law solved for dD/dt
+        return (tau - spring(D)) / arm.d
+
+    # tau_s(D) + d dD/dt = tau_a: from the static deflection at the start, RK4 on the grid with
+    # tau_a linear in between (the law is a first-order lag of time constant d / k: 0.6-2 ms)
+    D = np.empty((n, N))
+    D[0] = [spring_inverse(arm.k_hi[i], k_soft[i], arm.delta[i], float(tau_arm[0, i]), 0.0, False) for i in range(N)]
+    for k in range(n - 1):
+        t0, t1 = tau_arm[k], tau_arm[k + 1]
+        tm = 0.5 * (t0 + t1)
+        k1 = rate(D[k], t0)
+        k2 = rate(D[k] + 0.5 * dt * k1, tm)
+        k3 = rate(D[k] + 0.5 * dt * k2, tm)
+        k4 = rate(D[k] + dt * k3, t1)
+        D[k + 1] = D[k] + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    dD = rate(D, tau_arm)
     ddD = np.gradient(dD, dt, axis=0, edge_order=2)
     r = arm.gear_ratio
     qm, dqm, ddqm = r * (ref.q + D), r * (ref.dq + dD), r * (ref.ddq + ddD)
-    spring = arm.k_hi * D - k_soft * arm.delta * np.tanh(D / arm.delta)
-    tau_ff = arm.J_m * ddqm + arm.f_v * dqm + arm.f_c * np.tanh(dqm / w_c) + (spring + arm.d * dD) / r
+    tau_ff = arm.J_m * ddqm + arm.f_v * dqm + arm.f_c * np.tanh(dqm / w_c) + tau_arm / r
     table = np.empty((n, NCOL))
     for name, val in (("q", ref.q), ("dq", ref.dq), ("ddq", ref.ddq), ("dddq", ref.dddq), ("q_m", qm),
                       ("dq_m", dqm), ("tau_ff", tau_ff), ("tau_arm", tau_arm), ("p", ref.p)):

@@ -8,9 +8,9 @@ axes, layer by layer:
    ``dddq`` on a 1 ms grid (the analytic inverse kinematics of the spherical wrist for the 3-D
    tool paths, exact derivatives), the tool position ``p``.
 2. **Feed-forward** (setup), on the controller's *nominal* model: the arm
-   :func:`fmus.common.irb4600.arm` of the controller's own parameters (its planar
-   :class:`~fmus.common.robot_params.RobotParameters` fields, its ``tool_mass``, link masses
-   scaled by its ``mass_scale``; never the plant's): rigid-body inverse dynamics
+   :func:`fmus.common.irb4600.arm` with the controller's own parameters (its ``tool_mass``,
+   link masses scaled by its ``mass_scale``, gearbox stiffnesses by its ``stiffness_scale``;
+   never the plant's): rigid-body inverse dynamics
    ``tau_a = M(q) ddq + C(q, dq) dq + g(q)`` (Featherstone's RNEA,
    :class:`fmus.robot_plant.six_axis_model.RigidBodyDynamics` on the rigid arm's tree), then per
    axis the gearbox law of Axelsson et al. (2012), eqs. 10-11, inverted for the deflection:
@@ -80,11 +80,12 @@ DEFAULT_TAU_MAX = (60.0, 60.0, 60.0, 20.0, 20.0, 10.0)
 
 
 @dataclass(frozen=True)
-class MotionController6Parameters(RobotParameters):
-    """Parameters of the MotionController6 FMU. The inherited :class:`RobotParameters` fields
-    (axes 2-3) with ``tool_mass`` and ``mass_scale`` are the controller's *nominal model* of
-    the robot (feed-forward and deflection compensation): set them differently from the
-    plant's to study model errors."""
+class MotionController6Parameters:
+    """Parameters of the MotionController6 FMU. ``tool_mass``, ``mass_scale`` and
+    ``stiffness_scale`` make the controller's *nominal model* of the robot (feed-forward and
+    deflection compensation) from :func:`fmus.common.irb4600.arm`'s data: set them differently
+    from the plant's to study model errors (the kinematics are the data sheet's, not
+    parameters)."""
 
     path: str = param("p1", "1", "six-axis path: iso_cube (ISO 9283 cube at 200 mm/s), square (30 mm "
                       "square with stops), p1, p2 (the 2009 paper's, axes 1, 4-6 held), p1_moving, "
@@ -97,6 +98,9 @@ class MotionController6Parameters(RobotParameters):
     mass_scale: tuple = param((1.0,) * N, "1", "scale of the controller's nominal link masses and "
                               "inertias, links 1-6 (1: docs/six_axis.md's estimates)", low=0.5, high=2.0,
                               search=(0.8, 1.2), source="no data sheet gives link masses (docs/six_axis.md)")
+    stiffness_scale: tuple = param((1.0,) * N, "1", "scale of the controller's nominal gearbox "
+                                   "stiffnesses k_hi, k_lo, axes 1-6 (1: irb4600.arm()'s)", low=0.2, high=5.0,
+                                   search=(0.5, 2.0), source="docs/six_axis.md, drive train")
     kp: tuple = param(DEFAULT_KP, "N.m/rad", "PID proportional gain per axis, motor side", low=0.0,
                       search=(0.1, 20.0), source="about 4 Hz bandwidth, damping 1, on the motor plus "
                       "reflected arm inertia at the P1 start pose")
@@ -111,33 +115,28 @@ class MotionController6Parameters(RobotParameters):
                            low_inclusive=False)
 
     def check(self) -> None:
-        """The robot's checks and six values per axis where six are needed."""
-        super().check()
-        for name in ("mass_scale", "kp", "kd", "ti", "tau_max"):
+        """Six values per axis where six are needed; raises :class:`ParameterError` naming the
+        parameter."""
+        for name in ("mass_scale", "stiffness_scale", "kp", "kd", "ti", "tau_max"):
             if len(getattr(self, name)) != N:
                 raise ParameterError(f"parameter '{name}' needs {N} values, got {len(getattr(self, name))}")
 
 
 def nominal_arm(p: MotionController6Parameters) -> irb4600.Arm:
-    """The controller's nominal arm: :func:`fmus.common.irb4600.arm` of ``p``'s planar fields
-    and ``tool_mass``, each link's mass and inertia scaled by ``p.mass_scale``.
-
-    Raises
-    ------
-    ParameterError
-        Naming the parameter the arm refuses.
-    """
-    try:
-        a = irb4600.arm(p.robot(), tool_mass=p.tool_mass)
-    except ValueError as exc:
-        raise ParameterError(f"parameter 'tool_mass' or the planar arm: {exc}") from None
-    s = np.asarray(p.mass_scale, float)
-    return irb4600.Arm(**{**vars(a), "mass": a.mass * s, "inertia": a.inertia * s[:, None, None]})
+    """The controller's nominal arm: :func:`fmus.common.irb4600.arm` with ``p.tool_mass``, each
+    link's mass and inertia scaled by ``p.mass_scale``, each gearbox's stiffnesses by
+    ``p.stiffness_scale``."""
+    a = irb4600.arm(None, tool_mass=p.tool_mass)
+    s, k = np.asarray(p.mass_scale, float), np.asarray(p.stiffness_scale, float)
+    return irb4600.Arm(**{**vars(a), "mass": a.mass * s, "inertia": a.inertia * s[:, None, None],
+                          "k_hi": a.k_hi * k, "k_lo": a.k_lo * k})
 
 
-def friction_smoothing(p: RobotParameters) -> np.ndarray:
-    """``w_c`` [rad/s] per axis: ``p.w_c`` for axes 2-3, the plant module's
-    :data:`~fmus.robot_plant.six_axis_model.W_C_OTHER` for the others."""
+def friction_smoothing(p: RobotParameters | None = None) -> np.ndarray:
+    """``w_c`` [rad/s] per axis: the planar robot ``p``'s ``w_c`` for axes 2-3 (defaults when
+    ``None``), the plant module's :data:`~fmus.robot_plant.six_axis_model.W_C_OTHER` for the
+    others."""
+    p = p if p is not None else RobotParameters()
     w = six_axis_model.W_C_OTHER
     return np.array([w, p.w_c[0], p.w_c[1], w, w, w])
 
@@ -195,12 +194,12 @@ class MotionControl6Model:
     def __init__(self, p: MotionController6Parameters) -> None:
         p.check()
         self.arm = nominal_arm(p)
-        self.w_c = friction_smoothing(p)
+        self.w_c = friction_smoothing()
         self.path, self.speed_scale = p.path, float(p.speed_scale)
-        self.robot = p.robot()
         import platform
         key = disk_cache.content_key(bundle_id(), np.__version__, platform.machine(), "six-axis reference",
-                                     p.path, self.speed_scale, self.robot, p.tool_mass, tuple(p.mass_scale))
+                                     p.path, self.speed_scale, p.tool_mass, tuple(p.mass_scale),
+                                     tuple(p.stiffness_scale))
         ref: list = []
 
         def build() -> np.ndarray:
@@ -213,7 +212,7 @@ class MotionControl6Model:
 
     def _reference(self) -> JointReference:
         try:
-            return trajectory6.make_reference(self.path, self.arm, self.speed_scale, self.robot)
+            return trajectory6.make_reference(self.path, self.arm, self.speed_scale)
         except ValueError as exc:
             raise ParameterError(f"parameter 'path' = '{self.path}': {exc}") from None
 

@@ -18,6 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
+from fmus.common import irb4600, quaternion
 from fmus.common.frames import G, rot_rpy, sensor_rotation
 from fmus.common.jit import kernel
 from fmus.common.noise import make_rng, normal_rows, reseed_param, reseeded_rng
@@ -451,6 +452,50 @@ def imu_reading(a_world_xz: Sequence[float], phi: float, omega: float, mount_rpy
     return acc, gyro
 
 
+def imu_reading_3d(a_world: Sequence[float], quat_tool: Sequence[float], omega_world: Sequence[float],
+                   mount: np.ndarray, g: float = G) -> tuple[np.ndarray, np.ndarray]:
+    """Ideal accelerometer and gyro readings in the sensor frame of a tool moving in 3-D (the
+    six-axis robot's IMU): the 2012 paper's accelerometer model (Axelsson et al. 2012,
+    eqs. 17-19) with the tool's full orientation, ``acc_s = R_s^T (a - g_vec)`` and
+    ``gyro_s = R_s^T omega``, ``R_s = R_tool R_mount``, ``g_vec = (0, 0, -g)``.
+
+    Parameters
+    ----------
+    a_world
+        Kinematic acceleration of the mount point, world x, y, z [m/s2] (no gravity).
+    quat_tool
+        Tool orientation, unit quaternion (w, x, y, z), tool frame to world.
+    omega_world
+        The tool's angular velocity, world axes [rad/s].
+    mount
+        Mounting rotation, sensor to tool (3x3, or the flat 9 of :func:`mount_matrix`).
+    g
+        Gravity [m/s2].
+    """
+    R = quaternion.to_matrix(quat_tool) @ np.asarray(mount, float).reshape(3, 3)
+    a = np.asarray(a_world, float)
+    f = np.array([a[0], a[1], a[2] + g])
+    return R.T @ f, R.T @ np.asarray(omega_world, float)
+
+
+def arm_plane_reading(acc_s: Sequence[float], gyro_s: Sequence[float], q_wrist: Sequence[float],
+                      mount: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The six-axis robot's IMU readings ``acc_s``, ``gyro_s`` (sensor frame) expressed in the
+    frame the axis-2/3 estimators take, as on the real robots: the sensor frame of a tool at
+    wrist angles zero, ``R_3 R_mount`` (``R_3``: link 3's frame, x along the forearm and z in
+    the plane of axes 2-3, y along axes 2-3), from the wrist's angles ``q_wrist`` (axes 4-6
+    [rad], measured: the encoders over the gear ratios) and the nominal ``mount`` (sensor to
+    tool, 3x3 or flat 9): ``R_mount^T W R_mount acc_s`` with ``W = Rx(q4) Ry(q5) Rx(q6)``
+    (the wrist's rotation, :mod:`fmus.common.irb4600`). Their x and z components lie in the
+    plane of axes 2-3 (with ``mount`` the identity); y is out of it.
+    """
+    M = np.asarray(mount, float).reshape(3, 3)
+    rot = irb4600.rotation
+    W = rot(0, float(q_wrist[0])) @ rot(1, float(q_wrist[1])) @ rot(0, float(q_wrist[2]))
+    T = M.T @ W @ M
+    return T @ np.asarray(acc_s, float), T @ np.asarray(gyro_s, float)
+
+
 def force_sensor_reading(f_ext_xz: Sequence[float], a_tool_xz: Sequence[float], phi: float,
                          m_tool: float, mount_rpy: Sequence[float], g: float = G) -> np.ndarray:
     """Ideal wrist force in the sensor frame (the impedance paper's eq. 1, in 3-D).
@@ -575,6 +620,28 @@ class EncoderParameters:
                                source="2009 and 2012 papers: 2 kHz")
     seed: int = param(1, "1", "seed of the noise streams", low=0)
     reseed: int = reseed_param()
+
+
+@dataclass(frozen=True)
+class Encoder6Parameters(EncoderParameters):
+    """Parameters of the Encoder6 FMU: the Encoder's, bias and scale per axis 1-6."""
+
+    bias: tuple = param((0.0,) * 6, "rad", "constant offset per axis (calibrated: 0)")
+    scale: tuple = param((0.0,) * 6, "1", "scale-factor error per axis (reading = (1+scale) q)",
+                         low=-0.5, high=0.5)
+
+
+@dataclass(frozen=True)
+class ArmPlaneImuParameters:
+    """Parameters of the ArmPlaneImu FMU: what the robot's controller knows of the wrist and
+    the sensor's mounting."""
+
+    gear_ratio: tuple = param(tuple(irb4600.arm().gear_ratio[3:]), "1", "gear ratios of axes 4-6 "
+                              "(motor angle / arm angle)", low=0.0, low_inclusive=False,
+                              source="irb4600.arm() (docs/six_axis.md, drive train)")
+    mount_rpy: tuple = param((0.0, 0.0, 0.0), "rad", "nominal mounting roll, pitch, yaw of the IMU on "
+                             "the tool (the controller's knowledge; the Imu3D's true mount may differ)",
+                             low=-math.pi, high=math.pi)
 
 
 MEMS = ("16-bit MEMS IMU class (e.g. Bosch BMI160 / TDK ICM-20948 data sheets: +-16 g, "

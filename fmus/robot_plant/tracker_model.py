@@ -35,17 +35,18 @@ _FLOAT = np.dtype(float)
 
 
 @kernel
-def _position(hist, m, t):
-    """True position at ``t`` by linear interpolation in the ``m`` entries ``(t, x, z)`` of
-    ``hist`` (held before the first and after the last)."""
+def _position(hist, m, t, c):
+    """Coordinate ``c`` (a column, 1 and up) of the true position at ``t`` by linear
+    interpolation in the ``m`` entries ``(t, x, z)`` (or ``(t, x, y, z)``) of ``hist`` (held
+    before the first and after the last)."""
     if t <= hist[0, 0]:
-        return hist[0, 1], hist[0, 2]
+        return hist[0, c]
     for i in range(m - 1):
-        ta, xa, za, tb, xb, zb = hist[i, 0], hist[i, 1], hist[i, 2], hist[i + 1, 0], hist[i + 1, 1], hist[i + 1, 2]
+        ta, xa, tb, xb = hist[i, 0], hist[i, c], hist[i + 1, 0], hist[i + 1, c]
         if t <= tb:
             w = (t - ta) / (tb - ta) if tb > ta else 1.0
-            return xa + w * (xb - xa), za + w * (zb - za)
-    return hist[m - 1, 1], hist[m - 1, 2]
+            return xa + w * (xb - xa)
+    return hist[m - 1, c]
 
 
 @kernel(aot="int64(float64, float64[:], boolean, float64[:, :], float64[:], float64[:], float64[:, :], float64[:])")
@@ -60,7 +61,9 @@ def tracker_update(t, p, append, hist, state, consts, rows, p_meas):
     if append:
         if m == hist.shape[0]:
             return _FULL
-        hist[m, 0], hist[m, 1], hist[m, 2] = t, p[0], p[1]
+        hist[m, 0] = t
+        for c in range(p.shape[0]):
+            hist[m, 1 + c] = p[c]
         m += 1
         state[_ENTRIES] = m
     t0, period, skew, noise = consts[0], consts[1], consts[2], consts[3]
@@ -71,8 +74,8 @@ def tracker_update(t, p, append, hist, state, consts, rows, p_meas):
         row = int(state[_ROW])
         if row == rows.shape[0]:
             return _DRAWN
-        x, z = _position(hist, m, t_k - skew)
-        p_meas[0], p_meas[1] = x + noise * rows[row, 0], z + noise * rows[row, 1]   # drawn even when noise = 0
+        for c in range(p_meas.shape[0]):                  # drawn even when noise = 0
+            p_meas[c] = _position(hist, m, t_k - skew, c + 1) + noise * rows[row, c]
         state[_ROW] = row + 1
         state[_T_MEAS] = t_k
         state[_NEXT] += 1.0
@@ -83,7 +86,8 @@ def tracker_update(t, p, append, hist, state, consts, rows, p_meas):
         d += 1
     if d:
         for i in range(m - d):
-            hist[i, 0], hist[i, 1], hist[i, 2] = hist[i + d, 0], hist[i + d, 1], hist[i + d, 2]
+            for c in range(hist.shape[1]):
+                hist[i, c] = hist[i + d, c]
         state[_ENTRIES] = m - d
     return _DONE
 
@@ -109,13 +113,15 @@ class TrackerModel:
     seed, stream
         Seed and stream name of the noise (:func:`fmus.common.noise.make_rng`).
     out
-        Float array of 2 the samples :attr:`p_meas` are written into (an FMU's output), or None.
+        Float array of ``dims`` the samples :attr:`p_meas` are written into (an FMU's output), or None.
+    dims
+        Coordinates of a position: 2 (world x, z; the planar arm) or 3 (x, y, z; the six-axis arm).
     """
 
     BLOCK = 256       # samples per draw of the random numbers
 
     def __init__(self, noise: float, sample_rate: float, skew: float, seed: int = 0,
-                 stream: str = "tracker", out: np.ndarray | None = None) -> None:
+                 stream: str = "tracker", out: np.ndarray | None = None, dims: int = 2) -> None:
         if not sample_rate > 0.0:
             raise ValueError(f"sample_rate must be > 0, got {sample_rate!r}")
         if not skew >= 0.0:
@@ -123,9 +129,10 @@ class TrackerModel:
         self.noise, self.period, self.skew = float(noise), 1.0 / float(sample_rate), float(skew)
         self.stream = stream
         self._consts = np.array([0.0, self.period, self.skew, self.noise])
-        self._hist = np.zeros((8, 3))            # (t, x, z) entries, grown when full
+        self.dims = int(dims)
+        self._hist = np.zeros((8, 1 + self.dims))   # (t, x, z) entries, grown when full
         self._state = np.zeros(4)
-        self.p_meas = np.zeros(2) if out is None else out
+        self.p_meas = np.zeros(self.dims) if out is None else out
         self._rng = make_rng(seed, stream)
         self._draw()
 
@@ -135,7 +142,7 @@ class TrackerModel:
         return float(self._state[_T_MEAS])
 
     def _draw(self) -> None:
-        self._rows = normal_rows(self._rng, 2, self.BLOCK)
+        self._rows = normal_rows(self._rng, self.dims, self.BLOCK)
         self._state[_ROW] = 0
 
     def reseed(self, seed: int) -> None:

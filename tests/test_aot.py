@@ -1,7 +1,11 @@
-"""Ahead-of-time compiled kernels (fmus/common/jit.py, orchestration/build.py): the build's
+"""Ahead-of-time compiled numba kernels (fmus/common/jit.py, orchestration/build.py): the build's
 compiled module returns what the just-in-time kernels return, bit for bit; an FMU with it runs
 the flagship byte-identical to one without, and never imports numba; the build without it
-still makes FMUs that run (on the JIT)."""
+still makes FMUs that run (on the JIT).
+
+The kernels move to Cython module by module (ARCHITECTURE.md, "The kernel path"): this tour
+covers the numba kernels that remain; the Cython ones are held bit for bit to their readable
+Python forms in tests/test_compiled_kernels.py."""
 from __future__ import annotations
 
 import copy
@@ -99,8 +103,6 @@ def _tour() -> None:
     from fmus.estimators.axelsson2012_batched import BatchedMeasurement
     from fmus.robot_plant.motion_control_model import MotionControllerParameters, build_controller
     from fmus.estimators import rigid_kinematics_model
-    from fmus.robot_plant.plant_dynamics import PlantChain, plant_model
-    from fmus.robot_plant.plant_model import PlantParameters
     from orchestration.batched import run_recorded
     def run(name: str, seeds: tuple[int, ...] = (1,)) -> None:
         runs = [[f"scenario.seed={seed}", "scenario.stop_time=0.03"] for seed in seeds]
@@ -109,8 +111,7 @@ def _tour() -> None:
     for name in ("flagship", "axelsson2012_pf", "henriksson2009_p1", "contact_observer", "imu2019_square"):
         run(name)                     # one: every component its FMU class
     k = dynamics.arm_constants(RobotParameters())
-    s = (0.1, -0.2, 16.0, -40.0, 0.3, -0.1, 50.0, -20.0)
-    k.deflection(0, 120.0), k.gravity(0.3, -0.4), k.derivatives(np.array(s), 1.0, -2.0, 5.0, 3.0)
+    k.deflection(0, 120.0), k.gravity(0.3, -0.4)
     kalman.is_positive_definite(np.array([[2.0, 0.3], [0.3, 1.0]]))
     meas = em.EkfAccelerometerModel(em.EkfAccelerometerParameters()).meas
     x = np.linspace(0.05, 0.5, meas.layout.n)
@@ -118,10 +119,7 @@ def _tour() -> None:
     BatchedMeasurement(meas).h_and_jacobian(np.stack([x, 0.5 * x]))
     controller = build_controller(MotionControllerParameters())
     controller.model.offset_arm_angles(controller.model.sample(0.5), np.array([1e-3, -2e-3]))
-    chain = PlantChain(PlantParameters())
-    chain.arm(tuple(np.linspace(-0.3, 0.4, 12)), 20.0, -10.0)
     # Python paths beside the FMUs' one-call steps (studies, identification, the CRLB)
-    plant_model(PlantParameters()).step(np.array([20.0, -10.0]), np.zeros(2), 1e-3)
     controller.evaluate(0.5, np.zeros(2), np.zeros(2), np.zeros(2))
     controller.advance(1e-3)
     controller.measure(0.5, np.zeros(2)), controller.measure(0.501, np.array([1e-3, -2e-3]))

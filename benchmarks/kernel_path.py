@@ -29,7 +29,8 @@ sys.path.insert(0, str(REPO))
 
 from fmus.common import cython_kernels, dynamics  # noqa: E402
 from fmus.common.robot_params import RobotParameters  # noqa: E402
-from fmus.robot_plant import plant_dynamics, sensor_model  # noqa: E402
+from fmus.estimators import rigid_kinematics_model  # noqa: E402
+from fmus.robot_plant import plant_dynamics, sensor_model, tracker_model  # noqa: E402
 from fmus.robot_plant.plant_model import PlantParameters  # noqa: E402
 
 MODULE = "_compiled" + sysconfig.get_config_var("EXT_SUFFIX")
@@ -53,6 +54,8 @@ def _cases(old) -> dict[str, tuple]:
     plant = cython_kernels.load("robot_plant.plant_kernels")
     arm = cython_kernels.load("common.dynamics_kernels")
     sensors = cython_kernels.load("robot_plant.sensor_kernels")
+    tracker = cython_kernels.load("robot_plant.tracker_kernels")
+    rigid = cython_kernels.load("estimators.rigid_kinematics_kernels")
     P = plant_dynamics.PlantChain(PlantParameters()).P
     s12 = tuple(plant_dynamics.plant_model(PlantParameters()).state)
     K = dynamics.ArmConstants(RobotParameters()).packed
@@ -64,6 +67,11 @@ def _cases(old) -> dict[str, tuple]:
     mount = sensor_model.mount_matrix((0.1, 0.2, 0.3))
     a = np.array([1.0, 2.0])
     pd, sm, dy = "robot_plant__plant_dynamics__", "robot_plant__sensor_model__", "common__dynamics__"
+    tm, rk = "robot_plant__tracker_model__", "estimators__rigid_kinematics_model__"
+    # the tracker: a held sample (no instant due), the history of two entries kept
+    hist, state = np.array([[0.0, 1.0, 0.5], [1e-3, 1.0, 0.5]] + [[0.0] * 3] * 6), np.array([2.0, 2.0, 1e-3, 0.0])
+    t_consts, t_rows = np.array([0.0, 1e-3, 0.0, 1e-5]), np.zeros((256, 2))
+    r_consts = rigid_kinematics_model.constants(RobotParameters(), gravity_compensation=True)
     return {
         "chain4_advance": (getattr(old, pd + "chain4_advance"), plant.chain4_advance, (s12, tau, f, 1e-3, 1, P, out, at)),
         "chain4_step": (getattr(old, pd + "chain4_step"), plant.chain4_step, (s12, 3.0, 1.0, 0.0, 0.0, 1e-3, 1, P)),
@@ -75,6 +83,11 @@ def _cases(old) -> dict[str, tuple]:
                           (np.ones(3), ch._work, np.zeros(3), rows)),
         "imu_reading_into": (getattr(old, sm + "imu_reading_into"), sensors.imu_reading_into,
                              (a, 0.3, 0.1, mount, 9.81, np.empty(3), np.empty(3))),
+        "tracker_update": (getattr(old, tm + "tracker_update"), tracker.tracker_update,
+                           (1.5e-3, a, False, hist, state, t_consts, t_rows, np.zeros(2))),
+        "rigid estimate": (getattr(old, rk + "estimate"), rigid.estimate,
+                           (np.array([30.0, -20.0]), 0.0, 0.0, r_consts, np.zeros(7), np.zeros(8), 2)),
+        "spring_inverse": (getattr(old, dy + "spring_inverse"), arm.spring_inverse, (K[9], K[11], K[13], 120.0, 0.0, False)),
     }
 
 

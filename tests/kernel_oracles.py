@@ -9,6 +9,13 @@ into fused multiply-adds (fmus/common/cython_kernels.py), so equal inputs give e
   :func:`flex_step` (common/dynamics_kernels.pyx);
 * the sensors (robot_plant/sensor_kernels.pyx): :func:`channels_kernel`, :func:`channels_step`
   on SensorChannels' work array (its layout's names below), :func:`imu_reading_into`;
+* the laser tracker (robot_plant/tracker_kernels.pyx): :func:`tracker_update`;
+* the gearbox spring's inverse and the gravity torques (common/gearbox.pxd, planar_arm.pxd,
+  through common/dynamics_kernels.pyx): :func:`spring_inverse`, :func:`gravity_torques`;
+* the rigid-kinematics baseline (estimators/rigid_kinematics_kernels.pyx): :func:`compensated`,
+  :func:`estimate`; its tool point is the numba kernel's own Python function
+  (``fmus.common.kinematics.tool_point``, still numba: the controller and the 2012 EKF call it),
+  so that the two definitions are held equal.
 * the plant's four-body chain: :func:`chain4_arm`, :func:`chain4_rates`, :func:`chain4_step`,
   :func:`chain4_outputs`, :func:`chain4_advance` (robot_plant/plant_kernels.pyx), on the
   constants ``P`` of ``PlantChain._pack`` (its offsets named in the kernel's struct ``Chain4``).
@@ -19,7 +26,11 @@ import math
 
 import numpy as np
 
+from fmus.common import kinematics
+from fmus.common.sample_time import TIME_TOL
+
 HALF_PI = 0.5 * math.pi
+tool_point = getattr(kinematics.tool_point, "py_func", kinematics.tool_point)
 
 
 def spring_scalar(k_hi: float, k_soft: float, delta: float, D: float) -> float:
@@ -333,3 +344,129 @@ def imu_reading_into(a_world_xz, phi, omega, mount, g, acc, gyro):
     r20, r21, r22 = c * m20 - s * m00, c * m21 - s * m01, c * m22 - s * m02
     acc[0], acc[1], acc[2] = r00 * ax + r20 * vz, r01 * ax + r21 * vz, r02 * ax + r22 * vz
     gyro[0], gyro[1], gyro[2] = m10 * omega, m11 * omega, m12 * omega
+
+
+# ---- the tracker (its layout's names prefixed: the sensors' are above) -----------------------
+# TrackerModel's state (a float array the kernel keeps): history entries, index of the next
+# sample instant, the held sample's stamp, the next row of the drawn random numbers
+_TRACKER_ENTRIES, _TRACKER_NEXT, _TRACKER_T_MEAS, _TRACKER_ROW = range(4)
+_TRACKER_DONE, _TRACKER_FULL, _TRACKER_DRAWN = 0, 1, 2           # what tracker_update returns
+
+
+def _position(hist, m, t):
+    """True position at ``t`` by linear interpolation in the ``m`` entries ``(t, x, z)`` of
+    ``hist`` (held before the first and after the last)."""
+    if t <= hist[0, 0]:
+        return hist[0, 1], hist[0, 2]
+    for i in range(m - 1):
+        ta, xa, za, tb, xb, zb = hist[i, 0], hist[i, 1], hist[i, 2], hist[i + 1, 0], hist[i + 1, 1], hist[i + 1, 2]
+        if t <= tb:
+            w = (t - ta) / (tb - ta) if tb > ta else 1.0
+            return xa + w * (xb - xa), za + w * (zb - za)
+    return hist[m - 1, 1], hist[m - 1, 2]
+
+
+def tracker_update(t, p, append, hist, state, consts, rows, p_meas):
+    """:meth:`TrackerModel.update` on arrays: append ``(t, p)`` to the history ``hist`` (with
+    ``append``), take every sample due by ``t`` into ``p_meas`` (``consts``: first instant,
+    period, skew, noise; ``state``: the layout above), drop the history no later sample needs.
+    Returns ``_TRACKER_FULL`` (nothing
+    done: the history needs room), ``_TRACKER_DRAWN`` (the random numbers ``rows`` are used up: call
+    again with new ones, without ``append``) or ``_TRACKER_DONE``."""
+    m = int(state[_TRACKER_ENTRIES])
+    if append:
+        if m == hist.shape[0]:
+            return _TRACKER_FULL
+        hist[m, 0], hist[m, 1], hist[m, 2] = t, p[0], p[1]
+        m += 1
+        state[_TRACKER_ENTRIES] = m
+    t0, period, skew, noise = consts[0], consts[1], consts[2], consts[3]
+    while True:
+        t_k = t0 + state[_TRACKER_NEXT] * period
+        if t_k > t + 1e-9 * period:
+            break
+        row = int(state[_TRACKER_ROW])
+        if row == rows.shape[0]:
+            return _TRACKER_DRAWN
+        x, z = _position(hist, m, t_k - skew)
+        p_meas[0], p_meas[1] = x + noise * rows[row, 0], z + noise * rows[row, 1]   # drawn even when noise = 0
+        state[_TRACKER_ROW] = row + 1
+        state[_TRACKER_T_MEAS] = t_k
+        state[_TRACKER_NEXT] += 1.0
+    # keep what the next sample can need: back to one entry at or before (next t_k - skew)
+    oldest = t0 + state[_TRACKER_NEXT] * period - skew
+    d = 0
+    while m - d > 1 and hist[d + 1, 0] <= oldest:
+        d += 1
+    if d:
+        for i in range(m - d):
+            hist[i, 0], hist[i, 1], hist[i, 2] = hist[i + d, 0], hist[i + d, 1], hist[i + d, 2]
+        state[_TRACKER_ENTRIES] = m - d
+    return _TRACKER_DONE
+
+
+# ---- the rigid-kinematics baseline ----------------------------------------------------------
+def spring_inverse(k_hi: float, k_soft: float, delta: float, tau: float, D: float, guess: bool) -> float:
+    """The deflection ``D`` [rad] of one gearbox spring (``k_hi``, ``k_soft = k_hi - k_lo``
+    [N.m/rad], ``delta`` [rad]) carrying the torque ``tau`` [N.m]: Newton's method on
+    ``tau_s(D) = tau`` (:func:`spring_deflection` for one joint, each joint stopping on its own),
+    from ``D`` when ``guess``, else from the high-stiffness asymptote shifted by the soft zone."""
+    if not guess:
+        D = (tau + math.copysign(k_soft * delta * math.tanh(abs(tau) / (k_hi * delta)), tau)) / k_hi
+    tol = 1e-12 * max(1.0, abs(tau))
+    for _ in range(50):
+        th = math.tanh(D / delta)
+        f = k_hi * D - k_soft * delta * th - tau
+        D -= f / (k_hi - k_soft * (1.0 - th * th))    # sech^2, no overflow
+        if abs(f) <= tol:
+            break
+    return D
+
+
+def gravity_torques(g1: float, g2: float, q1: float, q2: float) -> tuple[float, float]:
+    """Gravity torques of eq. 11 [N.m] on floats (:func:`gravity_torque`): the constants ``g1``,
+    ``g2`` of :class:`ArmConstants` [N.m], the arm angles ``q1``, ``q2`` [rad]."""
+    cp = math.cos(q1 + q2)
+    return -g1 * math.sin(q1) - g2 * cp, -g2 * cp
+
+
+def compensated(m1: float, m2: float, K: np.ndarray) -> tuple[float, float]:
+    """The fixed point of :func:`arm_angles` from ``q_m / r = (m1, m2)``, with the constants
+    ``K`` of :attr:`fmus.common.dynamics.ArmConstants.static`."""
+    q1, q2, D1, D2, guess = m1, m2, 0.0, 0.0, False
+    for _ in range(8):
+        G1, G2 = gravity_torques(K[0], K[1], q1, q2)
+        D1 = spring_inverse(K[2], K[4], K[6], G1, D1, guess)
+        D2 = spring_inverse(K[3], K[5], K[7], G2, D2, guess)
+        guess = True                             # each inversion starts from the last one
+        n1, n2 = m1 - D1, m2 - D2
+        if abs(n1 - q1) <= 1e-11 and abs(n2 - q2) <= 1e-11:      # error left: about 1e-14 rad
+            return n1, n2
+        q1, q2 = n1, n2
+    return q1, q2
+
+
+def estimate(q_m, t_m, now, consts, samples, out, first):
+    """The RigidKinematics FMU's estimate at ``now`` [s] from the motor angles ``q_m`` [rad]
+    stamped ``t_m`` [s]: :func:`arm_angles` (``consts`` of :func:`constants`), extrapolated to
+    ``now`` at the velocity of the last two distinct samples when the sample is older (the
+    latency compensation of a robot controller; ``samples``: their count, then (time, q_a) of
+    the one before and of the last, updated), then the tool position
+    (:func:`fmus.common.kinematics.tool_point`). Writes ``q_a_hat``, ``p_tool_hat`` into
+    ``out[first:first + 4]``; returns the tool angle ``q_a_hat[0] + q_a_hat[1]``."""
+    q1, q2 = q_m[0] / consts[0], q_m[1] / consts[1]
+    if consts[2] != 0.0:
+        q1, q2 = compensated(q1, q2, consts[5:])
+    if samples[0] > 0 and t_m <= samples[4] + TIME_TOL:       # the same sample (or set again)
+        samples[4], samples[5], samples[6] = t_m, q1, q2
+    else:
+        samples[1], samples[2], samples[3] = samples[4], samples[5], samples[6]
+        samples[4], samples[5], samples[6] = t_m, q1, q2
+        samples[0] = min(samples[0] + 1.0, 2.0)
+    if now > t_m + TIME_TOL and samples[0] == 2.0:
+        t0, a0, b0, t1, a1, b1 = samples[1], samples[2], samples[3], samples[4], samples[5], samples[6]
+        f = (now - t1) / (t1 - t0)
+        q1, q2 = a1 + (a1 - a0) * f, b1 + (b1 - b0) * f
+    x, z = tool_point(q1, q2, consts[3], consts[4])
+    out[first], out[first + 1], out[first + 2], out[first + 3] = q1, q2, x, z
+    return q1 + q2

@@ -18,12 +18,15 @@ import pytest
 import kernel_oracles as oracle
 from fmus.common import cython_kernels, dynamics
 from fmus.common.robot_params import RobotParameters
-from fmus.robot_plant import plant_dynamics, sensor_model
+from fmus.estimators import rigid_kinematics_model
+from fmus.robot_plant import plant_dynamics, sensor_model, tracker_model
 from fmus.robot_plant.plant_model import PlantParameters
 
 plant = cython_kernels.load("robot_plant.plant_kernels")
 arm = cython_kernels.load("common.dynamics_kernels")
 sensors = cython_kernels.load("robot_plant.sensor_kernels")
+tracker = cython_kernels.load("robot_plant.tracker_kernels")
+rigid = cython_kernels.load("estimators.rigid_kinematics_kernels")
 
 
 def _bits(value):
@@ -149,6 +152,70 @@ def test_the_sensor_work_array_has_one_layout():
              "RES", "LIM", "HELD", "SAMPLED", "USED_UP"]
     assert sensors.LAYOUT == {k: getattr(sensor_model, "_" + k) for k in names}
     assert sensors.LAYOUT == {k: getattr(oracle, "_" + k) for k in names}
+
+
+def _run_tracker(update, trial: int) -> list:
+    """A TrackerModel of trial ``trial``'s settings updated 400 times at irregular instants
+    through ``update`` (its kernel): the return, state, history and sample after each call."""
+    rng = np.random.default_rng(200 + trial)
+    model = tracker_model.TrackerModel(noise=(0.0, 1e-5, 1e-3)[trial % 3], sample_rate=(1000.0, 300.0, 77.0)[trial % 3],
+                                       skew=(0.0, 3.3e-3, 0.02)[trial // 2 % 3], seed=trial)
+    seen = []
+
+    def recording(*args):
+        done = update(*args)
+        seen.append((done, args[3].copy(), args[4].copy(), args[7].copy()))
+        return done
+    tracker_model.tracker_update, saved = recording, tracker_model.tracker_update
+    try:
+        t, p = 0.0, np.array([1.0, 0.5])
+        model.start(0.0021, p)
+        for _ in range(400):
+            t += float(rng.choice([1e-3, 5e-4, 2e-3]))
+            p = p + rng.normal(0.0, 1e-3, 2)
+            model.update(t, p)
+    finally:
+        tracker_model.tracker_update = saved
+    return seen
+
+
+@pytest.mark.parametrize("trial", range(6))
+def test_the_tracker_is_its_python_form(trial):
+    compiled, python = _run_tracker(tracker.tracker_update, trial), _run_tracker(oracle.tracker_update, trial)
+    assert _bits(compiled) == _bits(python)
+    assert len({c[3].tobytes() for c in compiled}) > 10     # samples were taken
+
+
+def test_the_tracker_state_has_one_layout():
+    names = ["ENTRIES", "NEXT", "T_MEAS", "ROW", "DONE", "FULL", "DRAWN"]
+    assert tracker.LAYOUT == {k: getattr(tracker_model, "_" + k) for k in names}
+    assert tracker.LAYOUT == {k: getattr(oracle, "_TRACKER_" + k) for k in names}
+
+
+@pytest.mark.parametrize("perturbed", [False, True])
+def test_the_spring_inverse_gravity_and_rigid_baseline_are_their_python_forms(perturbed):
+    rng = np.random.default_rng(300 + perturbed)
+    robot = RobotParameters()
+    K = dynamics.ArmConstants(robot).static * (rng.uniform(0.5, 1.5, 8) if perturbed else 1.0)
+    for _ in range(300):
+        q1, q2 = map(float, rng.uniform(-2.0, 2.0, 2))
+        assert _bits(dynamics.gravity_torques(K[0], K[1], q1, q2)) == _bits(oracle.gravity_torques(K[0], K[1], q1, q2))
+        tau, D, guess = float(rng.normal(0.0, 300.0)), float(rng.normal(0.0, 0.01)), bool(rng.integers(2))
+        assert (_bits(dynamics.spring_inverse(K[2], K[4], K[6], tau, D, guess))
+                == _bits(oracle.spring_inverse(K[2], K[4], K[6], tau, D, guess)))
+        assert _bits(rigid.compensated(q1, q2, K)) == _bits(oracle.compensated(q1, q2, K))
+    consts = rigid_kinematics_model.constants(robot, gravity_compensation=perturbed)
+    samples, expected_samples, out, expected = np.zeros(7), np.zeros(7), np.zeros(9), np.zeros(9)
+    t, q_m = 0.0, np.array([30.0, -20.0])
+    for step in range(300):
+        now = step * 1e-3
+        if step % int(rng.integers(1, 4)) == 0:                   # a new sample, late or not
+            t, q_m = max(t, now - float(rng.choice([0.0, 1e-3, 2e-3]))), q_m + rng.normal(0.0, 0.1, 2)
+        first = int(rng.integers(0, 6))
+        assert (_bits(rigid.estimate(q_m, t, now, consts, samples, out, first))
+                == _bits(oracle.estimate(q_m, t, now, consts, expected_samples, expected, first)))
+        assert _bits((samples, out)) == _bits((expected_samples, expected))
+    assert rigid.TIME_TOL == oracle.TIME_TOL
 
 
 def test_wrong_arguments_raise_instead_of_reading_past_an_array():

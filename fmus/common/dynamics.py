@@ -26,7 +26,6 @@ import math
 import numpy as np
 
 from fmus.common import cython_kernels
-from fmus.common.jit import kernel
 from fmus.common.parameters import as_array
 from fmus.common.robot_params import RobotParameters
 
@@ -47,30 +46,13 @@ flex_rates = _kernels.flex_rates
 flex_step = _kernels.flex_step
 
 
-@kernel(aot="float64(float64, float64, float64, float64, float64, boolean)")
-def spring_inverse(k_hi: float, k_soft: float, delta: float, tau: float, D: float, guess: bool) -> float:
-    """The deflection ``D`` [rad] of one gearbox spring (``k_hi``, ``k_soft = k_hi - k_lo``
-    [N.m/rad], ``delta`` [rad]) carrying the torque ``tau`` [N.m]: Newton's method on
-    ``tau_s(D) = tau`` (:func:`spring_deflection` for one joint, each joint stopping on its own),
-    from ``D`` when ``guess``, else from the high-stiffness asymptote shifted by the soft zone."""
-    if not guess:
-        D = (tau + math.copysign(k_soft * delta * math.tanh(abs(tau) / (k_hi * delta)), tau)) / k_hi
-    tol = 1e-12 * max(1.0, abs(tau))
-    for _ in range(50):
-        th = math.tanh(D / delta)
-        f = k_hi * D - k_soft * delta * th - tau
-        D -= f / (k_hi - k_soft * (1.0 - th * th))    # sech^2, no overflow
-        if abs(f) <= tol:
-            break
-    return D
-
-
-@kernel(aot="UniTuple(float64, 2)(float64, float64, float64, float64)")
-def gravity_torques(g1: float, g2: float, q1: float, q2: float) -> tuple[float, float]:
-    """Gravity torques of eq. 11 [N.m] on floats (:func:`gravity_torque`): the constants ``g1``,
-    ``g2`` of :class:`ArmConstants` [N.m], the arm angles ``q1``, ``q2`` [rad]."""
-    cp = math.cos(q1 + q2)
-    return -g1 * math.sin(q1) - g2 * cp, -g2 * cp
+#: ``spring_inverse(k_hi, k_soft, delta, tau, D, guess)``: the deflection ``D`` [rad] of one
+#: gearbox spring carrying the torque ``tau`` [N.m] (Newton's method on ``tau_s(D) = tau``, from
+#: ``D`` when ``guess``; :func:`spring_deflection` for one joint; common/gearbox.pxd)
+spring_inverse = _kernels.spring_inverse
+#: ``gravity_torques(g1, g2, q1, q2)``: the gravity torques of eq. 11 [N.m] on floats
+#: (:func:`gravity_torque`; the constants ``g1``, ``g2`` of :class:`ArmConstants`; common/planar_arm.pxd)
+gravity_torques = _kernels.gravity_torques
 
 
 class ArmConstants:

@@ -10,7 +10,8 @@ from cpython.buffer cimport PyBuffer_Release
 from libc.math cimport sin, cos, tanh
 
 from common.arrays cimport acquire
-from common.gearbox cimport spring
+from common.gearbox cimport spring, spring_inverse as _spring_inverse
+from common.planar_arm cimport gravity_torques as _gravity_torques
 
 
 cdef struct Arm:
@@ -88,6 +89,23 @@ def spring_scalar(double k_hi, double k_soft, double delta, double D):
     one joint (``k_hi``, ``k_soft = k_hi - k_lo`` [N.m/rad], ``delta`` [rad]) at the deflection
     ``D`` [rad]: ``common/gearbox.pxd``'s, the one definition."""
     return spring(k_hi, k_soft, delta, D)
+
+
+def spring_inverse(double k_hi, double k_soft, double delta, double tau, double D, bint guess):
+    """The deflection ``D`` [rad] of one gearbox spring (``k_hi``, ``k_soft = k_hi - k_lo``
+    [N.m/rad], ``delta`` [rad]) carrying the torque ``tau`` [N.m]: Newton's method on
+    ``tau_s(D) = tau``, from ``D`` when ``guess``, else from the high-stiffness asymptote
+    shifted by the soft zone (``common/gearbox.pxd``'s, the one definition)."""
+    return _spring_inverse(k_hi, k_soft, delta, tau, D, guess)
+
+
+def gravity_torques(double g1, double g2, double q1, double q2):
+    """Gravity torques of eq. 11 [N.m] on floats: the constants ``g1``, ``g2`` of
+    :class:`~fmus.common.dynamics.ArmConstants` [N.m], the arm angles ``q1``, ``q2`` [rad]
+    (``common/planar_arm.pxd``'s, the one definition)."""
+    cdef double G1, G2
+    _gravity_torques(g1, g2, q1, q2, &G1, &G2)
+    return G1, G2
 
 
 def flex_rates(tuple s, double tau1, double tau2, double fx, double fz, K):

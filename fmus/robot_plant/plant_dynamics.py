@@ -49,9 +49,10 @@ with the generalised forces ``Q_j = g g_j sin psi_j + L_j (f_x cos psi_j - f_z s
 on body ``j``): the gearbox torque ``tau_s(D) + d D_dot`` of eq. 11, or ``-(k_b b + d_b b_dot)``
 at a bending joint. The motors follow eq. 10 with the applied torque of item 2.
 
-The hot path is plain-float Python like :class:`fmus.common.dynamics.ArmConstants`: for the
-four-body chain written out (an LDL^T solve of the 4x4 system), in loops for a chain of rigid
-links (``link_bending = false``).
+The hot path: the four-body chain's equations written out (an LDL^T solve of the 4x4 system)
+and compiled (robot_plant/plant_kernels.pyx, Cython); plain-float Python loops over the bodies
+for a chain of rigid links (``link_bending = false``), which the tests also hold the compiled
+chain to.
 """
 from __future__ import annotations
 

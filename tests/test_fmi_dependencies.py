@@ -23,7 +23,7 @@ from fmus.force_observer import impedance_math as imp
 
 def _third_party_imports(fmu: Path) -> set[str]:
     """Top-level names of every absolute import in the FMU's bundled Python files, less the
-    standard library and the modules bundled in ``resources/``."""
+    standard library and the modules bundled in ``resources/``, in lower case."""
     with zipfile.ZipFile(fmu) as z:
         sources = {n: z.read(n).decode() for n in z.namelist()
                    if n.startswith("resources/") and n.endswith(".py")}
@@ -35,7 +35,9 @@ def _third_party_imports(fmu: Path) -> set[str]:
                 names |= {a.name.split(".")[0] for a in node.names}
             elif isinstance(node, ast.ImportFrom) and node.level == 0:
                 names.add(node.module.split(".")[0])
-    return names - set(sys.stdlib_module_names) - bundled - {"__future__"}
+    # a distribution's name is case-insensitive, and a module may differ in case from it
+    # (Cython, the optional requirement cython)
+    return {n.lower() for n in names - set(sys.stdlib_module_names) - bundled - {"__future__"}}
 
 
 def _requirements(fmu: Path, name: str = "requirements.txt") -> set[str]:

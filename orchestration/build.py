@@ -35,9 +35,17 @@ FMI 3.0 (``--fmi 3`` or ``both``; :func:`build_all`'s ``fmi``): each FMU's FMI 2
 translated by :mod:`orchestration.fmi3` into ``<dest>/fmi3/<model>.fmu`` (its modelDescription
 in FMI 3.0, our FMI 3.0 layer as its binary, ``resources/`` as they are).
 
+Cython kernels (:mod:`fmus.common.cython_kernels`; the kernels move there from numba, module by
+module: ARCHITECTURE.md, "The kernel path"): every ``*.pyx`` of the package is compiled and its
+extension put beside its source in the vendored package, where the FMU imports it
+(:func:`compile_cython`). Each is the private cache's entry of its content, the one the working
+tree's kernels use too, so it is compiled once per content for every build, the test suite's and
+the working tree; the build says which it compiles. Both compiled forms coexist while numba
+kernels remain.
+
 Incremental: the destination folder keeps a manifest (:data:`MANIFEST`) of what each FMU was
-made of (its script, the vendored package, the compiled kernels, the native FMI layer, this
-build script and the tools' versions, each by content) and of the FMU file's own hash; an FMU
+made of (its script, the vendored package, the compiled kernels, the Cython kernels, the native
+FMI layer, this build script and the tools' versions, each by content) and of the FMU file's own hash; an FMU
 whose parts and file are unchanged is not built again, and the build says why it rebuilds the
 others (:func:`build_all`). Nothing changed: one line, in about a second.
 """
@@ -64,6 +72,7 @@ from pathlib import Path
 import ast
 import json
 
+from fmus.common import cython_kernels
 from fmus.common.jit import BUNDLE_ID_FILE, COMPILED_MODULE, package_digest, package_sources
 
 REPO = Path(__file__).resolve().parent.parent
@@ -122,7 +131,7 @@ def kernel_sources(package: Path) -> list[Path]:
     only built-in exceptions (tests/test_aot.py), so nothing of the package's name is compiled
     in."""
     sources = {".".join(f.relative_to(package.parent).with_suffix("").parts).removesuffix(".__init__"): f
-               for f in package_sources(package)}
+               for f in package_sources(package) if f.suffix == ".py"}
     todo = [m for m, f in sources.items() if "@kernel" in f.read_text()]
     seen: set[str] = set()
     while todo:
@@ -221,6 +230,61 @@ def compile_kernels(package: Path, cache: Path = AOT_CACHE, quiet: bool = False)
     print(f"flexfusion build: no ahead-of-time kernels ({reason}); the FMUs compile their kernels "
           "with numba when they run", file=sys.stderr)
     return None
+
+
+def cython_key(package: Path) -> str:
+    """The key of ``package``'s Cython kernel modules: each one's path and
+    :func:`fmus.common.cython_kernels.module_key` (its source, every ``.pxd``/``.pxi``, Cython's
+    version, the flags, the Python), hashed; the working tree and every vendored copy of the
+    same sources have one key."""
+    digest = hashlib.sha256()
+    for pyx in cython_kernels.sources(package):
+        digest.update(pyx.relative_to(package).as_posix().encode() + b"\0"
+                      + cython_kernels.module_key(pyx, package).encode() + b"\0")
+    return digest.hexdigest()[:16]
+
+
+def compile_cython(package: Path, quiet: bool = False) -> list[Path]:
+    """Compile every Cython kernel module of the staged ``package``
+    (:func:`fmus.common.cython_kernels.sources`) and put its extension beside its source, where
+    :func:`fmus.common.cython_kernels.load` imports it in the FMU. Each is the entry of the
+    private cache that the working tree's kernels use too (keyed by its content:
+    :func:`fmus.common.cython_kernels.compiled`), so a module is compiled once per content for
+    every build, the test suite's and the working tree. Unless ``quiet``, says which it
+    compiles and how long each took, or that none changed.
+
+    Returns
+    -------
+    list of Path
+        The extension files in ``package``, in the order of the sources.
+
+    Raises
+    ------
+    BuildError
+        A module could not be compiled (Cython's or the compiler's messages): its FMUs could
+        not run it either.
+    """
+    extensions, made = [], []
+    for pyx in cython_kernels.sources(package):
+        name = pyx.relative_to(package).as_posix()
+        t0 = time.perf_counter()
+
+        def announce(_: Path, name: str = name) -> None:
+            made.append(name)
+            if not quiet:
+                print(f"  compiling {name} (Cython and the C compiler; a few seconds idle, more "
+                      "under load) ...", flush=True)
+        try:
+            entry = cython_kernels.compiled(pyx, package, announce=announce)
+        except (cython_kernels.KernelError, OSError) as exc:
+            raise BuildError(f"the kernel module {name}: {exc}") from None
+        if not quiet and made and made[-1] == name:
+            print(f"  compiled {name} in {time.perf_counter() - t0:.1f} s")
+        extensions.append(pyx.with_name(entry.name))
+        shutil.copy2(entry, extensions[-1])
+    if not quiet and extensions and not made:
+        print(f"  Cython kernels unchanged: {len(extensions)} modules from the cache")
+    return extensions
 
 
 def _write_atomically(path: Path, text: str) -> None:
@@ -369,7 +433,8 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     dest.mkdir(parents=True, exist_ok=True)
     manifest = _read_manifest(dest)
     common = {"build": _digest(*BUILD_SCRIPTS), "tools": _tools(), "native": library.parent.name,
-              "package": package_digest(FMU_SOURCES), "kernels": kernels_key(FMU_SOURCES) or "none"}
+              "package": package_digest(FMU_SOURCES), "kernels": kernels_key(FMU_SOURCES) or "none",
+              "cython": cython_key(FMU_SOURCES)}
     # what each (script, version) is made of; an FMI 3.0 FMU also of the FMI 3.0 layer and its
     # translation (orchestration/fmi3.py), which the FMI 2.0 ones are not rebuilt for
     jobs = [(p, v) for v in versions for p in selected]
@@ -398,6 +463,7 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
         stage = Path(tmp)
         package = _stage_package(stage)
         aot = compile_kernels(package, quiet=quiet) is not None
+        compile_cython(package, quiet=quiet)
         FmuBuilder = stack.enter_context(_installed_builder(package.name))  # noqa: N806 - a class
         for script in selected:
             todo = [v for v in versions if (script, v) in reasons]
@@ -463,7 +529,8 @@ def _manifest_key(script: Path, version: str) -> str:
 
 
 _CHANGED = {"script": "its script changed", "package": "the fmus package changed",
-            "kernels": "the compiled kernels changed", "native": "the native FMI layer changed",
+            "kernels": "the compiled kernels changed", "cython": "the Cython kernels changed",
+            "native": "the native FMI layer changed",
             "build": "the build script changed", "tools": "pythonfmu or Python changed",
             "fmi3": "the FMI 3.0 layer changed"}
 

@@ -22,7 +22,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fmus.common.jit import kernel
+from fmus.common import cython_kernels
 from fmus.common.noise import make_rng, normal_rows, reseed_param, reseeded_rng
 from fmus.common.parameters import param
 
@@ -34,62 +34,9 @@ _DONE, _FULL, _DRAWN = 0, 1, 2           # what tracker_update returns
 _FLOAT = np.dtype(float)
 
 
-@kernel
-def _position(hist, m, t, c):
-    """Coordinate ``c`` (a column, 1 and up) of the true position at ``t`` by linear
-    interpolation in the ``m`` entries ``(t, x, z)`` (or ``(t, x, y, z)``) of ``hist`` (held
-    before the first and after the last)."""
-    if t <= hist[0, 0]:
-        return hist[0, c]
-    for i in range(m - 1):
-        ta, xa, tb, xb = hist[i, 0], hist[i, c], hist[i + 1, 0], hist[i + 1, c]
-        if t <= tb:
-            w = (t - ta) / (tb - ta) if tb > ta else 1.0
-            return xa + w * (xb - xa)
-    return hist[m - 1, c]
-
-
-@kernel(aot="int64(float64, float64[:], boolean, float64[:, :], float64[:], float64[:], float64[:, :], float64[:])")
-def tracker_update(t, p, append, hist, state, consts, rows, p_meas):
-    """:meth:`TrackerModel.update` on arrays: append ``(t, p)`` to the history ``hist`` (with
-    ``append``), take every sample due by ``t`` into ``p_meas`` (``consts``: first instant,
-    period, skew, noise; ``state``: the layout above), drop the history no later sample needs.
-    Returns ``_FULL`` (nothing
-    done: the history needs room), ``_DRAWN`` (the random numbers ``rows`` are used up: call
-    again with new ones, without ``append``) or ``_DONE``."""
-    m = int(state[_ENTRIES])
-    if append:
-        if m == hist.shape[0]:
-            return _FULL
-        hist[m, 0] = t
-        for c in range(p.shape[0]):
-            hist[m, 1 + c] = p[c]
-        m += 1
-        state[_ENTRIES] = m
-    t0, period, skew, noise = consts[0], consts[1], consts[2], consts[3]
-    while True:
-        t_k = t0 + state[_NEXT] * period
-        if t_k > t + 1e-9 * period:
-            break
-        row = int(state[_ROW])
-        if row == rows.shape[0]:
-            return _DRAWN
-        for c in range(p_meas.shape[0]):                  # drawn even when noise = 0
-            p_meas[c] = _position(hist, m, t_k - skew, c + 1) + noise * rows[row, c]
-        state[_ROW] = row + 1
-        state[_T_MEAS] = t_k
-        state[_NEXT] += 1.0
-    # keep what the next sample can need: back to one entry at or before (next t_k - skew)
-    oldest = t0 + state[_NEXT] * period - skew
-    d = 0
-    while m - d > 1 and hist[d + 1, 0] <= oldest:
-        d += 1
-    if d:
-        for i in range(m - d):
-            for c in range(hist.shape[1]):
-                hist[i, c] = hist[i + d, c]
-        state[_ENTRIES] = m - d
-    return _DONE
+# compiled (robot_plant/tracker_kernels.pyx: its names of the state's parts and of what it
+# returns are these; tests/test_compiled_kernels.py holds them equal)
+tracker_update = cython_kernels.load("robot_plant.tracker_kernels").tracker_update
 
 
 class TrackerModel:

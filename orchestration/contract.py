@@ -48,9 +48,12 @@ def check_estimator(path: str | Path, *, run: bool = True) -> list[str]:
     """The failed rules of the contract, one line each (empty: the FMU meets it); without
     ``run``, the rules of the modelDescription only (no ``runs``: the FMU is not executed)."""
     from fmpy import read_model_description
+
+    from .fmu_store import content_key
     try:
+        content_key(Path(path))        # the archive limits (orchestration/archive.py), before any read
         md = read_model_description(str(path), validate=False)
-    except Exception as exc:  # noqa: BLE001 - not an FMU, a broken zip or XML
+    except Exception as exc:  # noqa: BLE001 - not an FMU, a broken zip or XML, beyond the limits
         return [f"co-simulation: cannot read the modelDescription of {path}: {exc}"]
     failures = []
     if md.fmiVersion != "2.0" or md.coSimulation is None:

@@ -74,7 +74,7 @@ def test_a_changed_pxd_is_another_entry(package):
 
 
 def test_a_built_package_imports_its_module_without_compiling(package, monkeypatch, tmp_path, cache):
-    compiled = cython_kernels._compiled_here(package / "toy_kernels.pyx")         # as the build compiles it
+    compiled = cython_kernels.compiled(package / "toy_kernels.pyx")         # as the build compiles it
     shutil.copy(compiled, package / f"toy_kernels{cython_kernels.EXTENSION}")
     entries = sorted((cache / "kernels").iterdir())
     (package / cython_kernels.BUNDLE_ID_FILE).write_text("0" * 64)
@@ -97,7 +97,7 @@ def test_a_source_that_does_not_compile_names_itself(package):
 
 
 def test_a_truncated_entry_is_set_aside_and_compiled_again(package):
-    entry = cython_kernels._compiled_here(package / "toy_kernels.pyx")
+    entry = cython_kernels.compiled(package / "toy_kernels.pyx")
     half = entry.with_name(".half")                   # a new file: this process may have the old one mapped
     half.write_bytes(entry.read_bytes()[:os.path.getsize(entry) // 2])
     half.chmod(0o700)

@@ -5,7 +5,8 @@ A kernel module is a Cython source ``<name>.pyx`` beside the math module that us
 (``load("robot_plant.six_axis_kernels")``). Why Cython: ARCHITECTURE.md, "The kernel path".
 
 * **In a built FMU** (a package with a ``BUNDLE_ID``) ``flexfusion build`` has compiled each
-  kernel module beside its source (:func:`compile_module`): it is imported as any extension
+  kernel module beside its source (:func:`compiled`, the cache entry the working tree uses
+  too, copied into the package): it is imported as any extension
   module, with no Cython and no compiler at run time. One that does not import there (an FMU
   built for another Python) is compiled as in the working tree, with one warning.
 * **In the working tree** it is compiled on first use into the private cache
@@ -18,7 +19,9 @@ A kernel module is a Cython source ``<name>.pyx`` beside the math module that us
 Rules for kernel sources, so that a compiled module never depends on the package's name (in an
 FMU the package is ``fmus_<hash>``): a callee shared between kernel modules is a ``cdef inline``
 function in a ``.pxd`` (compiled into each user), never a cdef function cimported at run time
-from another module.
+from another module; a ``.pxd`` is cimported by its path below the package
+(``from common.gearbox cimport spring``), and a module is named by its file alone
+(Cython's ``--module-name``), so the same source gives the same extension in every package.
 
 Compiled with ``-O2 -ffp-contract=off`` and no ``-ffast-math``: floating point in source order,
 no contraction into fused multiply-adds, so a kernel rounds as the same operations in Python
@@ -38,6 +41,7 @@ import sysconfig
 import tempfile
 from pathlib import Path
 from types import ModuleType
+from typing import Callable
 
 from fmus.common import native_cache
 
@@ -71,9 +75,12 @@ def module_key(pyx: Path, package: Path | None = None) -> str:
     return digest.hexdigest()[:32]
 
 
-def compile_module(pyx: Path, out: Path) -> None:
-    """Compile the kernel module ``pyx`` into the extension file ``out`` (Cython, then the
-    system C compiler with :data:`CFLAGS`).
+def compile_module(pyx: Path, out: Path, package: Path | None = None) -> None:
+    """Compile the kernel module ``pyx`` of the package folder ``package`` (default: this
+    package) into the extension file ``out`` (Cython, then the system C compiler with
+    :data:`CFLAGS`). A ``.pxd`` is cimported by its path below the package
+    (``from common.gearbox cimport spring``); the module is named by its file alone, so that its
+    code does not depend on the package's name (``fmus`` or ``fmus_<hash>``).
 
     Raises
     ------
@@ -89,8 +96,8 @@ def compile_module(pyx: Path, out: Path) -> None:
                           "`make env` installs it)")
     with tempfile.TemporaryDirectory(prefix="ff_cython_") as tmp:
         c_file = Path(tmp) / (pyx.stem + ".c")
-        steps = [[sys.executable, "-m", "cython", "-3", "--fast-fail", "-I", str(pyx.parent), str(pyx),
-                  "-o", str(c_file)],
+        steps = [[sys.executable, "-m", "cython", "-3", "--fast-fail", "-I", str(pyx.parent),
+                  "-I", str(package or PACKAGE), "--module-name", pyx.stem, str(pyx), "-o", str(c_file)],
                  [*compiler, *CFLAGS, f"-I{sysconfig.get_paths()['include']}", str(c_file), "-o", str(out), "-lm"]]
         for command in steps:
             done = subprocess.run(command, capture_output=True, text=True)
@@ -107,9 +114,30 @@ def _import_file(qualified: str, path: Path) -> ModuleType:
     return module
 
 
-def _compiled_here(pyx: Path, rebuild: bool = False) -> Path:
-    return native_cache.compiled("kernels", module_key(pyx), pyx.stem + EXTENSION,
-                                 lambda out: compile_module(pyx, out), f"kernel module {pyx.stem}", rebuild)
+def compiled(pyx: Path, package: Path | None = None, rebuild: bool = False,
+             announce: Callable[[Path], None] | None = None) -> Path:
+    """The extension file of the kernel module ``pyx`` of the package folder ``package``
+    (default: this package): its entry in the private cache (``<cache root>/kernels/<key>/``,
+    ``key`` :func:`module_key`), compiled now if it is not there or fails its check
+    (:func:`fmus.common.native_cache.compiled`); ``announce(pyx)`` is called before it compiles.
+    The working tree's :func:`load` and ``flexfusion build`` share the entries: a vendored copy of
+    the same sources has the same key. ``rebuild``: compile it again whatever the entry is.
+
+    Raises
+    ------
+    KernelError
+        It could not be compiled (why).
+    OSError
+        No private, writable cache folder.
+    """
+    package = package or PACKAGE
+
+    def make(out: Path) -> None:
+        if announce is not None:
+            announce(pyx)
+        compile_module(pyx, out, package)
+    return native_cache.compiled("kernels", module_key(pyx, package), pyx.stem + EXTENSION, make,
+                                 f"kernel module {pyx.stem}", rebuild)
 
 
 @functools.lru_cache(maxsize=None)
@@ -134,13 +162,13 @@ def load(name: str) -> ModuleType:
         raise KernelError(f"no kernel module {name}: {pyx} is not there")
     try:
         try:
-            return _import_file(qualified, _compiled_here(pyx))
+            return _import_file(qualified, compiled(pyx))
         except ImportError:                          # checked, yet it does not load: once more
-            return _import_file(qualified, _compiled_here(pyx, rebuild=True))
+            return _import_file(qualified, compiled(pyx, rebuild=True))
     except KernelError:
         raise
     except (OSError, ImportError) as exc:
         raise KernelError(f"kernel module {name}: {exc}") from None
 
 
-__all__ = ["KernelError", "compile_module", "load", "module_key", "sources"]
+__all__ = ["KernelError", "compile_module", "compiled", "load", "module_key", "sources"]

@@ -710,6 +710,13 @@ cdef class Plant:
         tool_point(&self.p, &k, &r[0], out)
         return np.array([out[0], out[1], out[2]])
 
+    def tool_rotation(self, double[::1] q):
+        """The tool body's rotation (3, 3), body to world, at the tree angles ``q``."""
+        cdef Kin k
+        cdef int t = self.p.tool
+        kinematics(&self.p, &q[0], &k)
+        return np.array([[k.R[t][a][b] for b in range(3)] for a in range(3)])
+
     def potential_energy(self, double[::1] q):
         """Gravitational potential energy [J] of the bodies at ``q``."""
         cdef Kin k

@@ -131,6 +131,22 @@ def kernels():
     return _KERNEL_MODULE
 
 
+def rigid_body_dynamics(tree: "Tree"):
+    """The kernel's rigid-body functions (``rnea``, ``mass_matrix``, ``external``, ``point``,
+    ``tool_rotation``, ``potential_energy``) on the ``tree`` alone: a kernel ``Plant`` whose drive
+    train is neutral (unit gear ratios and inertias, no springs), for users of the tree's dynamics
+    that are not the plant (the six-axis controller's feed-forward)."""
+    act = [tree.names.index(f"axis_{i + 1}") for i in range(6)]
+    pas = [i for i, nm in enumerate(tree.names) if not nm.startswith("axis_")]
+    one, zero = np.ones(6), np.zeros(6)
+    return _KERNEL_MODULE.Plant(
+        parent=tree.parent, origin=tree.origin, axis=tree.axis, mass=tree.mass, com=tree.com,
+        inertia=tree.inertia, tool=tree.tool, tcp=tree.tcp, sensor=np.zeros(3), g=tree.g, pas=pas,
+        k_p=np.zeros(len(pas)), d_p=np.zeros(len(pas)), act=act, r=one, J_m=one, k_hi=zero, k_soft=zero,
+        delta=one, d=zero, f_v=zero, f_c=zero, f_s=zero, w_s=one, w_c=one, mu_L=zero, hyst=False, k_h=zero,
+        z0=one, kt=one, ripple=zero, periods=one, w_i=0.0, locked=np.zeros(6, bool))
+
+
 #: the plant's outputs in :meth:`SixAxisPlant.outputs`' order: (name, size); the kernel's
 OUTPUTS = (("q_m", 6), ("dq_m", 6), ("q_a", 6), ("dq_a", 6), ("tau_s", 6), ("p_tool", 3), ("quat_tool", 4),
            ("v_tool", 3), ("a_tool", 3), ("omega_tool", 3), ("p_sensor", 3), ("a_sensor", 3))
@@ -623,4 +639,4 @@ class SixAxisPlant:
 
 
 __all__ = ["TILT", "BEND", "RK4_STEP_LIMIT", "CURRENT_STEP_LIMIT", "SixAxisParameters", "Tree", "arm_tree", "rotation",
-           "SixAxisPlant", "OUTPUTS", "OUTPUT_SIZE", "kernels"]
+           "SixAxisPlant", "OUTPUTS", "OUTPUT_SIZE", "kernels", "rigid_body_dynamics"]

@@ -34,9 +34,10 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from fmus.common import estimator_contract as contract
+if TYPE_CHECKING:       # (imported where used: the CLI reads this module's constants on every
+    from fmus.common import estimator_contract as contract      # command, a run included)
 
 RULES = ("co-simulation", "required-outputs", "inputs", "outputs", "units", "t_meas", "runs")
 RUN_TIME = 1.0         # s
@@ -84,6 +85,8 @@ def check_estimator(path: str | Path, *, run: bool = True,
         An FMI 1.0 FMU (its interface is another standard: no rule applies).
     """
     from fmpy import read_model_description
+
+    from fmus.common import estimator_contract as contract
     try:
         md = read_model_description(str(path), validate=False)
     except Exception as exc:  # noqa: BLE001 - not an FMU, a broken zip or XML

@@ -1,134 +1,117 @@
-"""The kernel path's options on one hot kernel, the plant's RK4 step (``chain4_step``), in one run:
-numba just in time (the working tree's dispatcher, numba's cache), numba.pycc ahead of time (what
-``flexfusion build`` does, here for this kernel alone) and Cython (``kernel_path/chain4_step.pyx``,
-a measurement prototype, compiled with the system C compiler as the native layer is).
+"""The compiled kernels' cost per call: the Cython kernels of the working tree against the numba
+ahead-of-time kernels they replace, taken from an FMU built before (``--baseline``).
 
-Prints, for each: the build (CPU of the compiling processes, and wall), the start-up of a fresh
-process to the first call (CPU and wall; numpy imported before the clock; the JIT's includes
-importing numba, the working tree's module and loading its cached kernels) and the cost of one
-call (CPU, best of ``--repeat`` rounds of ``--calls`` chained calls, the three interleaved), and
-whether 2000 chained steps give the kernel's bits. The machine is shared: compare within a run.
+The kernels move from numba to Cython module by module (ARCHITECTURE.md, "The kernel path"); a
+moved kernel must cost no more than its numba form did. For each moved kernel this calls both on
+the same arguments (realistic: the default plant's and sensors' constants and states) and
+prints the CPU per call, best of ``--repeat`` rounds of ``--calls`` calls, interleaved; the
+machine is shared: compare within a run. The baseline is any FMU of a build with the numba
+kernels (its ``fmus_<hash>/_compiled.<EXT_SUFFIX>``), e.g. built from commit 60be548:
+``git worktree add /tmp/old 60be548 && (cd /tmp/old && make env && .venv/bin/flexfusion build)``.
 
-Needs Cython (``pip install cython``: not one of the project's dependencies).
-
-Run: ``.venv/bin/python benchmarks/kernel_path.py [--calls 20000] [--repeat 7]``
+Run: ``.venv/bin/python benchmarks/kernel_path.py --baseline /tmp/old/dist/fmus/FlexibleRobot2DOF.fmu``
 """
 from __future__ import annotations
 
 import argparse
 import importlib.util
-import json
-import os
-import resource
-import shutil
-import struct
-import subprocess
 import sys
 import sysconfig
 import tempfile
 import time
+import zipfile
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-PYX = REPO / "benchmarks" / "kernel_path" / "chain4_step.pyx"
-EXT = sysconfig.get_config_var("EXT_SUFFIX")
-
-PYCC = """
-import sys
-from numba.pycc import CC
-from fmus.robot_plant import plant_dynamics as pd
-cc = CC("chain4_pycc")
-cc.output_dir = sys.argv[1]
-cc.export("chain4_step", pd.chain4_step.aot_signature)(pd.chain4_step.py_func)
-cc.compile()
-"""
-
-FIRST_CALL = """
-import sys, time
 import numpy as np
-P = np.linspace(1.0, 2.0, 51)
-P[[2, 3]], P[[8, 9]], P[[16, 17]], P[[18, 19]] = 200.0, 0.01, 0.1, 5e-3
-c0, w0 = time.process_time(), time.perf_counter()
-{load}
-f((0.0,) * 12, 1.0, 1.0, 0.0, 0.0, 1e-3, 1, P)
-print(time.process_time() - c0, time.perf_counter() - w0)
-"""
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from fmus.common import cython_kernels, dynamics  # noqa: E402
+from fmus.common.robot_params import RobotParameters  # noqa: E402
+from fmus.estimators import rigid_kinematics_model  # noqa: E402
+from fmus.robot_plant import plant_dynamics, sensor_model, tracker_model  # noqa: E402
+from fmus.robot_plant.plant_model import PlantParameters  # noqa: E402
+
+MODULE = "_compiled" + sysconfig.get_config_var("EXT_SUFFIX")
 
 
-def _timed(*commands: list[str], **kwargs) -> tuple[float, float]:
-    """CPU seconds of the child processes running ``commands`` one after another, and wall."""
-    before, w0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
-    for command in commands:
-        subprocess.run(command, check=True, capture_output=True, **kwargs)
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return (after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, time.perf_counter() - w0)
-
-
-def _module(path: Path):
-    spec = importlib.util.spec_from_file_location(path.name.split(".")[0], path)
+def _baseline(fmu: Path, folder: Path):
+    """The numba kernels' module of the FMU ``fmu``, imported from a copy in ``folder``."""
+    with zipfile.ZipFile(fmu) as z:
+        name = next((n for n in z.namelist() if n.endswith("/" + MODULE)), None)
+        if name is None:
+            raise SystemExit(f"error: {fmu} has no numba kernels module ({MODULE})")
+        (folder / MODULE).write_bytes(z.read(name))
+    spec = importlib.util.spec_from_file_location("_compiled", folder / MODULE)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
+def _cases(old) -> dict[str, tuple]:
+    """Kernel name -> (numba AOT function, Cython function, arguments)."""
+    plant = cython_kernels.load("robot_plant.plant_kernels")
+    arm = cython_kernels.load("common.dynamics_kernels")
+    sensors = cython_kernels.load("robot_plant.sensor_kernels")
+    tracker = cython_kernels.load("robot_plant.tracker_kernels")
+    rigid = cython_kernels.load("estimators.rigid_kinematics_kernels")
+    P = plant_dynamics.PlantChain(PlantParameters()).P
+    s12 = tuple(plant_dynamics.plant_model(PlantParameters()).state)
+    K = dynamics.ArmConstants(RobotParameters()).packed
+    s8 = tuple(dynamics.FlexibleRobotModel(RobotParameters(), (0.3, -0.2)).state)
+    out, at, tau, f = np.zeros(40), np.arange(26, dtype=np.int64), np.array([3.0, 1.0]), np.zeros(2)
+    ch = sensor_model.SensorChannels(3, noise=0.01, cutoff=100.0)
+    ch.step(np.ones(3), 1e-3)
+    rows = np.random.default_rng(0).normal(size=(10 ** 6, 6))     # never used up by the rounds
+    mount = sensor_model.mount_matrix((0.1, 0.2, 0.3))
+    a = np.array([1.0, 2.0])
+    pd, sm, dy = "robot_plant__plant_dynamics__", "robot_plant__sensor_model__", "common__dynamics__"
+    tm, rk = "robot_plant__tracker_model__", "estimators__rigid_kinematics_model__"
+    # the tracker: a held sample (no instant due), the history of two entries kept
+    hist, state = np.array([[0.0, 1.0, 0.5], [1e-3, 1.0, 0.5]] + [[0.0] * 3] * 6), np.array([2.0, 2.0, 1e-3, 0.0])
+    t_consts, t_rows = np.array([0.0, 1e-3, 0.0, 1e-5]), np.zeros((256, 2))
+    r_consts = rigid_kinematics_model.constants(RobotParameters(), gravity_compensation=True)
+    return {
+        "chain4_advance": (getattr(old, pd + "chain4_advance"), plant.chain4_advance, (s12, tau, f, 1e-3, 1, P, out, at)),
+        "chain4_step": (getattr(old, pd + "chain4_step"), plant.chain4_step, (s12, 3.0, 1.0, 0.0, 0.0, 1e-3, 1, P)),
+        "chain4_outputs": (getattr(old, pd + "chain4_outputs"), plant.chain4_outputs, (s12, 0.0, 0.0, P)),
+        "chain4_rates": (getattr(old, pd + "_chain4_rates"), plant.chain4_rates, (s12, 3.0, 1.0, 0.0, 0.0, P)),
+        "flex_step": (getattr(old, dy + "flex_step"), arm.flex_step, (s8, 3.0, 1.0, 0.0, 0.0, 1e-3, 1, K)),
+        "flex_rates": (getattr(old, dy + "flex_rates"), arm.flex_rates, (s8, 3.0, 1.0, 0.0, 0.0, K)),
+        "channels_step": (getattr(old, sm + "_channels_step"), sensors.channels_step,
+                          (np.ones(3), ch._work, np.zeros(3), rows)),
+        "imu_reading_into": (getattr(old, sm + "imu_reading_into"), sensors.imu_reading_into,
+                             (a, 0.3, 0.1, mount, 9.81, np.empty(3), np.empty(3))),
+        "tracker_update": (getattr(old, tm + "tracker_update"), tracker.tracker_update,
+                           (1.5e-3, a, False, hist, state, t_consts, t_rows, np.zeros(2))),
+        "rigid estimate": (getattr(old, rk + "estimate"), rigid.estimate,
+                           (np.array([30.0, -20.0]), 0.0, 0.0, r_consts, np.zeros(7), np.zeros(8), 2)),
+        "spring_inverse": (getattr(old, dy + "spring_inverse"), arm.spring_inverse, (K[9], K[11], K[13], 120.0, 0.0, False)),
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--calls", type=int, default=20000, help="chained calls per round")
+    ap.add_argument("--baseline", type=Path, required=True, help="an FMU built with the numba kernels")
+    ap.add_argument("--calls", type=int, default=20000, help="calls per round")
     ap.add_argument("--repeat", type=int, default=7, help="rounds of each, interleaved (the least counts)")
     args = ap.parse_args()
-    if importlib.util.find_spec("Cython") is None:
-        raise SystemExit("benchmarks/kernel_path.py needs Cython: pip install cython")
-    sys.path.insert(0, str(REPO))
-    from fmus.robot_plant.plant_dynamics import chain4_step, plant_model
-    from fmus.robot_plant.plant_model import PlantParameters
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    with tempfile.TemporaryDirectory(prefix="ff_kernel_path_") as tmp:
-        out = Path(tmp)
-        built = {"numba JIT": (0.0, 0.0)}        # compiled at first use, then numba's cache
-        built["numba.pycc AOT"] = _timed([sys.executable, "-c", PYCC, tmp], env={**env, "NUMBA_CACHE_DIR": tmp})
-        shutil.copy(PYX, out / "chain4_cy.pyx")
-        include = sysconfig.get_paths()["include"]
-        built["Cython"] = _timed(
-            [sys.executable, "-m", "cython", "-3", "chain4_cy.pyx", "-o", "chain4_cy.c"],
-            [os.environ.get("CC", "cc"), "-O2", "-fPIC", "-shared", "-ffp-contract=off", f"-I{include}",
-             "chain4_cy.c", "-o", f"chain4_cy{EXT}", "-lm"], cwd=tmp)
-        kernels = {"numba JIT": chain4_step, "numba.pycc AOT": _module(out / f"chain4_pycc{EXT}").chain4_step,
-                   "Cython": _module(out / f"chain4_cy{EXT}").chain4_step}
-        loads = {"numba JIT": "from fmus.robot_plant.plant_dynamics import chain4_step as f",
-                 "numba.pycc AOT": f"import importlib.util as u; s = u.spec_from_file_location('chain4_pycc', "
-                                   f"{str(out / f'chain4_pycc{EXT}')!r}); m = u.module_from_spec(s); "
-                                   "s.loader.exec_module(m); f = m.chain4_step",
-                 "Cython": f"sys.path.insert(0, {tmp!r}); import chain4_cy; f = chain4_cy.chain4_step"}
-        startup = {k: [float("inf")] * 2 for k in kernels}
-        for round_ in range(4):          # the first fills numba's cache
-            for k, load in loads.items():
-                done = subprocess.run([sys.executable, "-c", FIRST_CALL.format(load=load)], env=env, check=True,
-                                      capture_output=True, text=True).stdout.split()
-                if round_:
-                    startup[k] = [min(a, float(b)) for a, b in zip(startup[k], done)]
-    model = plant_model(PlantParameters())
-    P, s0, fixed = model._k.P, model._s, (20.0, -10.0, 5.0, -3.0, 1e-3, model.substeps, model._k.P)
-    bits = {}
-    for k, f in kernels.items():
-        s = s0
-        for _ in range(2000):
-            s = f(s, *fixed)
-        bits[k] = struct.pack("<12d", *s)
-    per_call = {k: float("inf") for k in kernels}
-    for _ in range(args.repeat):
-        for k, f in kernels.items():
-            s, c0 = s0, time.process_time()
-            for _ in range(args.calls):
-                s = f(s, *fixed)
-            per_call[k] = min(per_call[k], (time.process_time() - c0) / args.calls)
-    print(f"plant RK4 step (chain4_step, {len(P)} constants), best of {args.repeat} x {args.calls} calls")
-    print(f"  {'':16}{'build CPU':>10}{'wall':>7}{'start-up CPU':>14}{'wall':>7}{'per call':>10}  bits")
-    for k in kernels:
-        build = "   at first use" if k == "numba JIT" else f"{built[k][0]:9.1f}s{built[k][1]:6.1f}s"
-        print(f"  {k:16}{build}{startup[k][0] * 1e3:12.1f}ms"
-              f"{startup[k][1] * 1e3:5.0f}ms{per_call[k] * 1e6:8.2f}us  "
-              f"{'same' if bits[k] == bits['numba JIT'] else 'DIFFERENT'}")
-    print(json.dumps({"build": built, "startup": startup, "per_call": per_call}))
+    with tempfile.TemporaryDirectory() as tmp:
+        cases = _cases(_baseline(args.baseline, Path(tmp)))
+        print(f"CPU per call, best of {args.repeat} x {args.calls} calls (numba AOT: {args.baseline.name})")
+        for name, (old, new, call) in cases.items():
+            best = {"numba AOT": float("inf"), "Cython": float("inf")}
+            for _ in range(args.repeat):
+                for label, fn in (("numba AOT", old), ("Cython", new)):
+                    if name == "channels_step":
+                        call[1][sensor_model._ROW] = 0.0
+                    t0 = time.process_time()
+                    for _ in range(args.calls):
+                        fn(*call)
+                    best[label] = min(best[label], (time.process_time() - t0) / args.calls * 1e6)
+            print(f"  {name:18s} numba AOT {best['numba AOT']:6.3f} us   Cython {best['Cython']:6.3f} us   "
+                  f"({best['Cython'] / best['numba AOT']:.2f}x)")
 
 
 if __name__ == "__main__":

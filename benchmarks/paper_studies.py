@@ -1,6 +1,6 @@
 """Wall time of the four paper studies, run back to back at their shipped sizes.
 
-The studies and their sizes are those of the README's measured figures (the goal: the whole set
+The studies and their sizes are those of the measured figures (docs/figures.md) (the goal: the whole set
 under 15 minutes on 2 cores):
 
 * 2012 (Axelsson et al.): ``flexfusion study montecarlo orchestration/scenarios/axelsson2012.toml

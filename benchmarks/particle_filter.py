@@ -11,7 +11,7 @@ baseline. The baseline's filter module and its estimation model are loaded from 
 from this tree); both filters see the same measurements and seed, and the estimates they end
 with are printed side by side: equal to round-off until a round-off difference flips a
 resampling decision (the weights are compared at 1e-12 in tests/test_particle_filter_model.py;
-over runs the filters agree statistically, see the README). The first measurement of numba on
+over runs the filters agree statistically, see docs/figures.md). The first measurement of numba on
 the likelihood alone (``particle_filter_numba.py``, 1.1-1.2x) is retired: the filter's sampling,
 weighting and resampling are compiled kernels now (:mod:`fmus.estimators.axelsson2012_batched`,
 ``particle_filter_model.propose_and_weigh``).

@@ -1,6 +1,6 @@
 """A 30-evaluation tuning run (issue 16: "under 20 s"), on the batched engine and through the FMUs.
 
-What is tuned: the README's tuning, ``flexfusion study tune
+What is tuned: the user guide's tuning (docs/user_guide.md), ``flexfusion study tune
 orchestration/scenarios/henriksson2009_p1.toml --estimator observer``, the deterministic observer
 of Henriksson et al. (2009, section III-B) over its eight pole parameters (four pole pairs,
 frequency and damping, :data:`orchestration.study_tune.DEFAULT_BOUNDS`), cost the 3-30 Hz mean

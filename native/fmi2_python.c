@@ -43,6 +43,15 @@
 
 #include "fmi2Functions.h"
 
+/* An FMI function's name in messages: FMI_NAME(DoStep) is "fmi2DoStep". The FMI 3.0 layer
+   (fmi3_python.c), which includes this file, defines FMI3_NAMES and FMI3_NAME_<f> so that its
+   messages name the FMI 3.0 function the host called. */
+#ifdef FMI3_NAMES
+#define FMI_NAME(f) FMI3_NAME_##f
+#else
+#define FMI_NAME(f) "fmi2" #f
+#endif
+
 /* The slave's methods, looked up once per instance (bound methods) in this order. */
 enum Method {
     M_SETUP_EXPERIMENT, M_ENTER_INITIALIZATION_MODE, M_EXIT_INITIALIZATION_MODE, M_DO_STEP,
@@ -139,14 +148,14 @@ static void report_stale(fmi2Component c, const char *function)
     for (size_t i = 0; i < kept; i++) {
         if (freed[i].handle == handle) {
             fprintf(stderr, "[%s] status %d logStatusError: %s: this instance was freed by "
-                    "fmi2FreeInstance; the call is refused\n", freed[i].name, (int)fmi2Error,
+                    FMI_NAME(FreeInstance) "; the call is refused\n", freed[i].name, (int)fmi2Error,
                     function);
             return;
         }
     }
     fprintf(stderr, "[?] status %d logStatusError: %s: %p is not a live instance of this FMU "
             "(%s); the call is refused\n", (int)fmi2Error, function, c,
-            c ? "freed, or never returned by its fmi2Instantiate" : "NULL");
+            c ? "freed, or never returned by its " FMI_NAME(Instantiate) : "NULL");
 }
 
 /* The live instance of handle `c`, or NULL (reported) if it is not one. */
@@ -484,8 +493,8 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
     if (!in->instance_name) { free_instance_memory(in); return NULL; }
     if (fmuType != fmi2CoSimulation || !fmuResourceLocation) {
         emit(in, fmi2Error, "logStatusError", fmuType != fmi2CoSimulation
-             ? "fmi2Instantiate: this FMU supports co-simulation only"
-             : "fmi2Instantiate: no resource location given");
+             ? FMI_NAME(Instantiate) ": this FMU supports co-simulation only"
+             : FMI_NAME(Instantiate) ": no resource location given");
         free_instance_memory(in);
         return NULL;
     }
@@ -500,7 +509,7 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
     PyGILState_STATE gil = PyGILState_Ensure();
     in->slave_class = find_slave_class(in->resources);
     if (!in->slave_class || create_slave(in) < 0) {
-        report_exception(in, "fmi2Instantiate");
+        report_exception(in, FMI_NAME(Instantiate));
         release_slave(in);
         Py_CLEAR(in->slave_class);
         PyGILState_Release(gil);
@@ -510,7 +519,7 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
     flush_log(in);
     fmi2Component handle = register_instance(in);
     if (!handle) {
-        emit(in, fmi2Error, "logStatusError", "fmi2Instantiate: out of memory");
+        emit(in, fmi2Error, "logStatusError", FMI_NAME(Instantiate) ": out of memory");
         release_slave(in);
         Py_CLEAR(in->slave_class);
     }
@@ -522,7 +531,7 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuT
 FMI2_Export void fmi2FreeInstance(fmi2Component c)
 {
     if (!c) return;   /* as free(NULL): a host may free what fmi2Instantiate failed to make */
-    Instance *in = unregister_instance(c, "fmi2FreeInstance");
+    Instance *in = unregister_instance(c, FMI_NAME(FreeInstance));
     if (!in) return;
     PyGILState_STATE gil = PyGILState_Ensure();
     release_slave(in);
@@ -534,7 +543,7 @@ FMI2_Export void fmi2FreeInstance(fmi2Component c)
 FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn,
                                            size_t nCategories, const fmi2String categories[])
 {
-    Instance *in = lookup(c, "fmi2SetDebugLogging");
+    Instance *in = lookup(c, FMI_NAME(SetDebugLogging));
     if (!in) return fmi2Error;
     for (size_t i = 0; i < in->n_categories; i++) free(in->categories[i]);
     free(in->categories);
@@ -590,7 +599,7 @@ FMI2_Export fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranc
                                            fmi2Real tolerance, fmi2Real startTime,
                                            fmi2Boolean stopTimeDefined, fmi2Real stopTime)
 {
-    Instance *in = lookup(c, "fmi2SetupExperiment");
+    Instance *in = lookup(c, FMI_NAME(SetupExperiment));
     if (!has_slave(in)) return fmi2Error;
     in->last_successful_time = startTime;
     in->time_known = 1;
@@ -602,35 +611,35 @@ FMI2_Export fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranc
     Py_XDECREF(args);
     Py_XDECREF(stop);
     Py_XDECREF(tol);
-    fmi2Status status = finish(in, "fmi2SetupExperiment", result);
+    fmi2Status status = finish(in, FMI_NAME(SetupExperiment), result);
     PyGILState_Release(gil);
     return status;
 }
 
 FMI2_Export fmi2Status fmi2EnterInitializationMode(fmi2Component c)
 {
-    return call(c, M_ENTER_INITIALIZATION_MODE, "fmi2EnterInitializationMode", NULL);
+    return call(c, M_ENTER_INITIALIZATION_MODE, FMI_NAME(EnterInitializationMode), NULL);
 }
 
 FMI2_Export fmi2Status fmi2ExitInitializationMode(fmi2Component c)
 {
-    return call(c, M_EXIT_INITIALIZATION_MODE, "fmi2ExitInitializationMode", NULL);
+    return call(c, M_EXIT_INITIALIZATION_MODE, FMI_NAME(ExitInitializationMode), NULL);
 }
 
 FMI2_Export fmi2Status fmi2Terminate(fmi2Component c)
 {
-    return call(c, M_TERMINATE, "fmi2Terminate", NULL);
+    return call(c, M_TERMINATE, FMI_NAME(Terminate), NULL);
 }
 
 FMI2_Export fmi2Status fmi2Reset(fmi2Component c)
 {
-    Instance *in = lookup(c, "fmi2Reset");
+    Instance *in = lookup(c, FMI_NAME(Reset));
     if (!in) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     flush_log(in);
     in->last_successful_time = 0.0;   /* until fmi2SetupExperiment says otherwise */
     in->time_known = 1;
-    fmi2Status status = create_slave(in) < 0 ? report_exception(in, "fmi2Reset") : fmi2OK;
+    fmi2Status status = create_slave(in) < 0 ? report_exception(in, FMI_NAME(Reset)) : fmi2OK;
     PyGILState_Release(gil);
     return status;
 }
@@ -640,7 +649,7 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
                                   fmi2Boolean noSetFMUStatePriorToCurrentPoint)
 {
     (void)noSetFMUStatePriorToCurrentPoint;
-    Instance *in = lookup(c, "fmi2DoStep");
+    Instance *in = lookup(c, FMI_NAME(DoStep));
     if (!has_slave(in)) return fmi2Error;
     if (in->time_known) {
         double expected = in->last_successful_time;
@@ -650,7 +659,7 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
         double tolerance = TIME_TOLERANCE * scale;
         if (!(fabs(currentCommunicationPoint - expected) <= tolerance)) {   /* NaN too */
             char buffer[256];
-            snprintf(buffer, sizeof buffer, "fmi2DoStep: currentCommunicationPoint = %.17g s, "
+            snprintf(buffer, sizeof buffer, FMI_NAME(DoStep) ": currentCommunicationPoint = %.17g s, "
                      "but the instance is at t = %.17g s (the end of its last step, or the "
                      "start time); the step is refused and the instance left as it was",
                      currentCommunicationPoint, expected);
@@ -669,7 +678,7 @@ FMI2_Export fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunication
     Py_XDECREF(result);
     fmi2Status status;
     if (done < 0) {
-        status = report_exception(in, "fmi2DoStep");
+        status = report_exception(in, FMI_NAME(DoStep));
     } else {
         flush_log(in);
         status = done ? fmi2OK : fmi2Discard;   /* do_step() returned False: as pythonfmu */
@@ -803,49 +812,49 @@ static fmi2Status get_values(fmi2Component c, enum Method m, const char *functio
 FMI2_Export fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                    const fmi2Real value[])
 {
-    return set_values(c, M_SET_REAL, "fmi2SetReal", vr, nvr, value, real_to_python);
+    return set_values(c, M_SET_REAL, FMI_NAME(SetReal), vr, nvr, value, real_to_python);
 }
 
 FMI2_Export fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                       const fmi2Integer value[])
 {
-    return set_values(c, M_SET_INTEGER, "fmi2SetInteger", vr, nvr, value, integer_to_python);
+    return set_values(c, M_SET_INTEGER, FMI_NAME(SetInteger), vr, nvr, value, integer_to_python);
 }
 
 FMI2_Export fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                       const fmi2Boolean value[])
 {
-    return set_values(c, M_SET_BOOLEAN, "fmi2SetBoolean", vr, nvr, value, boolean_to_python);
+    return set_values(c, M_SET_BOOLEAN, FMI_NAME(SetBoolean), vr, nvr, value, boolean_to_python);
 }
 
 FMI2_Export fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                      const fmi2String value[])
 {
-    return set_values(c, M_SET_STRING, "fmi2SetString", vr, nvr, value, string_to_python);
+    return set_values(c, M_SET_STRING, FMI_NAME(SetString), vr, nvr, value, string_to_python);
 }
 
 FMI2_Export fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                    fmi2Real value[])
 {
-    return get_values(c, M_GET_REAL, "fmi2GetReal", vr, nvr, value, real_from_python);
+    return get_values(c, M_GET_REAL, FMI_NAME(GetReal), vr, nvr, value, real_from_python);
 }
 
 FMI2_Export fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                       fmi2Integer value[])
 {
-    return get_values(c, M_GET_INTEGER, "fmi2GetInteger", vr, nvr, value, integer_from_python);
+    return get_values(c, M_GET_INTEGER, FMI_NAME(GetInteger), vr, nvr, value, integer_from_python);
 }
 
 FMI2_Export fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                       fmi2Boolean value[])
 {
-    return get_values(c, M_GET_BOOLEAN, "fmi2GetBoolean", vr, nvr, value, boolean_from_python);
+    return get_values(c, M_GET_BOOLEAN, FMI_NAME(GetBoolean), vr, nvr, value, boolean_from_python);
 }
 
 FMI2_Export fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                      fmi2String value[])
 {
-    Instance *in = lookup(c, "fmi2GetString");
+    Instance *in = lookup(c, FMI_NAME(GetString));
     if (!has_slave(in)) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     Py_XDECREF(in->strings);                   /* the previous call's strings may go now */
@@ -853,7 +862,7 @@ FMI2_Export fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference v
     int ok = in->strings != NULL;
     PyGILState_Release(gil);
     if (!ok) return fmi2Error;
-    return get_values(c, M_GET_STRING, "fmi2GetString", vr, nvr, (void *)value, string_from_python);
+    return get_values(c, M_GET_STRING, FMI_NAME(GetString), vr, nvr, (void *)value, string_from_python);
 }
 
 /* ---- FMU state (the slave's _get_fmu_state object; serialised by its class) --------- */
@@ -869,12 +878,12 @@ static fmi2Status give_state(Instance *in, const char *function, PyObject *s, fm
 
 FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state)
 {
-    Instance *in = lookup(c, "fmi2GetFMUstate");
+    Instance *in = lookup(c, FMI_NAME(GetFMUstate));
     if (!has_slave(in) || !state) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *s = PyObject_CallNoArgs(in->methods[M_GET_FMU_STATE]);
     if (s) Py_CLEAR(*(PyObject **)state);   /* FMI: a state handed back in is overwritten */
-    fmi2Status status = give_state(in, "fmi2GetFMUstate", s, state);
+    fmi2Status status = give_state(in, FMI_NAME(GetFMUstate), s, state);
     PyGILState_Release(gil);
     return status;
 }
@@ -882,10 +891,10 @@ FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state)
 FMI2_Export fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state)
 {
     if (!state) return fmi2Error;
-    fmi2Status status = call(c, M_SET_FMU_STATE, "fmi2SetFMUstate", "(O)", (PyObject *)state);
+    fmi2Status status = call(c, M_SET_FMU_STATE, FMI_NAME(SetFMUstate), "(O)", (PyObject *)state);
     /* The state's time is the slave's business (a serialised state carries no time of ours,
        and its bytes stay as they were): the next fmi2DoStep's time is taken as given. */
-    Instance *in = status == fmi2OK ? lookup(c, "fmi2SetFMUstate") : NULL;
+    Instance *in = status == fmi2OK ? lookup(c, FMI_NAME(SetFMUstate)) : NULL;
     if (in) in->time_known = 0;
     return status;
 }
@@ -913,12 +922,12 @@ static PyObject *state_bytes(Instance *in, fmi2FMUstate state)
 
 FMI2_Export fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size)
 {
-    Instance *in = lookup(c, "fmi2SerializedFMUstateSize");
+    Instance *in = lookup(c, FMI_NAME(SerializedFMUstateSize));
     if (!has_slave(in) || !state || !size) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *b = state_bytes(in, state);
     if (b) *size = (size_t)PyBytes_Size(b);
-    fmi2Status status = finish(in, "fmi2SerializedFMUstateSize", b);
+    fmi2Status status = finish(in, FMI_NAME(SerializedFMUstateSize), b);
     PyGILState_Release(gil);
     return status;
 }
@@ -926,7 +935,7 @@ FMI2_Export fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate 
 FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state,
                                              fmi2Byte serializedState[], size_t size)
 {
-    Instance *in = lookup(c, "fmi2SerializeFMUstate");
+    Instance *in = lookup(c, FMI_NAME(SerializeFMUstate));
     if (!has_slave(in) || !state) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *b = state_bytes(in, state);
@@ -936,7 +945,7 @@ FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state
         Py_CLEAR(b);
     }
     if (b) memcpy(serializedState, PyBytes_AsString(b), size);
-    fmi2Status status = finish(in, "fmi2SerializeFMUstate", b);
+    fmi2Status status = finish(in, FMI_NAME(SerializeFMUstate), b);
     PyGILState_Release(gil);
     return status;
 }
@@ -944,13 +953,13 @@ FMI2_Export fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state
 FMI2_Export fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[],
                                                size_t size, fmi2FMUstate *state)
 {
-    Instance *in = lookup(c, "fmi2DeSerializeFMUstate");
+    Instance *in = lookup(c, FMI_NAME(DeSerializeFMUstate));
     if (!has_slave(in) || !state) return fmi2Error;
     PyGILState_STATE gil = PyGILState_Ensure();
     PyObject *b = PyBytes_FromStringAndSize(serializedState, (Py_ssize_t)size);
     PyObject *s = b ? PyObject_CallFunctionObjArgs(in->methods[M_STATE_FROM_BYTES], b, NULL) : NULL;
     Py_XDECREF(b);
-    fmi2Status status = give_state(in, "fmi2DeSerializeFMUstate", s, state);
+    fmi2Status status = give_state(in, FMI_NAME(DeSerializeFMUstate), s, state);
     PyGILState_Release(gil);
     return status;
 }
@@ -973,38 +982,38 @@ FMI2_Export fmi2Status fmi2GetDirectionalDerivative(fmi2Component c,
         const fmi2Real dvKnown[], fmi2Real dvUnknown[])
 {
     (void)vUnknown_ref; (void)nUnknown; (void)vKnown_ref; (void)nKnown; (void)dvKnown; (void)dvUnknown;
-    return unsupported(c, "fmi2GetDirectionalDerivative");
+    return unsupported(c, FMI_NAME(GetDirectionalDerivative));
 }
 
 FMI2_Export fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[],
         size_t nvr, const fmi2Integer order[], const fmi2Real value[])
 {
     (void)vr; (void)nvr; (void)order; (void)value;
-    return unsupported(c, "fmi2SetRealInputDerivatives");
+    return unsupported(c, FMI_NAME(SetRealInputDerivatives));
 }
 
 FMI2_Export fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[],
         size_t nvr, const fmi2Integer order[], fmi2Real value[])
 {
     (void)vr; (void)nvr; (void)order; (void)value;
-    return unsupported(c, "fmi2GetRealOutputDerivatives");
+    return unsupported(c, FMI_NAME(GetRealOutputDerivatives));
 }
 
 FMI2_Export fmi2Status fmi2CancelStep(fmi2Component c)
 {
-    return unsupported(c, "fmi2CancelStep");   /* doStep never returns fmi2Pending */
+    return unsupported(c, FMI_NAME(CancelStep));   /* doStep never returns fmi2Pending */
 }
 
 /* Status inquiries: only the last successful time exists (doStep is synchronous). */
 FMI2_Export fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
 {
     (void)s; (void)value;
-    return lookup(c, "fmi2GetStatus") ? fmi2Discard : fmi2Error;
+    return lookup(c, FMI_NAME(GetStatus)) ? fmi2Discard : fmi2Error;
 }
 
 FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
 {
-    Instance *in = lookup(c, "fmi2GetRealStatus");
+    Instance *in = lookup(c, FMI_NAME(GetRealStatus));
     if (!in || !value) return fmi2Error;
     if (s != fmi2LastSuccessfulTime) return fmi2Discard;
     *value = in->last_successful_time;
@@ -1014,17 +1023,17 @@ FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s
 FMI2_Export fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
 {
     (void)s; (void)value;
-    return lookup(c, "fmi2GetIntegerStatus") ? fmi2Discard : fmi2Error;
+    return lookup(c, FMI_NAME(GetIntegerStatus)) ? fmi2Discard : fmi2Error;
 }
 
 FMI2_Export fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
 {
     (void)s; (void)value;
-    return lookup(c, "fmi2GetBooleanStatus") ? fmi2Discard : fmi2Error;
+    return lookup(c, FMI_NAME(GetBooleanStatus)) ? fmi2Discard : fmi2Error;
 }
 
 FMI2_Export fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
 {
     (void)s; (void)value;
-    return lookup(c, "fmi2GetStringStatus") ? fmi2Discard : fmi2Error;
+    return lookup(c, FMI_NAME(GetStringStatus)) ? fmi2Discard : fmi2Error;
 }

@@ -1,4 +1,4 @@
-"""Build every FlexFusion FMU into ``dist/fmus`` and validate each with fmpy.
+"""Build every FlexFusion FMU into ``dist/fmus`` and validate each with fmpy (FMI 2.0, and 3.0 on request).
 
 An FMU script is any ``fmus/<group>/*_fmu.py``; its model identifier is the name of its
 FMU class. Each FMU carries ``resources/requirements.txt`` naming the third-party packages the
@@ -31,9 +31,21 @@ every build of the same kernels: the next ``flexfusion build``, the test suite's
 ``FLEXFUSION_NO_AOT=1``) the build says why and goes on: its FMUs compile their kernels with
 numba at run time, as the working tree does.
 
+FMI 3.0 (``--fmi 3`` or ``both``; :func:`build_all`'s ``fmi``): each FMU's FMI 2.0 FMU
+translated by :mod:`orchestration.fmi3` into ``<dest>/fmi3/<model>.fmu`` (its modelDescription
+in FMI 3.0, our FMI 3.0 layer as its binary, ``resources/`` as they are).
+
+Cython kernels (:mod:`fmus.common.cython_kernels`; the kernels move there from numba, module by
+module: ARCHITECTURE.md, "The kernel path"): every ``*.pyx`` of the package is compiled and its
+extension put beside its source in the vendored package, where the FMU imports it
+(:func:`compile_cython`). Each is the private cache's entry of its content, the one the working
+tree's kernels use too, so it is compiled once per content for every build, the test suite's and
+the working tree; the build says which it compiles. Both compiled forms coexist while numba
+kernels remain.
+
 Incremental: the destination folder keeps a manifest (:data:`MANIFEST`) of what each FMU was
-made of (its script, the vendored package, the compiled kernels, the native FMI layer, this
-build script and the tools' versions, each by content) and of the FMU file's own hash; an FMU
+made of (its script, the vendored package, the compiled kernels, the Cython kernels, the native
+FMI layer, this build script and the tools' versions, each by content) and of the FMU file's own hash; an FMU
 whose parts and file are unchanged is not built again, and the build says why it rebuilds the
 others (:func:`build_all`). Nothing changed: one line, in about a second.
 """
@@ -60,6 +72,7 @@ from pathlib import Path
 import ast
 import json
 
+from fmus.common import cython_kernels
 from fmus.common.jit import BUNDLE_ID_FILE, COMPILED_MODULE, package_digest, package_sources
 
 REPO = Path(__file__).resolve().parent.parent
@@ -69,10 +82,12 @@ AOT_CACHE = REPO / "build" / "aot"
 MANIFEST = ".flexfusion-build.json"        # in the destination folder (build_all)
 # the sources of the build itself: a change rebuilds every FMU
 BUILD_SCRIPTS = [REPO / "orchestration" / "build.py", REPO / "orchestration" / "native.py"]
+FMI3_SCRIPT = REPO / "orchestration" / "fmi3.py"     # the FMI 3.0 translation: its FMUs' part only
 # What the FMUs import besides the standard library and the bundled `fmus` package.
 FMU_REQUIREMENTS = ["numpy>=1.26", "scipy>=1.11", "numba>=0.60"]
 # What one feature imports when it is used (pyproject's optional dependencies).
-FMU_OPTIONAL_REQUIREMENTS = ["h5py>=3.8"]
+# Cython: only where an FMU's compiled kernels do not load (built for another Python), to compile them
+FMU_OPTIONAL_REQUIREMENTS = ["h5py>=3.8", "cython>=3"]
 
 
 _CLASS = re.compile(r"^class (\w+)\(", re.M)
@@ -116,7 +131,7 @@ def kernel_sources(package: Path) -> list[Path]:
     only built-in exceptions (tests/test_aot.py), so nothing of the package's name is compiled
     in."""
     sources = {".".join(f.relative_to(package.parent).with_suffix("").parts).removesuffix(".__init__"): f
-               for f in package_sources(package)}
+               for f in package_sources(package) if f.suffix == ".py"}
     todo = [m for m, f in sources.items() if "@kernel" in f.read_text()]
     seen: set[str] = set()
     while todo:
@@ -215,6 +230,61 @@ def compile_kernels(package: Path, cache: Path = AOT_CACHE, quiet: bool = False)
     print(f"flexfusion build: no ahead-of-time kernels ({reason}); the FMUs compile their kernels "
           "with numba when they run", file=sys.stderr)
     return None
+
+
+def cython_key(package: Path) -> str:
+    """The key of ``package``'s Cython kernel modules: each one's path and
+    :func:`fmus.common.cython_kernels.module_key` (its source, every ``.pxd``/``.pxi``, Cython's
+    version, the flags, the Python), hashed; the working tree and every vendored copy of the
+    same sources have one key."""
+    digest = hashlib.sha256()
+    for pyx in cython_kernels.sources(package):
+        digest.update(pyx.relative_to(package).as_posix().encode() + b"\0"
+                      + cython_kernels.module_key(pyx, package).encode() + b"\0")
+    return digest.hexdigest()[:16]
+
+
+def compile_cython(package: Path, quiet: bool = False) -> list[Path]:
+    """Compile every Cython kernel module of the staged ``package``
+    (:func:`fmus.common.cython_kernels.sources`) and put its extension beside its source, where
+    :func:`fmus.common.cython_kernels.load` imports it in the FMU. Each is the entry of the
+    private cache that the working tree's kernels use too (keyed by its content:
+    :func:`fmus.common.cython_kernels.compiled`), so a module is compiled once per content for
+    every build, the test suite's and the working tree. Unless ``quiet``, says which it
+    compiles and how long each took, or that none changed.
+
+    Returns
+    -------
+    list of Path
+        The extension files in ``package``, in the order of the sources.
+
+    Raises
+    ------
+    BuildError
+        A module could not be compiled (Cython's or the compiler's messages): its FMUs could
+        not run it either.
+    """
+    extensions, made = [], []
+    for pyx in cython_kernels.sources(package):
+        name = pyx.relative_to(package).as_posix()
+        t0 = time.perf_counter()
+
+        def announce(_: Path, name: str = name) -> None:
+            made.append(name)
+            if not quiet:
+                print(f"  compiling {name} (Cython and the C compiler; a few seconds idle, more "
+                      "under load) ...", flush=True)
+        try:
+            entry = cython_kernels.compiled(pyx, package, announce=announce)
+        except (cython_kernels.KernelError, OSError) as exc:
+            raise BuildError(f"the kernel module {name}: {exc}") from None
+        if not quiet and made and made[-1] == name:
+            print(f"  compiled {name} in {time.perf_counter() - t0:.1f} s")
+        extensions.append(pyx.with_name(entry.name))
+        shutil.copy2(entry, extensions[-1])
+    if not quiet and extensions and not made:
+        print(f"  Cython kernels unchanged: {len(extensions)} modules from the cache")
+    return extensions
 
 
 def _write_atomically(path: Path, text: str) -> None:
@@ -322,7 +392,7 @@ def validate_fmu(path: Path) -> list[str]:
 
 
 def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: bool = False,
-              scripts: list[Path] | None = None) -> list[Path]:
+              scripts: list[Path] | None = None, fmi: tuple[str, ...] = ("2",)) -> list[Path]:
     """Build (and validate) every FMU, or those whose script stem or class is in ``only``
     (a name that is neither is an error, before anything is built); an FMU whose parts are
     unchanged since it was built into ``dest`` is kept (the module docstring). Unless
@@ -331,10 +401,14 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     ``scripts`` replaces the FMU scripts found below ``fmus/`` (e.g. the test toys in
     ``tests/fmus``); they still bundle the ``fmus`` package.
 
+    ``fmi`` names the FMI versions to build: ``"2"`` (``dest/<model>.fmu``) and/or ``"3"``
+    (``dest/fmi3/<model>.fmu``: the FMI 2.0 FMU translated, :mod:`orchestration.fmi3`).
+
     Returns
     -------
     list of Path
-        Every selected FMU, built now or kept, in the order of the scripts.
+        Every selected FMU, built now or kept: for each version of ``fmi`` in turn, in the
+        order of the scripts.
 
     Raises
     ------
@@ -343,6 +417,9 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
     """
     from orchestration import native   # our FMI layer replaces pythonfmu's binary (native/README.md)
     t_start = time.perf_counter()
+    versions = tuple(dict.fromkeys(fmi))
+    if not versions or set(versions) - {"2", "3"}:
+        raise BuildError(f"FMI version {', '.join(versions) or '(none)'}: this build makes FMI 2 and/or 3")
     scripts = fmu_scripts() if scripts is None else [Path(p) for p in scripts]
     classes = {p: _CLASS.findall(p.read_text()) for p in scripts}
     names = {p: {p.stem, *classes[p]} for p in scripts}
@@ -352,66 +429,110 @@ def build_all(dest: Path = DEFAULT_DEST, only: list[str] | None = None, quiet: b
         raise BuildError(f"no FMU named {', '.join(unknown)} (known: {', '.join(known)})")
     selected = [p for p in scripts if not only or set(only) & names[p]]
     library = native.build_library()
+    library3 = native.build_library(fmi_version="3") if "3" in versions else None
     dest.mkdir(parents=True, exist_ok=True)
     manifest = _read_manifest(dest)
     common = {"build": _digest(*BUILD_SCRIPTS), "tools": _tools(), "native": library.parent.name,
-              "package": package_digest(FMU_SOURCES), "kernels": kernels_key(FMU_SOURCES) or "none"}
-    parts = {p: {**common, "script": _digest(p)} for p in selected}
-    kept: dict[Path, Path] = {}
-    reasons: dict[Path, str] = {}
-    for p in selected:
-        reason = _stale(dest, manifest.get(str(p.resolve())), parts[p])
+              "package": package_digest(FMU_SOURCES), "kernels": kernels_key(FMU_SOURCES) or "none",
+              "cython": cython_key(FMU_SOURCES)}
+    # what each (script, version) is made of; an FMI 3.0 FMU also of the FMI 3.0 layer and its
+    # translation (orchestration/fmi3.py), which the FMI 2.0 ones are not rebuilt for
+    jobs = [(p, v) for v in versions for p in selected]
+    parts = {(p, v): {**common, "script": _digest(p)} if v == "2" else
+             {**common, "script": _digest(p), "fmi3": library3.parent.name + ":" + _digest(FMI3_SCRIPT)}
+             for p, v in jobs}
+    kept: dict[tuple[Path, str], Path] = {}
+    reasons: dict[tuple[Path, str], str] = {}
+    for job in jobs:
+        entry = manifest.get(_manifest_key(*job))
+        reason = _stale(dest, entry, parts[job])
         if reason is None:
-            kept[p] = dest / manifest[str(p.resolve())]["fmu"]
+            kept[job] = dest / entry["fmu"]
         else:
-            reasons[p] = reason
+            reasons[job] = reason
     if not reasons:
         if not quiet:
             print(f"nothing changed: {len(kept)} FMUs up to date in {dest} "
                   f"({time.perf_counter() - t_start:.1f} s)")
-        return [kept[p] for p in selected]
+        return [kept[job] for job in jobs]
     if not quiet and kept:
         print(f"  {len(kept)} FMUs up to date, {len(reasons)} to build")
-    built: dict[Path, Path] = {}
+    built: dict[tuple[Path, str], Path] = {}
     failures: list[str] = []
     with tempfile.TemporaryDirectory(prefix="flexfusion_stage_") as tmp, ExitStack() as stack:
         stage = Path(tmp)
         package = _stage_package(stage)
         aot = compile_kernels(package, quiet=quiet) is not None
+        compile_cython(package, quiet=quiet)
         FmuBuilder = stack.enter_context(_installed_builder(package.name))  # noqa: N806 - a class
-        for script in reasons:
-            t0 = time.perf_counter()
-            try:
-                fmu = FmuBuilder.build_FMU(_stage_script(script, package), dest=dest,
-                                           project_files=[package, stage / "requirements.txt",
-                                                          stage / "optional-requirements.txt"])
-            except Exception as exc:  # noqa: BLE001 - collect and report every failure at once
-                failures.append(f"{_shown(script)}: build failed: {type(exc).__name__}: {exc}")
+        for script in selected:
+            todo = [v for v in versions if (script, v) in reasons]
+            if not todo:
                 continue
-            native.install_into(Path(fmu), library)
-            add_bytecode(Path(fmu))
-            problems = validate_fmu(Path(fmu))
-            if problems:
-                failures.append(f"{Path(fmu).name}: fmpy validate: " + "; ".join(problems))
-            elif aot or common["kernels"] == "none":      # a failed compilation is tried again
-                manifest[str(script.resolve())] = {"fmu": Path(fmu).name, "sha256": _digest(Path(fmu)),
-                                                   "parts": parts[script]}
-            built[script] = Path(fmu)
-            if not quiet:
-                status = "INVALID" if problems else "ok"
-                print(f"  {Path(fmu).name:<28} {status:<8} {time.perf_counter() - t0:5.2f} s   ({reasons[script]})")
+            t0 = time.perf_counter()
+            # the FMI 2.0 FMU: into dest if it is wanted, else (FMI 3.0 only) into the stage
+            if "2" in todo:
+                out = dest
+            elif (script, "2") in kept:
+                out = None
+            else:
+                out = stage / "fmi2"
+                out.mkdir(exist_ok=True)
+            if out is None:
+                fmu2 = kept[(script, "2")]
+            else:
+                try:
+                    fmu2 = Path(FmuBuilder.build_FMU(_stage_script(script, package), dest=out,
+                                                     project_files=[package, stage / "requirements.txt",
+                                                                    stage / "optional-requirements.txt"]))
+                except Exception as exc:  # noqa: BLE001 - collect and report every failure at once
+                    failures.append(f"{_shown(script)}: build failed: {type(exc).__name__}: {exc}")
+                    continue
+                native.install_into(fmu2, library)
+                add_bytecode(fmu2)
+            for version in todo:
+                job = (script, version)
+                if version == "2":
+                    fmu = fmu2
+                else:
+                    from orchestration import fmi3
+                    fmu = dest / "fmi3" / fmu2.name
+                    try:
+                        fmi3.convert(fmu2, fmu, library3)
+                    except Exception as exc:  # noqa: BLE001
+                        failures.append(f"{_shown(script)}: FMI 3.0: {type(exc).__name__}: {exc}")
+                        continue
+                problems = validate_fmu(fmu)
+                if problems:
+                    failures.append(f"{fmu.relative_to(dest)}: fmpy validate: " + "; ".join(problems))
+                elif aot or common["kernels"] == "none":      # a failed compilation is tried again
+                    manifest[_manifest_key(*job)] = {"fmu": fmu.relative_to(dest).as_posix(),
+                                                     "sha256": _digest(fmu), "parts": parts[job]}
+                built[job] = fmu
+                if not quiet:
+                    status = "INVALID" if problems else "ok"
+                    print(f"  {str(fmu.relative_to(dest)):<28} {status:<8} {time.perf_counter() - t0:5.2f} s   "
+                          f"({reasons[job]})")
     _write_atomically(dest / MANIFEST, json.dumps(manifest, indent=1, sort_keys=True) + "\n")
     if not quiet and not failures:
         print(f"built and validated {len(built)} FMUs, {len(kept)} kept, in {dest} "
               f"({time.perf_counter() - t_start:.1f} s)")
     if failures:
         raise BuildError("FMU build failed:\n  " + "\n  ".join(failures))
-    return [built.get(p) or kept[p] for p in selected]
+    return [built.get(job) or kept[job] for job in jobs]
+
+
+def _manifest_key(script: Path, version: str) -> str:
+    """A (script, FMI version)'s key in the manifest: the FMI 2.0 FMU's is the script's path
+    (as before FMI 3.0 was built), the FMI 3.0 one's the path and `` fmi3``."""
+    return str(script.resolve()) + ("" if version == "2" else " fmi3")
 
 
 _CHANGED = {"script": "its script changed", "package": "the fmus package changed",
-            "kernels": "the compiled kernels changed", "native": "the native FMI layer changed",
-            "build": "the build script changed", "tools": "pythonfmu or Python changed"}
+            "kernels": "the compiled kernels changed", "cython": "the Cython kernels changed",
+            "native": "the native FMI layer changed",
+            "build": "the build script changed", "tools": "pythonfmu or Python changed",
+            "fmi3": "the FMI 3.0 layer changed"}
 
 
 def _stale(dest: Path, entry: dict | None, parts: dict[str, str]) -> str | None:
@@ -419,7 +540,7 @@ def _stale(dest: Path, entry: dict | None, parts: dict[str, str]) -> str | None:
     if entry is None:
         return "new"
     for part, why in _CHANGED.items():
-        if entry["parts"].get(part) != parts[part]:
+        if entry["parts"].get(part) != parts.get(part):
             return why
     try:
         if _digest(dest / entry["fmu"]) == entry["sha256"]:
@@ -462,10 +583,13 @@ def _shown(script: Path) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="flexfusion build", description=__doc__.splitlines()[0])
     parser.add_argument("--dest", type=Path, default=DEFAULT_DEST, help="output folder (default dist/fmus)")
+    parser.add_argument("--fmi", choices=["2", "3", "both"], default="2",
+                        help="FMI version: 2 (default: dest/<model>.fmu), 3 (dest/fmi3/<model>.fmu) or both")
     parser.add_argument("only", nargs="*", help="build only these FMUs (class or script name)")
     args = parser.parse_args(argv)
     try:
-        build_all(args.dest, args.only or None)       # it says what it did
+        build_all(args.dest, args.only or None,       # it says what it did
+                  fmi=("2", "3") if args.fmi == "both" else (args.fmi,))
     except BuildError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -1,4 +1,4 @@
-"""The ``flexfusion`` command line: build, run, plot, export-ssp, check-estimator, study.
+"""The ``flexfusion`` command line: build, run, plot, export-ssp, check-estimator, study, cache.
 
 Every error a user can cause ends in one line ``error: ...`` on stderr and exit status 2. A run
 stopped by SIGINT (Ctrl-C) or SIGTERM ends with one line ``error: interrupted ...`` and exit
@@ -288,6 +288,15 @@ def cmd_export_ssp(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_cache(args: argparse.Namespace) -> int:
+    """``flexfusion cache info|clear`` (:mod:`orchestration.caches`)."""
+    from .caches import main as caches_main
+    try:
+        return caches_main(args.action)
+    except OSError as exc:
+        return _error(f"cannot read the cache: {exc.strerror or exc}: {exc.filename or ''}")
+
+
 def cmd_check_estimator(args: argparse.Namespace) -> int:
     from .contract import main as check
     if not args.time_limit > 0:         # (also NaN)
@@ -369,6 +378,10 @@ def main(argv: list[str] | None = None) -> int:
                        help="the engine's annotations: libcosim (default) gives each component with "
                             "its own step an osp:StepSizeHint, which OMSimulator rejects")
 
+    p_cache = sub.add_parser("cache", help="the caches (extracted FMUs, compiled code, parsed model "
+                             "descriptions): info lists them, clear removes what no running process uses")
+    p_cache.add_argument("action", choices=("info", "clear"))
+
     p_check = sub.add_parser("check-estimator", help="check FMUs against the estimator contract "
                              "(docs/estimator_contract.md): one line per failed rule, exit 2 if any")
     p_check.add_argument("fmus", type=Path, nargs="+", metavar="FILE.fmu")
@@ -404,7 +417,7 @@ def main(argv: list[str] | None = None) -> int:
     if workers is not None and workers < 1:      # before anything is loaded or computed
         return _error(f"--workers must be at least 1, not {workers}")
     handlers = {"run": cmd_run, "plot": cmd_plot, "export-ssp": cmd_export_ssp, "study": cmd_study,
-                "check-estimator": cmd_check_estimator}
+                "check-estimator": cmd_check_estimator, "cache": cmd_cache}
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         return handlers[args.command](args)

@@ -3,19 +3,10 @@ compiler and loaded with ctypes (:func:`library`), and its arguments built from 
 slots (:class:`CLoop`).
 
 The library is compiled on first use, once per content of the source and the flags, into
-``<cache root>/loop/<hash>/`` (:func:`fmus.common.disk_cache.cache_root`; about 0.1 s of gcc): not at
-``flexfusion build``, so a run with FMUs built elsewhere, or a fresh cache, still gets it, and
-the FMU build stays the FMUs'. A new library is compiled to a temporary name and renamed, so
-parallel processes never load half a file; the SHA-256 of its bytes is recorded beside it
-(``libcosim_loop.so.sha256``).
-
-Nothing is loaded from a folder another user could write into: the cache folders (and the
-fallback in the temporary directory, used where the cache root cannot be written) are made
-mode 0700 and checked (owner, mode, no symbolic link) from their root down, and the library
-and its hash too (:func:`fmus.common.disk_cache.private_folder`, ``check_private``); the
-library is loaded only if its bytes have the recorded hash. One that fails a check (planted,
-truncated, replaced) or does not load is set aside (renamed ``.bad-*``) and compiled again,
-once.
+``<cache root>/loop/<hash>/`` (about 0.1 s of gcc): not at ``flexfusion build``, so a run with
+FMUs built elsewhere, or a fresh cache, still gets it, and the FMU build stays the FMUs'. The
+cache entry is private, verified by the hash recorded when it was compiled, and set aside and
+compiled again (once) if it fails a check or does not load: :mod:`fmus.common.native_cache`.
 
 Where no C compiler is found, compiling fails, or ``FLEXFUSION_PYTHON_LOOP=1`` is set,
 :func:`library` is None (:func:`unavailable` says why) and the master runs its Python loop, the
@@ -29,14 +20,12 @@ import hashlib
 import os
 import subprocess
 import sys
-import tempfile
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from fmus.common import disk_cache
+from fmus.common import native_cache
 
 if TYPE_CHECKING:
     from .schedule import Schedule
@@ -115,93 +104,15 @@ def _key() -> str:
     return digest.hexdigest()[:16]
 
 
-def _folders() -> list[tuple[Path, Path]]:
-    """Where the library may be cached, in order: ``(folder, top)``, ``top`` the first folder
-    that must be private (:func:`fmus.common.disk_cache.private_folder`)."""
-    root = disk_cache.cache_root()
-    shared = Path(tempfile.gettempdir()) / f"flexfusion-{os.getuid()}"
-    return [(root / "loop" / _key(), root), (shared / "loop" / _key(), shared)]
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def _verified(target: Path) -> bool:
-    """Whether the cached library ``target`` may be loaded: it and its recorded hash
-    (``<target>.sha256``, written when it was compiled) private to this user and the hash
-    that of its bytes. False if it is not there; raises ``PermissionError`` (why) otherwise."""
-    if not os.path.lexists(target):
-        return False
-    record = target.with_name(target.name + ".sha256")
-    disk_cache.check_private(target, folder=False)
-    try:
-        disk_cache.check_private(record, folder=False)
-    except FileNotFoundError:
-        raise PermissionError(f"{target}: no hash recorded when it was compiled") from None
-    if record.read_text().strip() != _sha256(target):
-        raise PermissionError(f"{target}: its content is not what was compiled (truncated or replaced)")
-    return True
-
-
-def _set_aside(target: Path, why: str) -> None:
-    """Move a cached library that failed its check (and its hash) out of the way, keeping it
-    for inspection under a hidden name, and say so once."""
-    import warnings
-    stamp = f".bad-{int(time.time())}-{os.getpid()}-"
-    for path in (target, target.with_name(target.name + ".sha256")):
-        if os.path.lexists(path):
-            os.replace(path, path.with_name(stamp + path.name))
-    warnings.warn(f"the cached C loop was not loaded ({why}); set aside and compiled again", stacklevel=3)
-
-
 def _compiled(rebuild: bool = False) -> Path:
-    """The library compiled from ``cosim_loop.c``: the cached one, if private and as compiled
-    (:func:`_verified`), or compiled now (a cached one that fails the check is set aside
-    first); in the cache root's ``loop/`` folder, or a private one in the temporary directory
-    if the cache root cannot be used. ``rebuild``: set the cached one aside whatever it is."""
-    why = []
-    for folder, top in _folders():
-        try:
-            disk_cache.private_folder(folder, top)
-        except OSError as exc:
-            why.append(str(exc))
-            continue                                   # not usable: the fallback folder
-        target = folder / LIBRARY_NAME
-        try:
-            if rebuild and os.path.lexists(target):
-                _set_aside(target, "it did not load")
-            elif _verified(target):
-                return target
-        except PermissionError as exc:
-            _set_aside(target, str(exc))
-        except OSError as exc:
-            why.append(f"{target}: {exc.strerror or exc}")
-            continue
-        try:
-            fd, tmp = tempfile.mkstemp(prefix=".tmp", suffix=".so", dir=folder)
-        except OSError as exc:
-            why.append(f"{folder}: {exc.strerror or exc}")
-            continue                                   # not writable: the fallback folder
-        os.close(fd)
-        try:
-            _compile(tmp)
-            record = target.with_name(target.name + ".sha256")
-            with tempfile.NamedTemporaryFile("w", dir=folder, prefix=".tmp", delete=False) as f:
-                f.write(_sha256(Path(tmp)) + "\n")
-            os.replace(f.name, record)
-            os.replace(tmp, target)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-        return target
-    raise OSError("no private, writable cache folder for the C loop (" + "; ".join(why) + ")")
+    """The library compiled from ``cosim_loop.c``, in the private cache's ``loop/<key>/``
+    (:func:`fmus.common.native_cache.compiled`: verified, set aside and compiled again if bad).
+    ``rebuild``: set the cached one aside whatever it is."""
+    return native_cache.compiled("loop", _key(), LIBRARY_NAME, _compile, "C loop", rebuild)
 
 
-def _compile(out: str) -> None:
-    from .native import c_compiler
-
-    command = [*c_compiler(), *CFLAGS, str(SOURCE), "-o", out]
+def _compile(out: Path) -> None:
+    command = [*native_cache.c_compiler(), *CFLAGS, str(SOURCE), "-o", str(out)]
     result = subprocess.run(command, capture_output=True, text=True)
     if result.returncode != 0:
         raise RuntimeError(f"compiling {SOURCE.name} failed ({' '.join(command)}):\n{result.stderr}")

@@ -87,9 +87,12 @@ def check_estimator(path: str | Path, *, run: bool = True,
     from fmpy import read_model_description
 
     from fmus.common import estimator_contract as contract
+
+    from .fmu_store import content_key
     try:
+        content_key(Path(path))        # the archive limits (orchestration/archive.py), before any read
         md = read_model_description(str(path), validate=False)
-    except Exception as exc:  # noqa: BLE001 - not an FMU, a broken zip or XML
+    except Exception as exc:  # noqa: BLE001 - not an FMU, a broken zip or XML, beyond the limits
         return [f"co-simulation: cannot read the modelDescription of {path}: {exc}"]
     if str(md.fmiVersion).startswith("1."):
         raise NotCheckable(f"{path}: an FMI {md.fmiVersion} FMU; the estimator contract is FMI 2.0 "
@@ -170,18 +173,27 @@ def _run_isolated(path: str | Path, md: Any, names: list[str], time_limit: float
     """:func:`_run` in a child process limited to ``time_limit`` wall-clock seconds: why the FMU
     does not run (its failure; an abort, a signal, an exit, or the time limit), None if it does.
 
-    The FMU is extracted here into a temporary folder that is removed whatever the child does;
-    the child runs in its own session (a Ctrl-C of the terminal goes to the checker, which
-    kills it), and on the limit its whole process group is killed (an FMU's own children too).
+    The FMU is extracted here by the FMU store (its checked cache, else a temporary folder
+    removed at the end); the child runs in its own session (a Ctrl-C of the terminal goes to
+    the checker, which kills it), and on the limit its whole process group is killed (an FMU's
+    own children too).
     Its answer comes through a file, not its stdout (which the FMU may write to).
     """
-    import fmpy
-    with tempfile.TemporaryDirectory(prefix="flexfusion-check-") as tmp:
-        folder = Path(tmp) / "fmu"
+    from . import fmu_store
+    fmu_store.run_began()           # (its temporary folder, without a cache, removed at the end)
+    try:
         try:
-            fmpy.extract(str(path), unzipdir=str(folder))
-        except Exception as exc:  # noqa: BLE001 - a broken archive
+            folder = fmu_store.folder(Path(path))
+        except Exception as exc:  # noqa: BLE001 - a broken archive, beyond the limits
             return f"cannot extract {path}: {exc}"
+        return _run_child(folder, md, names, time_limit)
+    finally:
+        fmu_store.run_ended()
+
+
+def _run_child(folder: str, md: Any, names: list[str], time_limit: float) -> str | None:
+    """:func:`_run_isolated` of the FMU extracted in ``folder``."""
+    with tempfile.TemporaryDirectory(prefix="flexfusion-check-") as tmp:
         answer = Path(tmp) / "answer.json"
         request = {"fmu": str(folder), "names": names, "answer": str(answer),
                    "step": (md.defaultExperiment.stepSize if md.defaultExperiment is not None

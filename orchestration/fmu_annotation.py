@@ -59,19 +59,18 @@ _MEMO: dict[str, SelfDescription] = {}
 
 def describe(fmu: Path | str) -> SelfDescription:
     """The self-description of the FMU file ``fmu``, parsed once per FMU content (kept in the
-    disk cache as the model descriptions are, :func:`orchestration.scenario.read_variables`).
+    FMU store's cache as the model descriptions are, :func:`orchestration.fmu_store.described`).
 
     Raises
     ------
     AnnotationError
         A malformed annotation (unknown role or version, a bad range).
     """
-    from fmus.common.disk_cache import cached_json
-    from .scenario import fmu_content_key
+    from . import fmu_store
     fmu = Path(fmu)
-    key = fmu_content_key(fmu)
+    key = fmu_store.content_key(fmu)
     if key not in _MEMO:
-        row = cached_json("fmu_annotations", key, lambda: _parse(fmu), ANNOTATIONS_KEPT)
+        row = fmu_store.described(fmu, "fmu_annotations", _parse, ANNOTATIONS_KEPT)
         _MEMO[key] = SelfDescription(row["role"], row["batched"],
                                      {n: (float(lo), float(hi)) for n, lo, hi in row["search"]},
                                      row["annotated"])
@@ -93,7 +92,9 @@ def _parse(fmu: Path) -> dict[str, Any]:
     """:func:`describe`'s fields from the modelDescription (JSON for the disk cache)."""
     with zipfile.ZipFile(fmu) as z:
         root = ElementTree.fromstring(z.read("modelDescription.xml"))
-    comp = root.find(f"VendorAnnotations/Tool[@name='{TOOL}']/Component")
+    comp = root.find(f"VendorAnnotations/Tool[@name='{TOOL}']/Component")         # FMI 2.0
+    if comp is None:
+        comp = root.find(f"Annotations/Annotation[@type='{TOOL}']/Component")     # FMI 3.0
     if comp is None:
         return {"role": DEFAULT_ROLE, "batched": None, "search": [], "annotated": False}
     where = f"{fmu}: <Tool name=\"{TOOL}\"> annotation"

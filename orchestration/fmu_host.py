@@ -13,6 +13,8 @@ from fmpy import calloc, extract, free, read_model_description
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 
+from .fmu_store import content_key
+
 
 class FmuLog(list):
     """The FMU's log messages; also an fmpy logger callback (``simulate_fmu(logger=...)``)."""
@@ -44,6 +46,8 @@ class Slave:
         self.types = {v.name: v.type for v in self.md.modelVariables}
         self.log = FmuLog()
         self._own_unzip = unzip_dir is None
+        if unzip_dir is None:
+            content_key(Path(path))           # the archive limits (orchestration/archive.py) first
         self.unzip = extract(str(path)) if unzip_dir is None else unzip_dir
         cb = fmi2CallbackFunctions()
         cb.logger = fmi2CallbackLoggerTYPE(self.log)

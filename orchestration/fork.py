@@ -84,11 +84,11 @@ class SaveState:
     def save(self, k: int, instances: dict[str, Any], values: np.ndarray, offsets: dict) -> None:
         fmus = {}
         for name, inst in instances.items():
-            state = inst.fmu.getFMUstate()
+            state = inst.get_state()
             try:
-                fmus[name] = base64.b64encode(inst.fmu.serializeFMUstate(state)).decode()
+                fmus[name] = base64.b64encode(inst.serialize_state(state)).decode()
             finally:
-                inst.fmu.freeFMUstate(state)
+                inst.free_state(state)
         doc = {"format": FORMAT, "time": k * self.scenario.base_step, "step": k,
                "scenario": self.scenario.name, "structure": structure(self.scenario),
                "values": {f"{c}.{v}": float(values[i]) for (c, v), i in offsets.items()},
@@ -109,21 +109,21 @@ class FromState:
         from fmpy.fmi1 import FMICallException
         for name, inst in instances.items():
             try:
-                state = inst.fmu.deSerializeFMUstate(self.doc["fmus"][name])
+                state = inst.deserialize_state(self.doc["fmus"][name])
             except FMICallException:
                 raise ScenarioError(f"{self.where}: component '{name}' refused its saved state; FMU log: "
                                     + inst.log_text(1)) from None
             try:
-                inst.fmu.setFMUstate(state)
+                inst.set_state(state)
             finally:
-                inst.fmu.freeFMUstate(state)
+                inst.free_state(state)
         saved = self.doc["values"]
         for (c, v), i in offsets.items():
             if f"{c}.{v}" in saved:
                 values[i] = saved[f"{c}.{v}"]
             else:            # recorded now, not then: the output as the FMU holds it
                 info = self.scenario.components[c].variables[v]
-                values[i] = instances[c].fmu.getReal([info.value_reference])[0]
+                values[i] = instances[c].get_real([info.value_reference])[0]
         self._set_tunable(instances)
         return int(self.doc["step"])
 
@@ -133,9 +133,7 @@ class FromState:
             for var, value in comp.parameters.items():
                 if saved[name]["parameters"].get(var) != value:      # checked tunable in load
                     info = comp.variables[var]
-                    setter = {"Real": instances[name].fmu.setReal, "Integer": instances[name].fmu.setInteger,
-                              "Boolean": instances[name].fmu.setBoolean}[info.type]
-                    setter([info.value_reference], [value])
+                    instances[name].setters[info.type]([info.value_reference], [value])
 
     def save(self, k: int, instances: dict[str, Any], values: np.ndarray, offsets: dict) -> None:
         pass

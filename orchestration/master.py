@@ -7,6 +7,8 @@
   it once; an algebraic loop is rejected), initialisation in that order with one more pass
   when an edge is broken. The master follows it with the FMUs; so does the batched study
   engine (:mod:`orchestration.batched`) with its kernels.
+* Each FMU's folder (its extraction, shared by every process of the user) comes from the FMU
+  store, :mod:`orchestration.fmu_store`; the master tells it when a run begins and ends.
 * Per component and step: one batched ``fmi2SetReal`` of all connected inputs and one batched
   ``fmi2GetReal`` of all needed outputs, straight from/to one shared value buffer (ctypes arrays
   and numpy views, value references precomputed), through the library's raw functions.
@@ -26,8 +28,6 @@
 from __future__ import annotations
 
 import ctypes
-import os
-import shutil
 import signal
 import sys
 import tempfile
@@ -105,7 +105,8 @@ _STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 
 
 class _Instance:
-    """One FMU2Slave instance with its log, buffers and raw FMI function pointers."""
+    """One FMU2Slave (or, for an FMI 3.0 FMU, FMU3Slave) instance with its log, buffers and raw
+    FMI function pointers."""
 
     def __init__(self, comp: Component, unzip_dir: str) -> None:
         from fmpy import calloc, free
@@ -114,12 +115,18 @@ class _Instance:
         self.comp = comp
         self.name = comp.name
         self.log: list[str] = []
+        self.fmi3 = comp.fmi_version.startswith("3")
 
         def logger(env: Any, instance: bytes, status: int, category: bytes, message: bytes) -> None:
             text = message.decode(errors="replace") if message else ""
             label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
             self.log.append(f"[{label}] {text}")
 
+        self.instantiated = False
+        self.initialized = False
+        if self.fmi3:
+            self._init_fmi3(comp, unzip_dir, logger)
+            return
         cb = fmi2CallbackFunctions()
         cb.logger = fmi2CallbackLoggerTYPE(logger)
         cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
@@ -128,8 +135,6 @@ class _Instance:
         self._logger = logger
         self.fmu = FMU2Slave(guid=comp.guid, unzipDirectory=unzip_dir,
                              modelIdentifier=comp.model_identifier, instanceName=comp.name)
-        self.instantiated = False
-        self.initialized = False
         self.fmu.instantiate(callbacks=cb, loggingOn=True)
         self.instantiated = True
         # The stepping loop's FMI functions: fresh pointers into the library (``CDLL[name]``),
@@ -139,6 +144,60 @@ class _Instance:
         dll = self.fmu.dll
         self.c_set, self.c_get, self.c_step = (dll[f] for f in ("fmi2SetReal", "fmi2GetReal", "fmi2DoStep"))
         self.handle = ctypes.c_void_p(self.fmu.component)
+        self.set_reals, self.get_reals = self.fmu.fmi2SetReal, self.fmu.fmi2GetReal
+        self._calls(self.fmu.getReal, self.fmu.setReal, self.fmu.setInteger, self.fmu.getFMUstate,
+                    self.fmu.setFMUstate, self.fmu.freeFMUstate, self.fmu.serializeFMUstate,
+                    self.fmu.deSerializeFMUstate)
+
+    def _calls(self, get_real: Callable[..., Any], set_real: Callable[..., Any], set_integer: Callable[..., Any],
+               *state: Callable[..., Any]) -> None:
+        """fmpy's calls of the instance's FMI version, by one name: ``get_real(vrs)``,
+        ``setters[type](vrs, values)`` (the scenario's type names), and the FMU state's
+        ``get_state()``, ``set_state(s)``, ``free_state(s)``, ``serialize_state(s)``,
+        ``deserialize_state(bytes)`` (orchestration/fork.py)."""
+        self.get_real = get_real
+        self.setters = {"Real": set_real, "Integer": set_integer, "Enumeration": set_integer,
+                        "Boolean": self.fmu.setBoolean, "String": self.fmu.setString}
+        (self.get_state, self.set_state, self.free_state, self.serialize_state,
+         self.deserialize_state) = state
+
+    def _init_fmi3(self, comp: Component, unzip_dir: str, logger: Callable[..., None]) -> None:
+        """An FMI 3.0 instance (fmpy's ``FMU3Slave``): ``c_set``, ``c_get`` and ``c_step`` are
+        the raw ``fmi3SetFloat64``, ``fmi3GetFloat64`` and ``fmi3DoStep`` behind the FMI 2.0
+        signatures the Python stepping loop calls (scalars: as many values as references; the
+        step's event, termination, early-return and time results are not read). The C loop
+        calls FMI 2.0 functions only: a run with an FMI 3.0 FMU steps in Python (_stepper)."""
+        from fmpy.fmi3 import FMU3Slave
+
+        def log_message(env: Any, status: int, category: bytes, message: bytes) -> None:
+            logger(env, b"", status, category, message)
+        self._logger = log_message
+        self.fmu = FMU3Slave(guid=comp.guid, unzipDirectory=unzip_dir,
+                             modelIdentifier=comp.model_identifier, instanceName=comp.name)
+        self.fmu.instantiate(loggingOn=True, logMessage=log_message)
+        self.instantiated = True
+        dll = self.fmu.dll
+        raw_set, raw_get, raw_step = (dll[f] for f in ("fmi3SetFloat64", "fmi3GetFloat64", "fmi3DoStep"))
+        flags = [ctypes.byref(ctypes.c_bool()) for _ in range(3)]
+        last = ctypes.byref(ctypes.c_double())
+        self.c_set = lambda h, vr, n, values: raw_set(h, vr, n, values, n)
+        self.c_get = lambda h, vr, n, values: raw_get(h, vr, n, values, n)
+        self.c_step = lambda h, t, dt, no_set_prior: raw_step(h, t, dt, no_set_prior, *flags, last)
+        self.handle = ctypes.c_void_p(self.fmu.component)
+        fmu = self.fmu
+        self.set_reals = lambda h, vr, n, values: fmu.fmi3SetFloat64(h, vr, n, values, n)
+        self.get_reals = lambda h, vr, n, values: fmu.fmi3GetFloat64(h, vr, n, values, n)
+        self._calls(fmu.getFloat64, fmu.setFloat64, fmu.setInt32, fmu.getFMUState, fmu.setFMUState,
+                    fmu.freeFMUState, fmu.serializeFMUState, fmu.deserializeFMUState)
+
+    def enter_initialization(self, stop_time: float) -> None:
+        """Set up the experiment from t = 0 to ``stop_time`` and enter Initialization Mode."""
+        if self.fmi3:
+            self.fmu.enterInitializationMode(startTime=0.0, stopTime=stop_time)
+        else:
+            self.fmu.setupExperiment(startTime=0.0, stopTime=stop_time)
+            self.fmu.enterInitializationMode()
+        self.initialized = True
 
     def log_text(self, last: int = 5) -> str:
         """The FMU's last log messages on one line."""
@@ -169,14 +228,8 @@ def _set_parameters(inst: _Instance) -> None:
         vrs.append(info.value_reference)
         vals.append(value)
     for t, (vrs, vals) in by_type.items():
-        if t == "Real":
-            inst.fmu.setReal(vrs, vals)
-        elif t in ("Integer", "Enumeration"):
-            inst.fmu.setInteger(vrs, vals)
-        elif t == "Boolean":
-            inst.fmu.setBoolean(vrs, vals)
-        elif t == "String":
-            inst.fmu.setString(vrs, [str(v) for v in vals])
+        if t in inst.setters:
+            inst.setters[t](vrs, [str(v) for v in vals] if t == "String" else vals)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -234,17 +287,32 @@ class _Buffer:
 
 
 def _instantiate(comp: Component) -> _Instance:
-    """An instance of the component's FMU, or a :class:`RunError` saying why there is none."""
+    """An instance of the component's FMU (its folder from :func:`orchestration.fmu_store.folder`),
+    or a :class:`RunError` saying why there is none. A cached folder whose library does not
+    load is set aside and extracted again, once (:func:`orchestration.fmu_store.set_aside`);
+    if it still fails, the error names the folder and ``flexfusion cache clear``."""
     from fmpy.fmi1 import FMICallException
 
+    from . import fmu_store
+
     n = comp.name
-    try:
-        inst = _Instance(comp, _extracted(comp))
-    except FMICallException as exc:
-        raise RunError(f"component '{n}' ({comp.fmu.name}): instantiate failed: {exc}", 0.0, n) from None
-    except Exception as exc:  # noqa: BLE001 - a library that does not load
-        raise RunError(f"component '{n}' ({comp.fmu.name}): cannot load the FMU: "
-                       f"{type(exc).__name__}: {exc}", 0.0, n) from None
+    for repaired in (False, True):
+        try:
+            where = fmu_store.folder(comp.fmu)
+        except Exception as exc:  # noqa: BLE001 - not an FMU, beyond the archive limits
+            raise RunError(f"component '{n}' ({comp.fmu.name}): cannot extract the FMU: {exc}", 0.0, n) from None
+        try:
+            inst = _Instance(comp, where)
+            break
+        except FMICallException as exc:
+            raise RunError(f"component '{n}' ({comp.fmu.name}): instantiate failed: {exc}", 0.0, n) from None
+        except Exception as exc:  # noqa: BLE001 - a library that does not load
+            if not repaired and fmu_store.set_aside(where):
+                continue
+            again = (f" from the cache entry {where}, extracted again (`flexfusion cache clear` removes the "
+                     "cache's unused entries)") if repaired else ""
+            raise RunError(f"component '{n}' ({comp.fmu.name}): cannot load the FMU{again}: "
+                           f"{type(exc).__name__}: {exc}", 0.0, n) from None
     if not inst.handle.value:
         raise RunError(f"component '{n}' ({comp.fmu.name}): fmi2Instantiate failed; FMU log: "
                        + inst.log_text(), 0.0, n)
@@ -256,22 +324,24 @@ def _exchange_initial_values(s: _Slot, values: np.ndarray, leave_initialisation:
     outputs into ``values`` (checked for NaN)."""
     if s.n_in:
         values.take(s.in_idx, out=s.in_view)
-        s.inst.fmu.fmi2SetReal(s.inst.handle, s.in_vr, s.n_in, s.in_buf)
+        s.inst.set_reals(s.inst.handle, s.in_vr, s.n_in, s.in_buf)
     if leave_initialisation:
         s.inst.fmu.exitInitializationMode()
     if s.n_out:
-        s.inst.fmu.fmi2GetReal(s.inst.handle, s.out_vr, s.n_out, s.out_ptr)
+        s.inst.get_reals(s.inst.handle, s.out_vr, s.n_out, s.out_ptr)
         _check_nan([s], values, 0.0)
 
 
 def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | None = None,
-             hook: Any = None) -> list[str]:
+             hook: Any = None, schedule: Schedule | None = None) -> list[str]:
     """Run the scenario; ``sink(t, values)`` gets every recorded row (values in
     ``scenario.record_columns()`` order, t = 0 first). Returns the coupling warnings given.
 
     ``hook`` (:mod:`orchestration.fork`) may save the whole state at its base step
     (``hook.step``) or, after initialisation, set a saved one and return the base step to go
     on from: ``hook.start(instances, values, offsets)`` and ``hook.save(k, ...)``.
+    ``schedule``: the scenario's :class:`~orchestration.schedule.Schedule` if the caller has
+    it already (else computed here).
 
     Raises
     ------
@@ -282,7 +352,9 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
     """
     from fmpy.fmi1 import FMICallException
 
-    schedule = Schedule.of(scenario)
+    from . import fmu_store
+
+    schedule = Schedule.of(scenario) if schedule is None else schedule
     notes = list(schedule.notes)
     for msg in notes:
         warnings.warn(msg, CouplingWarning, stacklevel=2)
@@ -291,10 +363,10 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
     values = buffer.values
 
     instances: list[_Instance] = []
-    _ACTIVE_RUNS[0] += 1
     h = scenario.base_step
     t_now = 0.0
     current: _Instance | None = None
+    fmu_store.run_began()
     try:
         # ---- instantiate, parameters -----------------------------------------------------
         for n in schedule.order:
@@ -302,9 +374,7 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
             inst = _instantiate(scenario.components[n])
             instances.append(inst)
             current = inst
-            inst.fmu.setupExperiment(startTime=0.0, stopTime=scenario.stop_time)
-            inst.fmu.enterInitializationMode()
-            inst.initialized = True
+            inst.enter_initialization(scenario.stop_time)
             _set_parameters(inst)
 
         by_name = {i.name: i for i in instances}
@@ -364,292 +434,8 @@ def simulate(scenario: Scenario, sink: Sink, progress: Callable[[int], None] | N
     finally:
         for inst in reversed(instances):
             inst.close()
-        _ACTIVE_RUNS[0] -= 1
-        if not _ACTIVE_RUNS[0]:
-            _remove_extracted()
+        fmu_store.run_ended()
     return notes
-
-
-_EXTRACTED: dict[tuple[str, int, int], str] = {}   # FMU file version -> its folder in this process
-_EXTRACT_ROOT: list[str] = []     # this process's temporary folder (when there is no cache)
-_ACTIVE_RUNS = [0]
-_CACHE_KEEP = 32                  # cached FMU folders kept (about 0.15 MB each, packages shared), the last used
-
-
-def _extracted(comp: Component) -> str:
-    """The folder an FMU is extracted to, one per FMU file version for the process, so its
-    shared library is loaded once and reused by every instance (the dynamic loader matches an
-    already loaded library by its path, even after the file was removed and extracted again).
-
-    That folder is the FMU's entry in the cache (:func:`_cached_folder`): extracted once for
-    every process and run. Without a writable cache, a temporary folder of this process,
-    removed when its last run ends (:func:`_remove_extracted`), not at exit: study workers end
-    without running Python's exit handlers; a package this process has imported already is
-    not extracted there (:func:`_still_read`).
-    """
-    path = comp.fmu.resolve()
-    st = path.stat()
-    key = (str(path), st.st_mtime_ns, st.st_size)
-    folder = _EXTRACTED.get(key)
-    if folder is None or not Path(folder, "modelDescription.xml").is_file():
-        cached = _cached_folder(path)        # again where another process pruned it: same path
-        folder = _EXTRACTED[key] = folder or cached or str(Path(_temporary_root()) / str(len(_EXTRACTED)))
-        if folder != cached:
-            from fmpy import extract
-            extract(str(path), unzipdir=folder, include=_still_read)
-    return folder
-
-
-def _temporary_root() -> str:
-    if not _EXTRACT_ROOT:
-        _EXTRACT_ROOT.append(tempfile.mkdtemp(prefix="flexfusion_fmus_"))
-    return _EXTRACT_ROOT[0]
-
-
-_COMPLETE = ".complete"   # written last into a cached folder
-
-
-def _cached_folder(fmu: Path) -> str | None:
-    """The FMU's folder in the cache (``<cache root>/fmus/<content>-<platform>``,
-    :mod:`fmus.common.disk_cache`), extracted now if it is not there yet; None if the cache
-    cannot be written.
-
-    It is named by the FMU's content (:func:`~orchestration.scenario.fmu_content_key`) and the
-    platform, whose binaries are the only ones extracted. The cache's ``fmus/`` and
-    ``packages/`` folders hold code that is loaded: they are used only if private to this user
-    (:func:`fmus.common.disk_cache.private_folder`: made 0700, owner and mode checked from the
-    cache root down), else the FMU is extracted to a temporary folder of this process. Its Python packages in ``resources/``
-    are links to folders shared by every FMU that bundles the same package
-    (:func:`_shared_package`): our FMUs all bundle the same ``fmus_<hash>`` and ``pythonfmu``
-    (112 of the Encoder FMU's 120 files), so a cold run extracts them once, not once per FMU. A
-    folder whose shared libraries are not whole is set aside and extracted again
-    (:func:`_repaired`). A folder
-    is extracted under a temporary name and renamed when complete, so processes extracting the
-    same FMU at once each use a whole folder (the first rename wins). Extracting a new folder
-    removes all but the :data:`_CACHE_KEEP` last used ones (a removed folder that a process
-    still uses is extracted again by it when it next needs it), then the shared packages no
-    kept folder links to (:func:`_prune_packages`); a link found dangling (its package
-    removed by hand) gets its package extracted again.
-    """
-    import zipfile
-
-    from fmpy import platform
-
-    from fmus.common.disk_cache import cache_root, private_folder, prune
-
-    from .scenario import fmu_content_key
-    try:
-        key = fmu_content_key(fmu)
-    except (OSError, zipfile.BadZipFile):
-        return None      # not an FMU: the temporary extraction reports it
-    root = cache_root() / "fmus"
-    folder = root / f"{key}-{platform}"
-    marker = folder / _COMPLETE
-    try:
-        private_folder(root, cache_root())      # code is loaded from it: private, or not used
-        private_folder(root.parent / "packages", cache_root())
-        if marker.is_file():
-            _repaired(folder, fmu, platform)
-        if not marker.is_file():
-            prune(root, _CACHE_KEEP - 1)
-            _prune_packages(root)
-            _publish(folder, partial(_extract_linked, fmu, platform), marker.is_file)
-        elif _dangling(folder):
-            with zipfile.ZipFile(fmu) as z:
-                for name, members in _packages(z).items():
-                    _shared_package(z, name, members)
-        os.utime(folder)                 # its last use
-    except OSError:
-        return None
-    return str(folder)
-
-
-def _repaired(folder: Path, fmu: Path, platform: str) -> None:
-    """Set a cached FMU folder aside (with the shared packages concerned) if one of its shared
-    libraries (``*.so``/``*.dll``/``*.dylib``: its binary for ``platform``, a package's
-    compiled kernels) is not the size it has in the FMU ``fmu``: a library truncated by a full
-    disk or a killed copy makes the process that loads it die (a bus error, no message), so
-    the folder is extracted again instead. Set aside = renamed to a hidden name, which
-    :func:`fmus.common.disk_cache.prune` removes an hour later (a process that has the library
-    loaded keeps it)."""
-    import warnings
-    import zipfile
-    bad, packages = [], set()
-    with zipfile.ZipFile(fmu) as z:
-        for m in z.infolist():
-            name = m.filename
-            if not name.endswith((".so", ".dll", ".dylib")) or \
-                    (name.startswith("binaries/") and not name.startswith(f"binaries/{platform}/")):
-                continue
-            path = folder / name
-            try:
-                if path.stat().st_size == m.file_size:
-                    continue
-            except FileNotFoundError:
-                continue            # not extracted here (another platform's) or a dangling link
-            bad.append(name)
-            real = path.resolve()
-            for parent in real.parents:
-                if parent.parent.name == "packages":
-                    packages.add(parent)
-                    break
-    if not bad:
-        return
-    stamp = f".bad-{int(time.time())}-{os.getpid()}-"
-    for entry in (*sorted(packages), folder):
-        os.replace(entry, entry.with_name(stamp + entry.name))
-    warnings.warn(f"{folder}: {', '.join(bad)} not whole (truncated?): set aside, the FMU is extracted again",
-                  stacklevel=3)
-
-
-def _extract_linked(fmu: Path, platform: str, folder: Path) -> None:
-    """Extract the FMU into ``folder``: its packages linked (:func:`_link_or_extract`), its
-    binaries for ``platform`` only, the marker of a complete folder last."""
-    import zipfile
-    with zipfile.ZipFile(fmu) as z:
-        packages = _packages(z)
-        for name, members in packages.items():
-            _link_or_extract(z, name, members, folder)
-        shared = {m.filename for members in packages.values() for m in members}
-        z.extractall(folder, [m for m in z.namelist() if m not in shared and (
-            not m.startswith("binaries/") or m.startswith(f"binaries/{platform}/"))])
-    (folder / _COMPLETE).touch()
-
-
-def _packages(z: Any) -> dict[str, list[Any]]:
-    """The zip members of each Python package in an FMU's ``resources/`` (a folder with an
-    ``__init__.py``), by package name."""
-    names = {m.filename.split("/")[1] for m in z.infolist()
-             if m.filename.count("/") == 2 and m.filename.startswith("resources/")
-             and m.filename.endswith("/__init__.py")}
-    packages: dict[str, list[Any]] = {name: [] for name in sorted(names)}
-    for m in z.infolist():
-        parts = m.filename.split("/", 2)
-        if len(parts) == 3 and parts[0] == "resources" and parts[1] in packages:
-            packages[parts[1]].append(m)
-    return packages
-
-
-def _link_or_extract(z: Any, name: str, members: list[Any], folder: Path) -> None:
-    """The FMU folder being extracted, ``folder``, gets ``resources/<name>``: a relative
-    symbolic link to the package's shared copy (relative: the cache root may be moved or
-    mounted elsewhere whole), or, where the file system has no symbolic links, a copy of its
-    own. Symbolic, not hard links: one link per package instead of one per file and folder
-    (about 120 of them), and one copy where Python writes the bytecode it compiles, for all."""
-    link = folder / "resources" / name
-    link.parent.mkdir(exist_ok=True)
-    try:
-        os.symlink(os.path.relpath(_shared_package(z, name, members), link.parent), link,
-                   target_is_directory=True)
-    except OSError:
-        z.extractall(folder, members)
-
-
-def _shared_package(z: Any, name: str, members: list[Any]) -> Path:
-    """The shared copy of the package ``name`` made of the zip ``members``:
-    ``<cache root>/packages/<name>-<key>/resources/<name>``, the key hashing the members'
-    names, sizes and CRC-32s; extracted now if it is not there (under a temporary name,
-    renamed when complete: the first rename wins), its entry's modification time marking its
-    last use (:func:`_prune_packages`). The copy's own folder keeps the package's name: the
-    package finds itself by its resolved path (:mod:`fmus.common.jit`: its compiled module
-    and kernel cache)."""
-    from fmus.common.disk_cache import cache_root, content_key
-
-    key = content_key(name, sorted((m.filename, m.file_size, m.CRC) for m in members))
-    packages = cache_root() / "packages"
-    entry = packages / f"{name}-{key}"
-    try:
-        os.utime(entry)
-    except FileNotFoundError:
-        packages.mkdir(parents=True, exist_ok=True)
-        _publish(entry, lambda staging: z.extractall(staging, members), entry.is_dir)
-    return entry / "resources" / name
-
-
-def _publish(final: Path, fill: Callable[[Path], None], published: Callable[[], bool]) -> None:
-    """Make the cache's folder ``final``: ``fill`` a temporary folder beside it, then rename it
-    to ``final``, so that no process ever sees it half made; where another process was first
-    (the rename fails) and its folder is ``published``, that one is used."""
-    staging = Path(tempfile.mkdtemp(prefix=".extracting-", dir=final.parent))
-    try:
-        fill(staging)
-        try:
-            staging.rename(final)
-        except OSError:
-            if not published():
-                raise
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-
-
-def _dangling(folder: Path) -> bool:
-    """Whether one of a cached FMU folder's links to a shared package leads nowhere."""
-    try:
-        with os.scandir(folder / "resources") as entries:
-            return any(e.is_symlink() and not e.is_dir() for e in entries)
-    except OSError:
-        return False
-
-
-def _prune_packages(fmus: Path) -> None:
-    """Remove the shared packages (and temporary folders) that no folder in ``fmus`` (kept or
-    being extracted) links to and that were not used for
-    :data:`~fmus.common.disk_cache.STALE_TEMPORARY_S`. A package is renamed away before it is
-    removed, then given back if a process took it up again meanwhile (its last use moved:
-    :func:`_shared_package` marks it before it links to it, and extracts a package it finds
-    gone again), so no process links to a package being removed."""
-    from fmus.common.disk_cache import STALE_TEMPORARY_S
-
-    packages = fmus.parent / "packages"
-    if not packages.is_dir():
-        return
-    linked = set()        # the parts of every link's path: the entries' names among them
-    for folder in fmus.iterdir():
-        try:
-            with os.scandir(folder / "resources") as entries:
-                linked.update(part for e in entries if e.is_symlink() for part in Path(os.readlink(e.path)).parts)
-        except OSError:
-            continue
-    stale = time.time() - STALE_TEMPORARY_S
-    for entry in packages.iterdir():
-        try:
-            if entry.name in linked or entry.stat().st_mtime >= stale:
-                continue
-            if entry.name.startswith("."):   # left by a process that died
-                shutil.rmtree(entry, ignore_errors=True)
-                continue
-            trash = Path(tempfile.mkdtemp(prefix=".removing-", dir=packages))
-            try:
-                entry.rename(trash / entry.name)
-                if (trash / entry.name).stat().st_mtime >= stale:    # taken up again meanwhile
-                    (trash / entry.name).rename(entry)
-            finally:
-                shutil.rmtree(trash, ignore_errors=True)
-        except OSError:
-            continue
-
-
-def _still_read(member: str) -> bool:
-    """Whether this process may still read an FMU's file ``member``: not one of a package in
-    ``resources/`` that it has imported already from another FMU's folder. Python imports a
-    package once per process, from the first folder that provides it, and never reads another
-    copy; our FMUs each bundle the same ``fmus_<hash>`` package and ``pythonfmu``, which their
-    script imports whole when it loads, so only the first FMU of a process needs them (each
-    other one saves about 45 files of extraction). A folder that merely shares the name of a
-    package imported from elsewhere (``resources/xml/`` of a C FMU) is extracted."""
-    parts = member.split("/", 2)
-    if len(parts) < 3 or parts[0] != "resources":
-        return True
-    module = sys.modules.get(parts[1])
-    origin = getattr(module, "__file__", None) or ""
-    return not (hasattr(module, "__path__") and _EXTRACT_ROOT
-                and origin.startswith(os.path.join(_EXTRACT_ROOT[0], "")))
-
-
-def _remove_extracted() -> None:
-    """Remove this process's temporary FMU folders (the paths stay reserved for the next run)."""
-    if _EXTRACT_ROOT:
-        shutil.rmtree(_EXTRACT_ROOT[0], ignore_errors=True)
 
 
 def _fail(inst: _Instance, function: str, status: int, t: float) -> None:
@@ -690,10 +476,11 @@ def _stepper(slots: list[_Slot], buffer: _Buffer, every: int,
     """``steps(k0, k1, rows)``: run base steps ``k0 .. k1-1`` of the buffer's schedule, write the
     recorded rows (t, then the recorded values) into ``rows`` and return how many, and where it
     stopped early (an FMU status above warning, a NaN on a connection) or None. The C loop
-    (:mod:`orchestration.cloop`), or where there is none, :func:`_python_steps`."""
+    (:mod:`orchestration.cloop`), or where there is none or an FMU is FMI 3.0,
+    :func:`_python_steps`."""
     from . import cloop
     lib = cloop.library()
-    if lib is None:
+    if lib is None or any(s.inst.fmi3 for s in slots):     # the C loop calls FMI 2.0 functions
         return partial(_python_steps, slots, buffer.schedule, buffer.values, buffer.record_idx, every, h)
     return cloop.CLoop(lib, slots, buffer.schedule, buffer.values_c, buffer.record_idx, every, h)
 
@@ -789,14 +576,14 @@ def run(scenario: str | Path | Scenario | dict[str, Any], overrides: Overrides =
 
     overrides = override_strings(overrides)
     sc = load(scenario, overrides)
-    Schedule.of(sc)  # reject an algebraic loop before anything is written
+    schedule = Schedule.of(sc)  # rejects an algebraic loop before anything is written
     check_metric_windows(sc)
     if _STOP[0]:      # a signal while the scenario was loading: stop before writing anything
         raise Interrupted(_STOP[0], 0.0)
     out = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix=f"flexfusion_{sc.name}_"))
     with own_folder(out, force):
         try:
-            return run_loaded(sc, RunFolder(out, sc, overrides), progress, hook)
+            return run_loaded(sc, RunFolder(out, sc, overrides), progress, hook, schedule)
         except (RunError, OutputError, KeyboardInterrupt) as exc:
             exc.out_dir = out  # type: ignore[union-attr]
             raise
@@ -824,7 +611,7 @@ def load(scenario: str | Path | Scenario | dict[str, Any], overrides: Overrides 
 
 
 def run_loaded(sc: Scenario, folder: RunFolder | None = None, progress: bool = False,
-               hook: Any = None) -> "Result":
+               hook: Any = None, schedule: Schedule | None = None) -> "Result":
     """Run a loaded scenario into a :class:`~orchestration.results.Result`: the one run path,
     of :func:`run` (into its run folder) and of the studies' :func:`orchestration.study.simulate`
     (in memory, ``folder`` None).
@@ -845,6 +632,9 @@ def run_loaded(sc: Scenario, folder: RunFolder | None = None, progress: bool = F
         Show a tqdm progress bar on stderr.
     hook
         Save the state at a time, or start from a saved one (:mod:`orchestration.fork`).
+    schedule
+        The scenario's :class:`~orchestration.schedule.Schedule`, if the caller has it (else
+        :func:`simulate` computes it).
 
     Returns
     -------
@@ -865,7 +655,7 @@ def run_loaded(sc: Scenario, folder: RunFolder | None = None, progress: bool = F
     with recording as recorder, _progress_bar(sc, progress) as report:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CouplingWarning)
-            recorder.notes = simulate(sc, recorder, report, hook)
+            recorder.notes = simulate(sc, recorder, report, hook, schedule)
         for w in caught:  # re-issued once, outside the recording context
             if folder is not None or not issubclass(w.category, CouplingWarning):
                 warnings.warn(w.message, w.category, stacklevel=3)

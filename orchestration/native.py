@@ -14,7 +14,6 @@ from __future__ import annotations
 import hashlib
 import os
 import shlex
-import shutil
 import subprocess
 import sys
 import sysconfig
@@ -23,11 +22,17 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree
 
+from fmus.common import native_cache
 from orchestration.build import REPO, BuildError, rewritten
 
 NATIVE = REPO / "native"
 SOURCES = ("fmi2_python.c", "fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 LIBRARY_NAME = "libflexfusion_fmi2.so"
+# the FMI 3.0 layer: fmi3_python.c includes the FMI 2.0 layer (native/README.md)
+SOURCES3 = ("fmi3_python.c", "fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h", *SOURCES)
+LIBRARY_NAME3 = "libflexfusion_fmi3.so"
+# it exports the fmi3* functions only (the fmi2* ones it is built on stay internal)
+VERSION_SCRIPT3 = "{ global: fmi3*; local: *; };\n"
 DEFAULT_CACHE = REPO / "build" / "native"
 PLATFORM = "linux64"
 # (no -Werror: another compiler's new warnings must not stop a user's build; a test checks
@@ -36,20 +41,17 @@ CFLAGS = ["-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall",
 
 
 def c_compiler() -> list[str]:
-    """The system C compiler as a command (``$CC``, sysconfig's ``CC``, then cc/gcc/clang).
+    """The system C compiler as a command (:func:`fmus.common.native_cache.c_compiler`).
 
     Raises
     ------
     BuildError
         When none is installed.
     """
-    candidates = [os.environ.get("CC", ""), sysconfig.get_config_var("CC") or "", "cc", "gcc", "clang"]
-    for candidate in candidates:
-        words = shlex.split(candidate)
-        if words and shutil.which(words[0]):
-            return [shutil.which(words[0]), *words[1:]]
-    raise BuildError("no C compiler found (tried $CC, sysconfig CC, cc, gcc, clang): the native "
-                     "FMI layer needs one (Debian/Ubuntu: apt-get install gcc)")
+    try:
+        return native_cache.c_compiler()
+    except FileNotFoundError as exc:
+        raise BuildError(f"{exc}: the native FMI layer needs one") from None
 
 
 def python_include() -> Path:
@@ -69,8 +71,9 @@ def python_include() -> Path:
     return include
 
 
-def build_library(cache: Path = DEFAULT_CACHE) -> Path:
-    """Compile the native FMI layer, or reuse the one compiled from the same sources.
+def build_library(cache: Path = DEFAULT_CACHE, fmi_version: str = "2") -> Path:
+    """Compile the native FMI layer (``fmi_version`` "2": ``fmi2_python.c``; "3":
+    ``fmi3_python.c``), or reuse the one compiled from the same sources.
 
     The cache key is the SHA-256 of the sources, the compiler command and flags and the
     Python headers' folder; a new library is compiled to a temporary name and renamed, so
@@ -90,22 +93,35 @@ def build_library(cache: Path = DEFAULT_CACHE) -> Path:
     if not sys.platform.startswith("linux"):
         raise BuildError(f"the native FMI layer is built for Linux only (binaries/{PLATFORM}), "
                          f"not for {sys.platform}")
+    if fmi_version not in ("2", "3"):
+        raise BuildError(f"no native FMI layer for FMI {fmi_version} (2 or 3)")
     compiler = c_compiler()
     include = python_include()
+    sources, name, main = ((SOURCES, LIBRARY_NAME, "fmi2_python.c") if fmi_version == "2"
+                           else (SOURCES3, LIBRARY_NAME3, "fmi3_python.c"))
     digest = hashlib.sha256()
-    for name in SOURCES:
-        digest.update(name.encode() + b"\0" + (NATIVE / name).read_bytes())
+    for source in sources:
+        digest.update(source.encode() + b"\0" + (NATIVE / source).read_bytes())
     command_key = [*compiler, *CFLAGS, str(include)]
+    if fmi_version == "3":
+        command_key.append(VERSION_SCRIPT3)
     digest.update("\0".join(command_key).encode())
-    target = cache / digest.hexdigest()[:16] / LIBRARY_NAME
+    target = cache / digest.hexdigest()[:16] / name
     if target.is_file():
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".tmp", suffix=".so", dir=target.parent)
     os.close(fd)
-    command = [*compiler, *CFLAGS, f"-I{include}", f"-I{NATIVE}",
-               str(NATIVE / "fmi2_python.c"), "-o", tmp]
+    command = [*compiler, *CFLAGS, f"-I{include}", f"-I{NATIVE}", str(NATIVE / main), "-o", tmp]
+    script = None
+    if fmi_version == "3":
+        fd, script = tempfile.mkstemp(prefix=".tmp", suffix=".map", dir=target.parent)
+        with os.fdopen(fd, "w") as f:
+            f.write(VERSION_SCRIPT3)
+        command.append(f"-Wl,--version-script={script}")
     result = subprocess.run(command, capture_output=True, text=True)
+    if script:
+        os.unlink(script)
     if result.returncode != 0:
         os.unlink(tmp)
         raise BuildError(f"compiling the native FMI layer failed ({shlex.join(command)}):\n"

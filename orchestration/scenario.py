@@ -102,7 +102,7 @@ from .fmu_annotation import describe
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_FMU_DIR = REPO / "dist" / "fmus"
 #: the most base steps a run may take: 1e8 is about a day of wall time at the flagship's
-#: ~1,400 base steps/s (11 s simulated in 7.7 s at base_step = 1 ms, README)
+#: ~1,400 base steps/s (11 s simulated in 7.7 s at base_step = 1 ms, docs/figures.md)
 MAX_STEPS = 10**8
 
 ParamValue = float | int | bool | str
@@ -135,6 +135,7 @@ class Component:
     model_identifier: str
     guid: str
     variables: dict[str, VariableInfo]
+    fmi_version: str = "2.0"                     # its modelDescription's fmiVersion (fmi_version)
 
     def group(self, name: str) -> list[str]:
         """Scalar names of a whole variable: ``[name]`` for a scalar, ``name[1..n]`` for a vector."""
@@ -252,44 +253,57 @@ class Scenario:
 # model descriptions
 # ---------------------------------------------------------------------------------------------
 _MD_CACHE: dict[str, tuple[str, str, dict[str, VariableInfo]]] = {}
-_CONTENT: dict[tuple[str, int, int], str] = {}
 MODEL_DESCRIPTIONS_KEPT = 64      # parsed model descriptions kept in the disk cache (a few kB each)
-
-
-def fmu_content_key(fmu: Path) -> str:
-    """A hash of the FMU file's content, read from the zip's own directory (every member's
-    name, size and CRC-32: no member is read), once per file version and process.
-
-    Raises
-    ------
-    OSError, zipfile.BadZipFile
-        The file cannot be read as a zip archive.
-    """
-    import hashlib
-    import zipfile
-    st = fmu.stat()
-    version = (str(fmu.resolve()), st.st_mtime_ns, st.st_size)
-    key = _CONTENT.get(version)
-    if key is None:
-        with zipfile.ZipFile(fmu) as z:
-            members = sorted((i.filename, i.file_size, i.CRC) for i in z.infolist())
-        key = _CONTENT[version] = hashlib.sha256(repr(members).encode()).hexdigest()[:32]
-    return key
 
 
 def read_variables(fmu: Path) -> tuple[str, str, dict[str, VariableInfo]]:
     """Model identifier, GUID and the variables (with feedthrough dependencies) of an FMU.
 
-    Parsed once per FMU content: kept in the disk cache (:mod:`fmus.common.disk_cache`,
-    ``model_descriptions/``), which saves a run's start-up about 3 ms per FMU."""
-    key = fmu_content_key(fmu)
+    Parsed once per FMU content: kept in the FMU store's model-description cache
+    (:func:`orchestration.fmu_store.described`, ``model_descriptions/``), which saves a run's
+    start-up about 3 ms per FMU.
+
+    Raises
+    ------
+    ScenarioError
+        Not a co-simulation FMU, or an archive beyond the limits (:mod:`orchestration.archive`).
+    OSError, zipfile.BadZipFile
+        Not a readable zip archive.
+    """
+    from . import fmu_store
+    from .archive import ArchiveError
+    try:
+        key = fmu_store.content_key(fmu)
+    except ArchiveError as exc:
+        raise ScenarioError(str(exc)) from None
     if key not in _MD_CACHE:
-        from fmus.common.disk_cache import cached_json
-        ident, guid, rows = cached_json("model_descriptions", key, lambda: _parse_variables(fmu),
-                                        MODEL_DESCRIPTIONS_KEPT)
+        ident, guid, rows = fmu_store.described(fmu, "model_descriptions", _parse_variables, MODEL_DESCRIPTIONS_KEPT)
         _MD_CACHE[key] = (ident, guid, {row[0]: VariableInfo(*row[:6], None if row[6] is None else tuple(row[6]))
                                         for row in rows})
     return _MD_CACHE[key]
+
+
+_VERSIONS: dict[str, str] = {}
+
+
+def fmi_version(fmu: Path) -> str:
+    """The ``fmiVersion`` of an FMU's modelDescription (``"2.0"``, ``"3.0"``), once per FMU
+    content and process."""
+    import zipfile
+    from xml.etree import ElementTree
+
+    from . import fmu_store
+    key = fmu_store.content_key(fmu)
+    if key not in _VERSIONS:
+        with zipfile.ZipFile(fmu) as z:
+            _VERSIONS[key] = ElementTree.fromstring(z.read("modelDescription.xml")).get("fmiVersion", "")
+    return _VERSIONS[key]
+
+
+# FMI 3.0's variable types by the FMI 2.0 type names the scenarios use
+_FMI2_TYPES = {"Float64": "Real", "Float32": "Real", "Int8": "Integer", "UInt8": "Integer", "Int16": "Integer",
+               "UInt16": "Integer", "Int32": "Integer", "UInt32": "Integer", "Int64": "Integer",
+               "UInt64": "Integer"}
 
 
 def _parse_variables(fmu: Path) -> tuple[str, str, list[list[Any]]]:
@@ -308,12 +322,14 @@ def _parse_variables(fmu: Path) -> tuple[str, str, list[list[Any]]]:
     all_inputs = tuple(v.name for v in md.modelVariables if v.causality == "input")
     variables = []
     for v in md.modelVariables:
+        if v.causality == "independent":       # FMI 3.0's `time`: not a signal of a scenario
+            continue
         d = None
         if v.causality == "output":
             d = deps.get(v.name, all_inputs)
             if d is None:
                 d = all_inputs
-        variables.append([v.name, int(v.valueReference), v.type, v.causality, v.variability,
+        variables.append([v.name, int(v.valueReference), _FMI2_TYPES.get(v.type, v.type), v.causality, v.variability,
                           getattr(v, "unit", None) or (v.declaredType.unit if getattr(v, "declaredType", None)
                                                        is not None else None), None if d is None else list(d)])
     return md.coSimulation.modelIdentifier, md.guid, variables
@@ -843,7 +859,7 @@ def _components(label: str, comps_doc: dict[str, Any], sets: dict[str, dict[str,
             raise
         except Exception as exc:  # noqa: BLE001 - a broken FMU file is a user error
             raise ScenarioError(f"{where}: cannot read the modelDescription of {fmu}: {exc}") from None
-        comp = Component(cname, fmu, step, ratio, {}, ident, guid, variables)
+        comp = Component(cname, fmu, step, ratio, {}, ident, guid, variables, fmi_version(fmu))
         params = ctab.get("parameters", {})
         if not isinstance(params, dict):
             raise ScenarioError(f"{where}: [parameters] must be a table")
@@ -1118,5 +1134,5 @@ def copy_document(doc: Any) -> Any:
 
 
 __all__ = ["ScenarioError", "Scenario", "Component", "Connection", "MetricSpec", "VariableInfo",
-           "load_scenario", "copy_document", "merge_include", "Overrides", "override_strings", "toml_value", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables",
+           "load_scenario", "copy_document", "merge_include", "Overrides", "override_strings", "toml_value", "parse_override", "parse_value", "stable_seed", "fmu_dir", "read_variables", "fmi_version",
            "connection_key", "check_metric_windows", "MAX_STEPS"]

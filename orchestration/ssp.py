@@ -61,6 +61,7 @@ from xml.etree.ElementTree import Element, ParseError, SubElement, parse, regist
 
 import numpy as np
 
+from .archive import ArchiveError, check as check_archive
 from .scenario import (Overrides, ParamValue, Scenario, ScenarioError, load_scenario, read_variables,
                        stable_seed)
 
@@ -200,6 +201,8 @@ def _write_flexfusion(annotation: Element, scenario: dict[str, Any]) -> None:
         SubElement(el, _q("ff", "Record"), variable=ref)
     for text in scenario.get("oracles", []):
         SubElement(el, _q("ff", "Oracle"), connection=text)
+    for text in scenario.get("delays", []):
+        SubElement(el, _q("ff", "Delay"), connection=text)
     for metric in scenario.get("metrics", []):
         SubElement(el, _q("ff", "Metric"), {k: repr(v) if isinstance(v, float) else str(v)
                                             for k, v in metric.items() if k in _METRIC_KEYS and v is not None})
@@ -264,7 +267,7 @@ def export_scenario(sc: Scenario, out: Path, host: str = "libcosim") -> Path:
     if host == "omsimulator":
         _warn_omsimulator(sc, comps)
     extra = {"seed": sc.seed, "description": sc.description, "record": sc.record,
-             "record_interval": sc.record_interval, "oracles": sc.oracles,
+             "record_interval": sc.record_interval, "oracles": sc.oracles, "delays": sc.delays,
              "metrics": [vars(m) for m in sc.metrics]}
     ssd = system_structure(sc.name, comps, conns, sc.base_step, sc.stop_time,
                            {c.name: archive[c.fmu.resolve()] for c in comps}, extra, host)
@@ -295,7 +298,9 @@ def _warn_omsimulator(sc: Scenario, comps: list[SspComponent]) -> None:
 @contextmanager
 def opened(path: str | Path) -> Iterator[Path]:
     """The ``SystemStructure.ssd`` of an ``.ssp`` (unpacked into a temporary folder, removed
-    afterwards), or a ``.ssd`` file itself."""
+    afterwards), or a ``.ssd`` file itself. The package is checked against the archive limits
+    (size, entries, compression ratio, entry names: :mod:`orchestration.archive`) from its
+    central directory before anything is extracted; one beyond them is a :class:`ScenarioError`."""
     path = Path(path)
     if path.suffix.lower() == ".ssd":
         if not path.is_file():
@@ -309,10 +314,10 @@ def opened(path: str | Path) -> Iterator[Path]:
     folder = Path(tempfile.mkdtemp(prefix="flexfusion_ssp_"))
     try:
         with zipfile.ZipFile(path) as z:
-            for name in z.namelist():
-                parts = PurePosixPath(name).parts
-                if name.startswith("/") or ".." in parts or (parts and ":" in parts[0]):
-                    raise ScenarioError(f"{path}: unsafe file name in the package: {name!r}")
+            try:
+                check_archive(z.infolist(), str(path))     # before anything is extracted
+            except ArchiveError as exc:
+                raise ScenarioError(str(exc)) from None
             if SSD_NAME not in z.namelist():
                 raise ScenarioError(f"{path}: no {SSD_NAME} in the package")
             z.extractall(folder)
@@ -464,6 +469,9 @@ def ssp_document(ssd: Path, label: str) -> dict[str, Any]:
     sizes: dict[str, int] = {}
     for el in _children(_child(system, "ssd", "Elements"), "ssd", "Component"):
         name = el.get("name") or ""
+        if name in components:
+            raise ScenarioError(f"{label}: two components are named '{name}' (a component's name must be "
+                                "unique in its system)")
         components[name], declared[name], variables = _component(f"{label}: component '{name}'", el, base)
         sizes.update(_vector_sizes(variables, f"{name}."))
     if not components:
@@ -598,6 +606,7 @@ def _read_flexfusion(el: Element, doc: dict[str, Any], declared: dict[str, dict[
     doc["record"] = {"variables": [r.get("variable") for r in _children(el, "ff", "Record")],
                      "interval": float(el.get("recordInterval", doc["scenario"]["base_step"]))}
     doc["oracles"] = [o.get("connection") for o in _children(el, "ff", "Oracle")]
+    doc["delays"] = [d.get("connection") for d in _children(el, "ff", "Delay")]
     types = {"after": float, "low": float, "high": float, "order": int}
     doc["metrics"] = [{k: types.get(k, str)(v) for k, v in m.attrib.items()}
                       for m in _children(el, "ff", "Metric")]

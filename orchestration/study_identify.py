@@ -323,8 +323,8 @@ def _coverage(params: dict[str, Any], with_effective: bool) -> dict[str, Any]:
 def load_effective(path: Path) -> dict[str, Any]:
     """The effective values of the reduced model on this plant: the fitted values of a noise-free
     (ideally long) identification's ``identify.json`` at ``path`` (written by this study with the
-    sensors' noise, quantisation and bias walk off, ``--set`` as README says), with where they
-    came from. Raises :class:`StudyError` naming the cause if the file is not such a report."""
+    sensors' noise, quantisation and bias walk off, ``--set`` as docs/user_guide.md says), with
+    where they came from. Raises :class:`StudyError` naming the cause if the file is not such a report."""
     try:
         doc = json.loads(Path(path).read_text())
         values = {n: float(doc["parameters"][n]["fitted"]) for n in ident.NAMES}

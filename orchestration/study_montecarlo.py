@@ -31,6 +31,13 @@ Fig. 4).
   our FMU folder, ``dist/fmus`` or ``$FLEXFUSION_FMU_DIR``, where a model identifier is looked
   up) the study says so in one line and runs every run through the FMUs (``engine.fallback``):
   those runs give every estimator's numbers at once.
+* A scenario with a reference measurement system (a Tracker measuring the tool, as
+  ``axelsson2012_realistic.toml``): every filter with a ``p_tool_hat`` is judged on the tool,
+  against the tracker first (``rmse_tool_position``: its fresh samples at their stamps, which
+  must fall on the filters' instants; :func:`orchestration.judge.aligned`) and against the
+  plant's ``p_tool`` beside it (``rmse_tool_position_truth``); ``tool_judge`` in ``study.json``
+  names both. The arm estimates, Table 1 and the NEES need the true states: they stay against
+  the truth.
 * Timing: the master steps a component with communication step ``T = n h`` at ``t_j = j T``
   after the faster producers have made their step to ``t_j + h``, so a filter's estimate fuses
   the measurements of ``t_j + h`` (see :mod:`orchestration.master`). The errors are taken at
@@ -53,7 +60,8 @@ Fig. 4).
   attains it and does not beat it.
 * Consistency (``anees``): for an EKF whose covariance ``P_x`` is recorded, the NEES of its
   6 states against the truth (:func:`nees`), averaged over the runs per time (ANEES), its time
-  average and the fraction of times inside the 95 % chi-square band.
+  average, the fraction of times inside the 95 % chi-square band, and a ``verdict``
+  (:func:`verdict`: consistent, over-confident or under-confident against that band).
 * The ``q_jerk`` sweep (``q_jerk_sweep``): ``sweep_runs`` runs per value of ``q_jerk`` (set on
   every EKF; the paper's 4e-6 of eq. 26 always its own row), RMSE and ANEES per value, and the
   value selected by consistency: the worse EKF's time-averaged ANEES closest to 6.
@@ -125,8 +133,9 @@ CRLB_NOTE = ("'crlb' is the paper's construction (eqs. 7-9, 21-25): the stationa
 class FilterInfo:
     """A filter (estimator) component of the scenario: ``has_covariance``, its ``P_x`` is
     recorded; ``groups``, the arm estimates it gives (:data:`GROUPS`: ``q_a_hat``, ``dq_a_hat``,
-    ``ddq_a_hat``); ``tool``, its ``p_tool_hat`` is judged against the plant's ``p_tool``
-    (``--estimator``); ``ours``, its FMU file is in our FMU folder (the batched engine knows its
+    ``ddq_a_hat``); ``tool``, its ``p_tool_hat`` is judged on the tool (``--estimator``, or a
+    scenario with a reference system: against the reference first and the plant's ``p_tool``
+    beside it); ``ours``, its FMU file is in our FMU folder (the batched engine knows its
     math)."""
     name: str
     fmu: str
@@ -152,6 +161,7 @@ def _scenario_parts(scenario: str | Path | dict[str, Any], overrides: Sequence[s
     from .study_sweep import contract_estimators
     sc = load_scenario(scenario, tuple(overrides))
     recorded = set(sc.record_columns())
+    reference = _reference(scenario)
     ours = fmu_dir().resolve()
     if estimators:
         chosen = contract_estimators(sc, estimators)
@@ -167,7 +177,8 @@ def _scenario_parts(scenario: str | Path | dict[str, Any], overrides: Sequence[s
         covariance = bool(c.group("P_x")) if estimators else f"{n}.P_x[1]" in recorded
         filters.append(FilterInfo(n, c.model_identifier, acc, c.ratio, c.step, dict(c.parameters),
                                   covariance and groups == GROUPS, groups,
-                                  tool=bool(estimators), ours=c.fmu.resolve().parent == ours))
+                                  tool=bool(estimators) or (reference is not None and bool(c.group("p_tool_hat"))),
+                                  ours=c.fmu.resolve().parent == ours))
     plants = [n for n, c in sc.components.items() if c.model_identifier == PLANT_FMU]
     if not filters:
         raise study.StudyError(f"scenario '{sc.name}' has no filter component (FMU "
@@ -176,7 +187,7 @@ def _scenario_parts(scenario: str | Path | dict[str, Any], overrides: Sequence[s
         raise study.StudyError(f"scenario '{sc.name}' needs exactly one {PLANT_FMU} component for the "
                                f"true states, found {len(plants)}")
     if not estimators:               # the study records what it needs of the estimators it is given
-        study.require_recorded(sc, needed(filters, plants[0]), "the Monte Carlo study")
+        study.require_recorded(sc, needed(filters, plants[0], reference), "the Monte Carlo study")
     ratio = max(f.ratio for f in filters)
     if any(ratio % f.ratio for f in filters):
         raise study.StudyError("the filters of scenario '%s' run at steps that are not divisors of the "
@@ -195,12 +206,22 @@ def _study_parts(scenario: str | Path, overrides: Sequence[str], estimators: Seq
     doc = scenario_document(scenario)
     sc, filters, plant = _scenario_parts(doc, overrides, estimators)
     record = doc.setdefault("record", {}).setdefault("variables", [])
-    record += [v for v in needed(filters, plant) if v not in record]
+    record += [v for v in needed(filters, plant, _reference(doc)) if v not in record]
     return doc, sc, filters, plant
 
 
+def _reference(scenario: str | Path | dict[str, Any]) -> str | None:
+    """The scenario's reference measurement system (:func:`orchestration.judge.reference_components`:
+    a Tracker measuring the tool), or None when it has none or several."""
+    from .judge import reference_components
+    from .scenario import scenario_document
+    doc = scenario if isinstance(scenario, dict) else scenario_document(scenario)
+    refs = reference_components(doc)
+    return refs[0] if len(refs) == 1 else None
+
+
 def run_one(scenario: str | dict[str, Any], overrides: Sequence[str], filters: Sequence[FilterInfo],
-            plant: str, ratio: int) -> dict[str, np.ndarray]:
+            plant: str, ratio: int, reference: str | None = None) -> dict[str, np.ndarray]:
     """One Monte Carlo run (a job; module level so that it pickles): the true states at the
     filters' update instants and each filter's estimation errors there.
 
@@ -210,11 +231,14 @@ def run_one(scenario: str | dict[str, Any], overrides: Sequence[str], filters: S
         ``"time"`` (K,), ``"truth"`` (K, 6) = (q_a, dq_a, ddq_a), ``"inputs"`` (K, 6) =
         (q_m, dq_m, ddq_m) (``ddq_m`` by central differences of the recorded ``dq_m``), per
         filter ``"<name>"`` (K, 2 per group it gives): estimate minus truth, and for one judged
-        on the tool ``"<name>.tool"`` (K, 2): ``p_tool_hat`` minus the plant's ``p_tool``.
+        on the tool ``"<name>.tool"`` (K, 2): ``p_tool_hat`` minus the plant's ``p_tool``, and
+        with a ``reference`` component (a Tracker) ``"<name>.tool_reference"`` (K, 2):
+        ``p_tool_hat`` minus the reference's ``p_tool_meas``, both at the reference's fresh
+        samples among the filters' instants, at their stamps (:func:`orchestration.judge.aligned`).
     """
-    r = study.simulate(scenario, overrides, needed(filters, plant))
+    r = study.simulate(scenario, overrides, needed(filters, plant, reference))
     idx = np.arange(1, len(r.time), ratio)              # t_j + h: the filters' fresh estimates
-    out = _errors(r.time, idx, lambda v: r[v], lambda v: r[v][idx], filters, plant)
+    out = _errors(r.time, idx, lambda v: r[v], lambda v: r[v][idx], filters, plant, reference)
     out["wall_time"] = r.wall_time
     return out
 
@@ -224,13 +248,21 @@ def _plant_variables(plant: str, filters: Sequence[FilterInfo] = ()) -> list[str
     return [f"{plant}.{x}" for x in ("q_a", "dq_a", "ddq_a", "q_m", "dq_m")] + tool
 
 
+def _reference_variables(reference: str | None, filters: Sequence[FilterInfo]) -> list[str]:
+    """The reference system's measured tool position and its stamps (when a filter is judged on the tool)."""
+    from .judge import REFERENCE_POSITION, REFERENCE_STAMP
+    if reference is None or not any(f.tool for f in filters):
+        return []
+    return [f"{reference}.{REFERENCE_POSITION}", f"{reference}.{REFERENCE_STAMP}"]
+
+
 def _filter_outputs(f: FilterInfo) -> list[str]:
     """The outputs of filter ``f`` the study judges (``P_x`` aside)."""
     return [f"{f.name}.{_ESTIMATES[g]}" for g in f.groups] + ([f"{f.name}.p_tool_hat"] if f.tool else [])
 
 
 def _errors(t: np.ndarray, idx: np.ndarray, every_row, at_idx, filters: Sequence[FilterInfo],
-            plant: str) -> dict[str, np.ndarray]:
+            plant: str, reference: str | None = None) -> dict[str, np.ndarray]:
     """What :func:`run_one` returns, from a run's plant signals at every row (``every_row(var)``)
     and the filters' outputs at the rows ``idx`` (``at_idx(var)``): one definition for the FMU
     and the batched engines."""
@@ -247,19 +279,37 @@ def _errors(t: np.ndarray, idx: np.ndarray, every_row, at_idx, filters: Sequence
             out[f.name + ".nees"] = nees(out[f.name], at_idx(f"{f.name}.P_x"))
         if f.tool:
             out[f.name + ".tool"] = at_idx(f"{f.name}.p_tool_hat") - every_row(f"{plant}.p_tool")[idx]
+            if reference is not None:
+                out[f.name + ".tool_reference"] = _reference_error(t[idx], at_idx(f"{f.name}.p_tool_hat"),
+                                                                   *(at_idx(v) for v in _reference_variables(
+                                                                       reference, filters)))
     return out
 
 
-def needed(filters: Sequence[FilterInfo], plant: str) -> list[str]:
+def _reference_error(t: np.ndarray, estimate: np.ndarray, position: np.ndarray, stamp: np.ndarray) -> np.ndarray:
+    """The estimate minus the reference at the reference's fresh samples among the filters'
+    instants ``t``, each at its stamp (:func:`orchestration.judge.aligned`). The study averages
+    over runs per instant, so every instant must bring a fresh sample stamped at it (a tracker
+    at least as fast as the filters, sampling on their grid)."""
+    from .judge import aligned
+    stamps, est, ref = aligned(t, estimate, position, stamp)
+    if len(stamps) != len(t) or not np.allclose(stamps, t, rtol=0.0, atol=1e-9):
+        raise study.StudyError("the reference system does not give one fresh sample stamped at each of the "
+                               "filters' instants (it must sample at least as fast as the filters, on their grid)")
+    return est - ref
+
+
+def needed(filters: Sequence[FilterInfo], plant: str, reference: str | None = None) -> list[str]:
     """The variables a run must record: the plant's states and motor signals (and tool position
-    when a filter is judged on it), each filter's estimates (and its covariance ``P_x`` where
-    the scenario records it)."""
-    return list(dict.fromkeys(_plant_variables(plant, filters) + [v for f in filters for v in _filter_outputs(f)]
+    when a filter is judged on it, with the ``reference`` system's measurement and stamps),
+    each filter's estimates (and its covariance ``P_x`` where the scenario records it)."""
+    return list(dict.fromkeys(_plant_variables(plant, filters) + _reference_variables(reference, filters)
+                              + [v for f in filters for v in _filter_outputs(f)]
                               + [f"{f.name}.P_x" for f in filters if f.has_covariance]))
 
 
 def run_batched(scenario: str | dict[str, Any], jobs: Sequence[Sequence[str]], filters: Sequence[FilterInfo],
-                plant: str, ratio: int) -> tuple[list[dict[str, np.ndarray]], Any]:
+                plant: str, ratio: int, reference: str | None = None) -> tuple[list[dict[str, np.ndarray]], Any]:
     """The runs ``jobs`` (each run's overrides) together on the batched engine
     (:mod:`orchestration.batched`): per run what :func:`run_one` returns (its ``wall_time``
     the engine's wall time shared out over the runs), and the engine's result.
@@ -269,11 +319,12 @@ def run_batched(scenario: str | dict[str, Any], jobs: Sequence[Sequence[str]], f
     BatchError
         The engine cannot run these (the caller falls back to the FMUs).
     """
-    return _batched_results(_batched_runs(scenario, jobs, filters, plant, ratio), filters, plant)
+    return _batched_results(_batched_runs(scenario, jobs, filters, plant, ratio, reference), filters, plant,
+                            reference)
 
 
 def _batched_runs(scenario: str | dict[str, Any], jobs: Sequence[Sequence[str]], filters: Sequence[FilterInfo],
-                  plant: str, ratio: int) -> Any:
+                  plant: str, ratio: int, reference: str | None = None) -> Any:
     """The runs prepared on the batched engine (raises BatchError before simulating anything,
     also for a filter whose FMU is not ours: the engine would run our math in its place)."""
     from .batched import BatchError, BatchedRuns
@@ -283,6 +334,7 @@ def _batched_runs(scenario: str | dict[str, Any], jobs: Sequence[Sequence[str]],
         raise BatchError(f"it knows only the math of our FMUs, and {', '.join(foreign)} is not one of them")
     idx = np.arange(1, load_scenario(scenario, tuple(jobs[0])).n_steps + 1, ratio)
     record: dict[str, Any] = {v: None for v in _plant_variables(plant, filters)}
+    record.update({v: idx for v in _reference_variables(reference, filters)})
     for f in filters:
         record.update({v: idx for v in _filter_outputs(f)})
         if f.has_covariance:
@@ -292,7 +344,7 @@ def _batched_runs(scenario: str | dict[str, Any], jobs: Sequence[Sequence[str]],
     return BatchedRuns(scenario, jobs, record, no_loop=("ParticleFilter",))
 
 
-def _batched_results(prepared: Any, filters: Sequence[FilterInfo], plant: str
+def _batched_results(prepared: Any, filters: Sequence[FilterInfo], plant: str, reference: str | None = None
                      ) -> tuple[list[dict[str, np.ndarray]], Any]:
     res = prepared.run()
     values = res.values
@@ -302,7 +354,7 @@ def _batched_results(prepared: Any, filters: Sequence[FilterInfo], plant: str
         def row(var: str, r: int = r) -> np.ndarray:
             v = values[var]
             return v[r if v.shape[0] > 1 else 0]
-        run = _errors(res.time, idx, row, row, filters, plant)
+        run = _errors(res.time, idx, row, row, filters, plant, reference)
         run["wall_time"] = res.wall_time / res.runs
         out.append(run)
     return out, res
@@ -321,6 +373,8 @@ def checked_quantities(run: dict[str, np.ndarray], filters: Sequence[FilterInfo]
             out[f"{f.name} {g} RMSE"] = rms(run[f.name][:, 2 * gi:2 * gi + 2])
         if f.tool:
             out[f"{f.name} tool position RMSE"] = rms(run[f.name + ".tool"])
+            if f.name + ".tool_reference" in run:
+                out[f"{f.name} tool position RMSE against the reference"] = rms(run[f.name + ".tool_reference"])
         if f.has_covariance:
             out[f"{f.name} mean NEES"] = np.mean(run[f.name + ".nees"])
     return out
@@ -333,9 +387,9 @@ def _run_jobs(engine: str, jobs: list[tuple], seeds: list[int], check_seeds: int
     from .master import RunError
 
     if engine == "batched":
-        source, _, filters, plant, ratio = jobs[0]
+        source, _, filters, plant, ratio, reference = jobs[0]
         try:
-            prepared = _batched_runs(source, [j[1] for j in jobs], filters, plant, ratio)
+            prepared = _batched_runs(source, [j[1] for j in jobs], filters, plant, ratio, reference)
         except BatchError as exc:
             reason = f"the batched engine cannot run this study ({exc}): every run goes through the FMUs"
             print(f"montecarlo: {reason}", file=sys.stderr)
@@ -345,7 +399,7 @@ def _run_jobs(engine: str, jobs: list[tuple], seeds: list[int], check_seeds: int
         # the checks run on the executor while the batched engine runs here
         checks = {f"seed {seeds[i]}": ex.submit(run_one, *jobs[i]) for i in picks}
         try:
-            results, res = _batched_results(prepared, filters, plant)
+            results, res = _batched_results(prepared, filters, plant, reference)
         except RunError as exc:
             raise study.StudyError(f"batched engine: {exc}") from None
         worst = study.compare_checks(checks, {f"seed {seeds[i]}": results[i] for i in picks},
@@ -367,10 +421,12 @@ def _rmse_per_time(err: np.ndarray) -> np.ndarray:
 def _summarise(results: Sequence[dict], filters: Sequence[FilterInfo], keep: np.ndarray
                ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Per filter: eq. 27's RMSE per time and group (and of the tool position where judged,
-    ``tool_position``), its time average over ``keep``, and for a filter with a recorded
-    covariance the average NEES over the runs (ANEES) per time, its time average and the
-    fraction of times inside the two-sided 95 % chi-square band of the ANEES (``chi2(6 N) / N``
-    for ``N`` runs, :func:`orchestration.metrics.monte_carlo_consistency`)."""
+    ``tool_position``: against the reference system when the runs have it, the truth then
+    beside it as ``tool_position_truth``; else against the truth), its time average over
+    ``keep``, and for a filter with a recorded covariance the average NEES over the runs (ANEES)
+    per time, its time average, the fraction of times inside the two-sided 95 % chi-square band
+    of the ANEES (``chi2(6 N) / N`` for ``N`` runs, :func:`orchestration.metrics.monte_carlo_consistency`)
+    and the :func:`verdict` of the time average against that band."""
     summary: dict[str, Any] = {}
     per_time: dict[str, Any] = {}
     for f in filters:
@@ -381,17 +437,32 @@ def _summarise(results: Sequence[dict], filters: Sequence[FilterInfo], keep: np.
             pt[g] = _rmse_per_time(err[:, :, 2 * gi:2 * gi + 2])
             entry[f"rmse_{g}"] = float(np.mean(pt[g][keep]))
         if f.tool:
-            pt["tool_position"] = _rmse_per_time(np.stack([r[f.name + ".tool"] for r in results]))
+            against_reference = f.name + ".tool_reference" in results[0]
+            pt["tool_position"] = _rmse_per_time(np.stack([r[f.name + (".tool_reference" if against_reference
+                                                                       else ".tool")] for r in results]))
             entry["rmse_tool_position"] = float(np.mean(pt["tool_position"][keep]))
+            if against_reference:
+                pt["tool_position_truth"] = _rmse_per_time(np.stack([r[f.name + ".tool"] for r in results]))
+                entry["rmse_tool_position_truth"] = float(np.mean(pt["tool_position_truth"][keep]))
         if f.has_covariance:
             runs = np.stack([r[f.name + ".nees"] for r in results])          # (runs, K)
             pt["anees"] = runs.mean(axis=0)
             c = monte_carlo_consistency(runs[:, keep], dof=6)
             entry.update(anees=c["mean"], anees_band_95=list(c["band"]),
-                         anees_fraction_in_band=c["fraction_in_band"])
+                         anees_fraction_in_band=c["fraction_in_band"], verdict=verdict(c["mean"], c["band"]))
         per_time[f.name] = pt
         summary[f.name] = entry
     return summary, per_time
+
+
+def verdict(anees: float, band: Sequence[float]) -> str:
+    """A filter's consistency from its time-averaged ANEES and the two-sided 95 % band of the
+    ANEES for the number of runs (Bar-Shalom, Li, Kirubarajan 2001, section 5.4.2):
+    ``"consistent"`` inside the band; ``"over-confident"`` above it (the errors are larger than
+    the filter's covariance says); ``"under-confident"`` below it (the covariance is larger
+    than the errors: conservative)."""
+    lo, hi = band
+    return "consistent" if lo <= anees <= hi else "over-confident" if anees > hi else "under-confident"
 
 
 def _consistency(entry: dict[str, Any]) -> float:
@@ -570,6 +641,7 @@ def run_study(scenario: str | Path, runs: int, out: str | Path, overrides: Seque
         raise study.StudyError(str(exc)) from None
     ratio = max(f.ratio for f in filters)
     T = next(f.step for f in filters if f.ratio == ratio)
+    reference = _reference(source) if any(f.tool for f in filters) else None
     if not 0 <= after < sc.stop_time:
         raise study.StudyError(f"--after = {after:g} s must lie in [0, stop_time = {sc.stop_time:g} s)")
     seeds = list(range(first_seed, first_seed + runs))
@@ -578,7 +650,8 @@ def run_study(scenario: str | Path, runs: int, out: str | Path, overrides: Seque
     sweep_seeds = list(range(first_seed, first_seed + sweep_runs))
 
     def job(extra: Sequence[str], seed: int) -> tuple:
-        return (source, tuple(overrides) + tuple(extra) + (f"scenario.seed={seed}",), tuple(filters), plant, ratio)
+        return (source, tuple(overrides) + tuple(extra) + (f"scenario.seed={seed}",), tuple(filters), plant, ratio,
+                reference)
 
     jobs = [job((), s) for s in seeds]
     for q in sweep_values:
@@ -620,7 +693,9 @@ def run_study(scenario: str | Path, runs: int, out: str | Path, overrides: Seque
         "scenario": sc.name,
         "scenario_file": scenario,
         "overrides": list(overrides),
-        **({"estimators": list(estimators), "tool_truth": f"{plant}.p_tool"} if estimators else {}),
+        **({"estimators": list(estimators)} if estimators else {}),
+        **({"tool_judge": _tool_judge(reference, plant), "tool_truth": f"{plant}.p_tool"}
+           if any(f.tool for f in filters) else {}),
         "runs": runs,
         "seeds": [seeds[0], seeds[-1]],
         "filter_step": T,
@@ -655,6 +730,16 @@ def run_study(scenario: str | Path, runs: int, out: str | Path, overrides: Seque
     if plots:
         _plots(out, data, filters)
     return data
+
+
+def _tool_judge(reference: str | None, plant: str) -> dict[str, Any]:
+    """What ``rmse_tool_position`` is scored against: the reference system's measurement at its
+    stamps (``rmse_tool_position_truth`` then the plant's truth beside it), or the truth."""
+    from .judge import REFERENCE_POSITION, REFERENCE_STAMP
+    if reference is None:
+        return {"against": "truth", "variable": f"{plant}.p_tool", "stamp": None}
+    return {"against": "reference", "component": reference, "variable": f"{reference}.{REFERENCE_POSITION}",
+            "stamp": f"{reference}.{REFERENCE_STAMP}", "truth_column": "rmse_tool_position_truth"}
 
 
 def findings(data: dict[str, Any]) -> list[dict[str, str]]:
@@ -775,10 +860,14 @@ def _plots(out: Path, data: dict[str, Any], filters: Sequence[FilterInfo]) -> No
                      f"{data['scenario']}: PF against EKF (cf. Axelsson et al. 2012, Fig. 4)")
     tool = [f for f in filters if f.tool]
     if tool:
-        _rmse_figure(out / "tool_position.png", t,
-                     {f"{f.name} ({f.fmu})": data["per_time"][f.name]["tool_position"] for f in tool},
-                     "tool position RMSE [m]",
-                     f"{data['scenario']}: {data['runs']} Monte Carlo runs, against {data['tool_truth']}")
+        judge = data["tool_judge"]
+        series = {f"{f.name} ({f.fmu}), against {judge['variable']}": data["per_time"][f.name]["tool_position"]
+                  for f in tool}
+        if judge["against"] == "reference":
+            series.update({f"{f.name} ({f.fmu}), against the truth {data['tool_truth']}":
+                           data["per_time"][f.name]["tool_position_truth"] for f in tool})
+        _rmse_figure(out / "tool_position.png", t, series, "tool position RMSE [m]",
+                     f"{data['scenario']}: {data['runs']} Monte Carlo runs")
 
 
 def _rmse_figure(path: Path, t: np.ndarray, series: dict[str, Any], ylabel: str, title: str) -> None:
@@ -867,9 +956,13 @@ def format_summary(data: dict[str, Any]) -> str:
                     if f"crlb_{g}" in s else "")
                  for g in GROUPS if f"rmse_{g}" in s]
         if "rmse_tool_position" in s:
-            parts.append(f"tool position RMSE {s['rmse_tool_position']:.3g} m")
+            judge = data.get("tool_judge", {}).get("against", "truth")
+            parts.append(f"tool position RMSE {s['rmse_tool_position']:.3g} m against the {judge}"
+                         + (f" ({s['rmse_tool_position_truth']:.3g} m against the truth)"
+                            if "rmse_tool_position_truth" in s else ""))
         if "anees" in s:
-            parts.append(f"ANEES {s['anees']:.3g} (consistent: 6)")
+            lo, hi = s["anees_band_95"]
+            parts.append(f"ANEES {s['anees']:.3g} (95 % band {lo:.3g}-{hi:.3g}: {s['verdict']})")
         lines.append(f"  {name} [{s['fmu']}, acc={'on' if s['use_accelerometer'] else 'off'}]: " + ", ".join(parts))
     sw = data.get("q_jerk_sweep")
     if sw:
@@ -896,6 +989,6 @@ def format_summary(data: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["run_study", "run_one", "run_batched", "checked_quantities", "ENGINES", "CHECK_SEEDS", "CHECK_RTOL", "nees", "findings", "register", "main", "format_summary", "PAPER_TABLE1",
+__all__ = ["run_study", "run_one", "run_batched", "checked_quantities", "ENGINES", "CHECK_SEEDS", "CHECK_RTOL", "nees", "findings", "verdict", "register", "main", "format_summary", "PAPER_TABLE1",
            "PAPER_TABLE1_RUNS", "PAPER_FIG4_RUNS", "PAPER_Q_JERK", "PAPER_R_MOTOR", "PAPER_R_ACC",
            "Q_JERK_SWEEP", "FilterInfo"]

@@ -60,7 +60,7 @@ must agree to 1e-12 relative, or the study stops naming the case, the series and
 difference. A scenario with an FMU that is not ours runs on the FMUs, with one line saying why.
 The FMUs are the default because they are faster here: the 2009 estimators' own math is most
 of a case's cost and has no batched kernel, so a replayed case saves only the truth's share
-and the FMI layer, less than the two check runs cost (measured: README).
+and the FMI layer, less than the two check runs cost (measured: docs/figures.md).
 
 CLI: ``flexfusion study robustness --out DIR [--tuned FILE ...] [--stop-time S] [--scenario FILE]
 [--other-path FILE] [--estimator NAME ...] [--engine batched|fmu] [--check-cases N]

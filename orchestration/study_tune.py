@@ -108,7 +108,10 @@ class TuneResult:
     (:meth:`orchestration.judge.Judge.to_json`: ``against`` ``"reference"`` by default, the
     component and its variables; for the ``nis`` criterion ``against`` ``"innovations"``, the
     statistic and its degrees of freedom). Costs are metres for ``error``, the dimensionless
-    :func:`~orchestration.metrics.innovation_criterion` for ``nis``.
+    :func:`~orchestration.metrics.innovation_criterion` for ``nis``. ``converged``: the
+    optimiser stopped on its convergence test (the population's cost spread within ``tol`` of
+    its mean: ``scipy.optimize.differential_evolution``), not on its budget of ``maxiter``
+    generations; ``generations`` the generations it ran.
     """
 
     component: str
@@ -130,6 +133,10 @@ class TuneResult:
     engine: dict[str, Any] = field(default_factory=dict)
     criterion: str = "error"
     judge: dict[str, Any] = field(default_factory=dict)
+    converged: bool = False
+    tol: float = float("nan")
+    maxiter: int = 0
+    generations: int = 0
 
     @property
     def against(self) -> str:
@@ -145,7 +152,8 @@ class TuneResult:
                 "initial_holdout_cost": self.initial_holdout_cost, "metric": self.metric,
                 "bounds": self.bounds, "floors": self.floors, "n_evals": self.n_evals,
                 "failed": self.failed, "wall_time": self.wall_time, "message": self.message,
-                "engine": self.engine, "history": self.history}
+                "converged": self.converged, "tol": self.tol, "maxiter": self.maxiter,
+                "generations": self.generations, "engine": self.engine, "history": self.history}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -815,7 +823,8 @@ def tune(scenario: str | Path | dict[str, Any], component: str,
                       initial_holdout_cost=costs[2], bounds={n: tuple(bounds[n]) for n in names},
                       floors=sensor_floors(doc), engine=engine_info, criterion=criterion,
                       judge=judged.to_json() if judged else {"against": "innovations", "estimate": estimate,
-                                                             "dof": nis_dof})
+                                                             "dof": nis_dof},
+                      converged=bool(res.success), tol=float(tol), maxiter=int(maxiter), generations=int(res.nit))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -896,6 +905,14 @@ def judged_by(res: TuneResult) -> str:
             + (f" (at its stamps {j['stamp']})" if j.get("stamp") else ""))
 
 
+def convergence(res: TuneResult) -> str:
+    """Whether the tuning converged, in words: ``converged (tol 0.01) in 12 of 40 generations``
+    or ``NOT converged: the budget of 10 generations ran out (tol 0.01)``."""
+    if res.converged:
+        return f"converged (tol {res.tol:g}) in {res.generations} of {res.maxiter} generations"
+    return f"NOT converged: the budget of {res.maxiter} generations ran out (tol {res.tol:g})"
+
+
 def main(args: argparse.Namespace) -> int:
     bounds = dict(parse_param(t) for t in args.param) if args.param else None
     if args.apply_to and len(args.estimator) > 1:
@@ -911,7 +928,7 @@ def main(args: argparse.Namespace) -> int:
             res = tune(args.scenario, component, bounds, truth=args.truth, against=args.against,
                        criterion=args.criterion, nis_dof=args.nis_dof, estimate=args.estimate,
                        after=args.after, log_scale=not args.linear, maxiter=args.maxiter,
-                       popsize=args.popsize, seed=args.seed, executor=ex, progress=not args.no_progress,
+                       popsize=args.popsize, seed=args.seed, tol=args.tol, executor=ex, progress=not args.no_progress,
                        overrides=overrides, metric=args.metric, seeds=seeds, holdout_seeds=holdout,
                        engine=args.engine, check_candidates=args.check_candidates)
             fmt = _mm if res.criterion == "error" else (lambda v: f"{v:.4g}")
@@ -919,7 +936,7 @@ def main(args: argparse.Namespace) -> int:
                        + (f" --criterion nis --nis-dof {res.judge['dof']}" if res.criterion == "nis" else
                           f" --metric {res.metric}" + (f" --truth {args.truth}" if args.truth else
                                                        f" --against {args.against}"))
-                       + f" --maxiter {args.maxiter} --popsize {args.popsize}"
+                       + f" --maxiter {args.maxiter} --popsize {args.popsize} --tol {args.tol:g}"
                        + (f" --seed {args.seed}" if args.seed else "")
                        + "".join(f" --param {t}" for t in args.param or ())
                        + "".join(f" --set {t}" for t in args.set or ())
@@ -929,13 +946,14 @@ def main(args: argparse.Namespace) -> int:
                        + f"\ncost {fmt(res.cost)} on the training seeds (scenario's values "
                        f"{fmt(res.initial_cost)}), held out {fmt(res.holdout_cost)} (scenario's values "
                        f"{fmt(res.initial_holdout_cost)}), {judged_by(res)}; {res.n_evals} candidates, "
-                       f"{res.wall_time:.0f} s")
+                       f"{res.wall_time:.0f} s; {convergence(res)}")
             inc = write_include(out / f"tuned_{component}.toml", [component] + list(args.apply_to or []),
                                 res.params, comment)
             (out / f"tune_{component}.json").write_text(json.dumps(res.to_json(), indent=1))
             print(f"{component}: cost {fmt(res.cost)} ({judged_by(res)}; scenario's values "
                   f"{fmt(res.initial_cost)}), held out {fmt(res.holdout_cost)} (scenario's values "
-                  f"{fmt(res.initial_holdout_cost)}) after {res.n_evals} candidates in {res.wall_time:.1f} s; {res.failed} failed")
+                  f"{fmt(res.initial_holdout_cost)}) after {res.n_evals} candidates in {res.wall_time:.1f} s; {res.failed} failed; "
+                  f"{convergence(res)}")
             if res.engine.get("checked"):
                 worst = max(c["max_relative_difference"] for c in res.engine["checked"])
                 print(f"  batched engine; {len(res.engine['checked'])} candidates checked through the FMUs: "
@@ -961,6 +979,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--maxiter", type=int, default=10, help="generations (default 10)")
     p.add_argument("--popsize", type=int, default=4, help="population per parameter (default 4)")
     p.add_argument("--seed", type=int, default=0, help="optimiser seed")
+    p.add_argument("--tol", type=float, default=0.01,
+                   help="convergence tolerance: stop when the population's cost spread is within tol of "
+                        "its mean (default 0.01; the result says whether it converged or ran out of --maxiter)")
     p.add_argument("--metric", choices=METRICS, default="rmse", help="cost (default rmse)")
     p.add_argument("--against", choices=("reference", "truth"), default="reference",
                    help="judge of the error: the scenario's reference system (a Tracker, default: as "
@@ -993,6 +1014,6 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=main)
 
 
-__all__ = ["tune", "TuneResult", "Score", "CRITERIA", "nis_output", "judged_by", "write_include", "evaluate", "cost_of", "checked_quantities", "ENGINES",
+__all__ = ["tune", "TuneResult", "convergence", "Score", "CRITERIA", "nis_output", "judged_by", "write_include", "evaluate", "cost_of", "checked_quantities", "ENGINES",
            "CHECK_CANDIDATES", "CHECK_RTOL", "prune", "load_document",
            "default_bounds", "sensor_floors", "parameter_value", "parse_seeds", "register", "PENALTY"]

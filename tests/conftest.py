@@ -6,9 +6,11 @@ library (``orchestration/native``) and the installed pythonfmu, so no cheap chec
 ``dist/fmus`` current, and a stale one would test old code without a word. The run builds every
 FMU once, when the first test needs one (4-8 s here, 19 FMUs), into its own
 temporary folder; a test run that needs no FMU builds nothing. Its compiled kernels are those
-``flexfusion build`` compiled (``build/aot``, keyed by the sources they are made of:
-orchestration/build.py), so ``make demo`` then ``make test`` compiles them once; either
-compiles them when its sources changed since, so a test never runs stale kernels. ``FLEXFUSION_FMU_DIR`` points at
+``flexfusion build`` compiled (the numba ones in ``build/aot``, keyed by the sources they are
+made of; the Cython modules in the private cache's ``kernels/``, keyed by each one's content,
+which the working tree's tests load too: orchestration/build.py), so ``make demo`` then ``make
+test`` compiles them once; either compiles them when its sources changed since, so a test never
+runs stale kernels. ``FLEXFUSION_FMU_DIR`` points at
 a folder that does not exist for the whole run, so a scenario test that forgets the
 :func:`fmu_env` fixture fails ("no FMU ...") instead of silently running ``dist/fmus``.
 """

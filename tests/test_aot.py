@@ -1,7 +1,11 @@
-"""Ahead-of-time compiled kernels (fmus/common/jit.py, orchestration/build.py): the build's
+"""Ahead-of-time compiled numba kernels (fmus/common/jit.py, orchestration/build.py): the build's
 compiled module returns what the just-in-time kernels return, bit for bit; an FMU with it runs
 the flagship byte-identical to one without, and never imports numba; the build without it
-still makes FMUs that run (on the JIT)."""
+still makes FMUs that run (on the JIT).
+
+The kernels move to Cython module by module (ARCHITECTURE.md, "The kernel path"): this tour
+covers the numba kernels that remain; the Cython ones are held bit for bit to their readable
+Python forms in tests/test_compiled_kernels.py."""
 from __future__ import annotations
 
 import copy
@@ -93,14 +97,10 @@ def _tour() -> None:
     """Python calls of every kernel Python calls: two runs (seeds) of the shipped scenarios on
     the batched engine (the FMUs' classes and batched kernels, in this process), and the
     Python functions of the kernels no such run calls."""
-    from fmus.common import dynamics, kalman
-    from fmus.common.robot_params import RobotParameters
+    from fmus.common import kalman
     from fmus.estimators import ekf_accelerometer_model as em
     from fmus.estimators.axelsson2012_batched import BatchedMeasurement
     from fmus.robot_plant.motion_control_model import MotionControllerParameters, build_controller
-    from fmus.estimators import rigid_kinematics_model
-    from fmus.robot_plant.plant_dynamics import PlantChain, plant_model
-    from fmus.robot_plant.plant_model import PlantParameters
     from orchestration.batched import run_recorded
     def run(name: str, seeds: tuple[int, ...] = (1,)) -> None:
         runs = [[f"scenario.seed={seed}", "scenario.stop_time=0.03"] for seed in seeds]
@@ -108,9 +108,6 @@ def _tour() -> None:
     run("flagship", (1, 2))           # two runs: the sensors and the EKF batched over runs
     for name in ("flagship", "axelsson2012_pf", "henriksson2009_p1", "contact_observer", "imu2019_square"):
         run(name)                     # one: every component its FMU class
-    k = dynamics.arm_constants(RobotParameters())
-    s = (0.1, -0.2, 16.0, -40.0, 0.3, -0.1, 50.0, -20.0)
-    k.deflection(0, 120.0), k.gravity(0.3, -0.4), k.derivatives(np.array(s), 1.0, -2.0, 5.0, 3.0)
     kalman.is_positive_definite(np.array([[2.0, 0.3], [0.3, 1.0]]))
     meas = em.EkfAccelerometerModel(em.EkfAccelerometerParameters()).meas
     x = np.linspace(0.05, 0.5, meas.layout.n)
@@ -118,15 +115,11 @@ def _tour() -> None:
     BatchedMeasurement(meas).h_and_jacobian(np.stack([x, 0.5 * x]))
     controller = build_controller(MotionControllerParameters())
     controller.model.offset_arm_angles(controller.model.sample(0.5), np.array([1e-3, -2e-3]))
-    chain = PlantChain(PlantParameters())
-    chain.arm(tuple(np.linspace(-0.3, 0.4, 12)), 20.0, -10.0)
     # Python paths beside the FMUs' one-call steps (studies, identification, the CRLB)
-    plant_model(PlantParameters()).step(np.array([20.0, -10.0]), np.zeros(2), 1e-3)
     controller.evaluate(0.5, np.zeros(2), np.zeros(2), np.zeros(2))
     controller.advance(1e-3)
     controller.measure(0.5, np.zeros(2)), controller.measure(0.501, np.array([1e-3, -2e-3]))
     controller.law_speed(0.501)
-    rigid_kinematics_model.arm_angles(np.array([30.0, -20.0]), RobotParameters(), True)
     ekf = em.EkfAccelerometerModel(em.EkfAccelerometerParameters())
     ekf.predict(np.array([1.0, -1.0]), 1e-3)
     ekf.update(ekf.meas.h_and_jacobian(ekf.x)[0] + 1e-4)

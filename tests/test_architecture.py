@@ -14,8 +14,8 @@ from orchestration.build import FMU_OPTIONAL_REQUIREMENTS, FMU_REQUIREMENTS
 
 ROOT = Path(__file__).resolve().parent.parent
 WINGS = ("robot_plant", "estimators", "force_observer")
-THIRD_PARTY = {r.split(">")[0].split("=")[0].split("<")[0].strip()
-               for r in FMU_REQUIREMENTS + FMU_OPTIONAL_REQUIREMENTS} | {"pythonfmu"}
+THIRD_PARTY = {r.split(">")[0].split("=")[0].split("<")[0].strip().lower()
+               for r in FMU_REQUIREMENTS + FMU_OPTIONAL_REQUIREMENTS} | {"pythonfmu"}   # import names, any case
 
 
 def imports(path: Path) -> list[tuple[int, str]]:
@@ -34,7 +34,7 @@ def allowed(part: str, module: str) -> bool:
     if top == "fmus":
         group = module.split(".")[1] if "." in module else ""
         return group == "common" or (part != "common" and group == part)
-    return top in sys.stdlib_module_names or top in THIRD_PARTY
+    return top in sys.stdlib_module_names or top.lower() in THIRD_PARTY
 
 
 @pytest.mark.parametrize("part", ("common",) + WINGS)
@@ -97,3 +97,24 @@ def test_the_schedule_is_plain_and_the_engines_take_it_from_there() -> None:
     own = [f"{p.name}: {word}" for p in engines for word in ("heapq", "lcm(", "_kahn", "def plan(", "def due(")
            if word in p.read_text()]
     assert not own, "an engine schedules by itself:\n" + "\n".join(own)
+
+
+def _calls(path: Path, names: set[str]) -> list[int]:
+    """The lines of ``path`` that call a function or method named one of ``names``."""
+    tree = ast.parse(path.read_text(), str(path))
+    return [node.lineno for node in ast.walk(tree) if isinstance(node, ast.Call)
+            and (getattr(node.func, "attr", None) in names or getattr(node.func, "id", None) in names)]
+
+
+def test_the_master_is_the_cosimulation_algorithm_and_the_store_extracts():
+    """ARCHITECTURE.md "The FMU store": master.py holds the co-simulation algorithm (under 900
+    lines) and extracts nothing; in orchestration, FMUs are extracted only by the FMU store (and
+    the one-FMU driver of the tests and benchmarks, fmu_host) and SSP packages only by the SSP
+    reader, each checked against the archive limits first."""
+    master = ROOT / "orchestration" / "master.py"
+    assert len(master.read_text().splitlines()) < 900
+    extracting = {path.name for path in sorted((ROOT / "orchestration").glob("*.py"))
+                  if _calls(path, {"extract", "extractall"})}
+    assert extracting == {"fmu_store.py", "fmu_host.py", "ssp.py"}, extracting
+    for name, check in (("fmu_store.py", "content_key"), ("fmu_host.py", "content_key"), ("ssp.py", "check_archive")):
+        assert _calls(ROOT / "orchestration" / name, {check}), f"{name} extracts without the archive check"

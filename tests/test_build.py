@@ -228,3 +228,67 @@ def test_the_staged_package_and_the_working_tree_have_one_kernel_key(tmp_path) -
     assert build.kernel_digest(package) == build.kernel_digest(build.FMU_SOURCES)
     assert ([p.relative_to(package) for p in build.kernel_sources(package)]
             == [p.relative_to(build.FMU_SOURCES) for p in build.kernel_sources(build.FMU_SOURCES)])
+
+
+def test_every_fmu_carries_each_cython_kernel_module_compiled_beside_its_source(every_fmu) -> None:
+    """Every ``.pyx`` of the package is in each FMU's vendored package with its extension for
+    this Python beside it, the bytes of the working tree's cache entry (one compilation serves
+    both)."""
+    from fmus.common import cython_kernels
+    pyx = [p.relative_to(REPO / "fmus").as_posix() for p in cython_kernels.sources()]
+    assert "robot_plant/plant_kernels.pyx" in pyx
+    for name, fmu in every_fmu.items():
+        with zipfile.ZipFile(fmu) as z:
+            package = next(f.split("/")[1] for f in z.namelist() if f.endswith("/" + BUNDLE_ID_FILE))
+            for source in pyx:
+                assert f"resources/{package}/{source}" in z.namelist(), (name, source)
+                extension = f"resources/{package}/{source[:-4]}{cython_kernels.EXTENSION}"
+                entry = cython_kernels.compiled(REPO / "fmus" / source)
+                assert z.read(extension) == entry.read_bytes(), (name, source)
+
+
+def test_a_changed_kernel_source_or_pxd_changes_the_builds_keys(tmp_path) -> None:
+    """The manifest's keys cover the Cython kernels: a changed ``.pyx`` or ``.pxd`` changes the
+    package's digest (the bundle id) and the Cython key, a changed other file neither of them
+    alone (the numba kernels' key stays with both)."""
+    import shutil
+
+    from orchestration import build
+    sources = tmp_path / "fmus"
+    shutil.copytree(REPO / "fmus", sources, ignore=shutil.ignore_patterns("__pycache__"))
+
+    def keys() -> tuple[str, str, str]:
+        return build.package_digest(sources), build.cython_key(sources), build.kernel_digest(sources)
+    first = keys()
+    pxd = sources / "common" / "gearbox.pxd"
+    pxd.write_text(pxd.read_text() + "# changed\n")
+    second = keys()
+    assert second[0] != first[0] and second[1] != first[1] and second[2] == first[2]
+    pyx = sources / "robot_plant" / "sensor_kernels.pyx"
+    pyx.write_text(pyx.read_text() + "# changed\n")
+    third = keys()
+    assert third[0] != second[0] and third[1] != second[1] and third[2] == first[2]
+
+
+def test_compile_cython_says_what_it_compiles_once_per_content(tmp_path, monkeypatch, capsys) -> None:
+    """A package's kernel module is compiled (the build says so and how long it took), put
+    beside its source, and importable there; the next build of the same content takes it from
+    the cache and says so; a failing one is a BuildError naming it."""
+    from orchestration import build
+    monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path / "cache"))
+    package = tmp_path / "stage" / "fmus_toy"
+    (package / "sub").mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "sub" / "__init__.py").write_text("")
+    (package / "sub" / "toy_kernels.pyx").write_text("def twice(double x):\n    return 2.0 * x\n")
+    made = build.compile_cython(package)
+    out = capsys.readouterr().out
+    assert "compiling sub/toy_kernels.pyx" in out and re.search(r"compiled sub/toy_kernels\.pyx in [0-9.]+ s", out)
+    assert made == [package / "sub" / f"toy_kernels{importlib.machinery.EXTENSION_SUFFIXES[0]}"]
+    monkeypatch.syspath_prepend(str(package.parent))
+    assert importlib.import_module("fmus_toy.sub.toy_kernels").twice(1.5) == 3.0
+    assert build.compile_cython(package) == made
+    assert capsys.readouterr().out == "  Cython kernels unchanged: 1 modules from the cache\n"
+    (package / "sub" / "toy_kernels.pyx").write_text("def twice(double x):\n    return y\n")
+    with pytest.raises(BuildError, match="the kernel module sub/toy_kernels.pyx: compiling toy_kernels.pyx failed"):
+        build.compile_cython(package, quiet=True)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from fmus.common import native_cache
 from orchestration import CouplingWarning, RunError, cloop, fork, master, run
 from orchestration.build import BuildError
 from orchestration.native import c_compiler
@@ -184,10 +185,10 @@ def test_compiled_once_into_the_cache_then_reused(tmp_path, monkeypatch):
 
 def test_without_a_compiler_or_when_asked_the_python_loop_runs(tmp_path, monkeypatch):
     def no_compiler():
-        raise BuildError("no C compiler found (tried ...)")
+        raise FileNotFoundError("no C compiler found (tried ...)")
     monkeypatch.delenv("FLEXFUSION_PYTHON_LOOP", raising=False)
     monkeypatch.setenv("FLEXFUSION_CACHE_DIR", str(tmp_path))
-    monkeypatch.setattr("orchestration.native.c_compiler", no_compiler)
+    monkeypatch.setattr("fmus.common.native_cache.c_compiler", no_compiler)
     try:
         cloop.library.cache_clear()
         assert cloop.library() is None and "no C compiler" in cloop.unavailable()
@@ -215,7 +216,7 @@ def _plant(folder: Path, marker: Path, mode: int = 0o755, record: bool = True) -
     subprocess.run([*c_compiler(), "-shared", "-fPIC", f'-DMARKER="{marker}"', str(source), "-o", str(lib)],
                    check=True)
     if record:
-        lib.with_name(lib.name + ".sha256").write_text(cloop._sha256(lib) + "\n")
+        lib.with_name(lib.name + ".sha256").write_text(native_cache.sha256(lib) + "\n")
     lib.chmod(mode)
     return lib
 
@@ -279,5 +280,5 @@ def test_a_library_that_fails_its_check_is_set_aside_and_compiled_again(cache_di
     with pytest.warns(UserWarning, match=f"cached C loop was not loaded .*{why}.*compiled again"):
         assert cloop.library() is not None
     assert not marker.exists()
-    assert cloop._verified(lib) and len(list(folder.glob(f".bad-*-{cloop.LIBRARY_NAME}"))) == 1
+    assert native_cache.verified(lib) and len(list(folder.glob(f".bad-*-{cloop.LIBRARY_NAME}"))) == 1
     assert cloop._compiled() == lib                                     # and now it is reused

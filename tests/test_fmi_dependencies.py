@@ -35,7 +35,7 @@ def _third_party_imports(fmu: Path) -> set[str]:
                 names |= {a.name.split(".")[0] for a in node.names}
             elif isinstance(node, ast.ImportFrom) and node.level == 0:
                 names.add(node.module.split(".")[0])
-    return names - set(sys.stdlib_module_names) - bundled - {"__future__"}
+    return {n.lower() for n in names - set(sys.stdlib_module_names) - bundled - {"__future__"}}   # as requirements name them
 
 
 def _requirements(fmu: Path, name: str = "requirements.txt") -> set[str]:

@@ -49,7 +49,9 @@ variables = ["pf.q_a_hat"]
     proc = subprocess.run([sys.executable, "-c", RUN, "run", str(scenario), "--out", str(tmp / "out"),
                            "--no-progress"], capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    # of the tree, only where the master keeps its extracted FMUs (no model code)
-    assert "TREE ['fmus', 'fmus.common', 'fmus.common.disk_cache'] BUNDLED ['fmus_" in proc.stdout, proc.stdout
+    # of the tree, only the caches (the master's extracted FMUs, the C loop, the metrics' compiled
+    # filter): no model code
+    assert ("TREE ['fmus', 'fmus.common', 'fmus.common.cython_kernels', 'fmus.common.disk_cache', "
+            "'fmus.common.native_cache'] BUNDLED ['fmus_") in proc.stdout, proc.stdout
     assert (tmp / "out" / "results.csv").is_file()
     assert list(temp.iterdir()) == []            # no extraction folder left

@@ -36,8 +36,10 @@ def test_every_built_fmu_carries_its_class_declaration(every_fmu) -> None:
         read_model_description(str(every_fmu[name]), validate=True)     # fmpy's schema check
         assert describe(every_fmu[name]) == SelfDescription(**cls.self_description(), annotated=True), name
     # what the orchestration lists said before the FMUs declared it
-    assert {n for n, c in classes.items() if c.role == "sensor"} == {"Encoder", "Imu", "ForceTorqueSensor"}
+    assert {n for n, c in classes.items() if c.role == "sensor"} == {"Encoder", "Imu", "ForceTorqueSensor",
+                                                                    "Encoder6", "Imu3D"}
     assert describe(every_fmu["Tracker"]).role == "reference"
+    assert describe(every_fmu["Tracker3D"]).role == "reference"
     assert {n: c.batched for n, c in classes.items() if c.batched} == \
         {"Encoder": "Encoder", "Imu": "Imu", "EkfAccelerometer": "EkfAccelerometer"}
     assert set(batched.KERNELS) == {c.batched for c in classes.values() if c.batched}

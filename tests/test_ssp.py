@@ -625,6 +625,8 @@ def test_without_step_annotations_the_base_step_is_the_documented_default(tmp_pa
     (lambda t: t.replace("<Elements>", "<Elements><Connector>"), "malformed XML"),
     (lambda t: t.replace('encoding="UTF-8"', 'encoding="U0TF-8"'), "malformed XML: unknown encoding: U0TF-8"),
     (lambda t: t.replace('startTime="0.0"', 'startTime="1.0"'), "startTime = 1: our master starts at 0"),
+    (lambda t: t.replace('<Component name="sink"', '<Component name="gain"'),
+     "two components are named 'gain'"),
 ])
 def test_a_malformed_ssp_ends_in_one_error_line(tmp_path, toy_dir, capsys, edit, cause):
     ssp = handmade(tmp_path, toy_dir, edit)
@@ -639,3 +641,74 @@ def test_a_file_that_is_no_package_ends_in_one_error_line(tmp_path, capsys):
     bad.write_text("not a zip")
     assert main(["run", str(bad)]) == 2
     assert capsys.readouterr().err.strip() == f"error: {bad}: not an SSP package (not a zip archive)"
+
+
+def test_the_delays_declaration_round_trips(tmp_path):
+    """A scenario's ``delays`` (the cycle edge meant to read the previous value) is exported and
+    imported again: the same delays, and the package runs without a coupling warning, as the
+    scenario does."""
+    from orchestration.ssp import load_ssp, opened
+    scenario = write(tmp_path, MASS_SPRING.replace("connections = [", 'delays = ["b.x -> a.x_other"]\nconnections = ['))
+    sc = load_scenario(scenario)
+    assert sc.delays == ["b.x -> a.x_other"]
+    ssp = export(tmp_path, scenario)
+    assert_valid_ssp(ssp)
+    with opened(ssp) as ssd, warnings.catch_warnings():
+        warnings.simplefilter("error", CouplingWarning)
+        again = load_ssp(ssp, ssd)
+        assert again.delays == sc.delays
+        run(again, out_dir=tmp_path / "ssp")
+        run(scenario, out_dir=tmp_path / "toml")
+    _same_run(tmp_path / "ssp", tmp_path / "toml")
+
+
+def bomb(path: Path, expanded: int) -> Path:
+    """A package of about 9 MB (an SSD, 8 MB of random bytes and a zero-filled entry of
+    ``expanded`` bytes, which deflates about 1000 to 1)."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED, compresslevel=9) as z:
+        z.writestr("SystemStructure.ssd", "<SystemStructureDescription/>")
+        z.writestr("resources/noise.bin", np.random.default_rng(0).bytes(8 << 20), zipfile.ZIP_STORED)
+        with z.open("resources/zeros.bin", "w", force_zip64=True) as f:
+            chunk = bytes(1 << 24)
+            for _ in range(expanded // len(chunk)):
+                f.write(chunk)
+    return path
+
+
+def test_a_9_mb_ssp_that_would_expand_past_the_limit_is_refused_before_extraction(tmp_path, capsys, monkeypatch):
+    """1 GiB of zeros in a 9 MB package: refused from the central directory (compression ratio),
+    and with the ratio allowed, by the total size; nothing is extracted (no temporary folder
+    is written to) and the run ends in one error line."""
+    import tempfile
+    ssp = bomb(tmp_path / "bomb.ssp", 1 << 30)
+    assert 8e6 < ssp.stat().st_size < 10e6
+    made = []
+    mkdtemp = tempfile.mkdtemp
+    monkeypatch.setattr(tempfile, "mkdtemp", lambda *a, **k: made.append(mkdtemp(*a, **k)) or made[-1])
+    assert main(["run", str(ssp), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'resources/zeros.bin' expands" in err[0] and "FLEXFUSION_ARCHIVE_MAX_RATIO" in err[0], err
+    monkeypatch.setenv("FLEXFUSION_ARCHIVE_MAX_RATIO", "2000")
+    assert main(["run", str(ssp), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bytes uncompressed, more than the limit of 1073741824" in err[0], err
+    assert all(not os.listdir(folder) for folder in made if os.path.isdir(folder)) and not (tmp_path / "out").exists()
+    monkeypatch.setenv("FLEXFUSION_ARCHIVE_MAX_ENTRIES", "2")
+    assert main(["run", str(ssp), "--out", str(tmp_path / "out")]) == 2
+    assert "3 entries, more than the limit of 2" in capsys.readouterr().err
+
+
+def test_archive_limits_refuse_escaping_names_and_bad_settings(tmp_path, monkeypatch):
+    from orchestration import archive
+    info = zipfile.ZipInfo("../outside.txt")
+    with pytest.raises(archive.ArchiveError, match="unsafe entry name '../outside.txt'"):
+        archive.check([info], "x.ssp")
+    for name in ("/etc/passwd", "C:/x", "a/../../b"):
+        with pytest.raises(archive.ArchiveError, match="unsafe entry name"):
+            archive.check([zipfile.ZipInfo(name)], "x.ssp")
+    archive.check([zipfile.ZipInfo("resources/a/b.fmu")], "x.ssp")
+    monkeypatch.setenv("FLEXFUSION_ARCHIVE_MAX_BYTES", "lots")
+    with pytest.raises(archive.ArchiveError, match="FLEXFUSION_ARCHIVE_MAX_BYTES='lots': not a positive number"):
+        archive.limits()
+    monkeypatch.setenv("FLEXFUSION_ARCHIVE_MAX_BYTES", "1e3")
+    assert archive.limits().max_bytes == 1000

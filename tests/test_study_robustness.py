@@ -303,7 +303,7 @@ REDUCED_STOP_TIME = 3.0
 def test_the_papers_findings(fmu_env, tmp_path) -> None:
     """The study at reduced size (every case, the shipped P1-tuned scenarios, the first
     :data:`REDUCED_STOP_TIME` s, as `flexfusion study robustness --stop-time 3 --workers 2`:
-    128 s on 2 workers of a busy machine, 8 min under heavy load; the full study 239 s). Asserted, as the README and the findings claim: the one paper
+    128 s on 2 workers of a busy machine, 8 min under heavy load; the full study 239 s). Asserted, as docs/figures.md and the findings claim: the one paper
     finding we reproduce, every accelerometer-based observer (and our variants) at least 2x (the
     paper's lower factor) below rigid kinematics' 3-30 Hz mean error on P1 and P2 (measured at
     this size 5.1-14x; full size 5.3-13x); the three we do not reproduce stay not reproduced

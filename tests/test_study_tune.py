@@ -2,6 +2,7 @@
 scenario pruning, the include file, and the CLI's argument handling."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +68,25 @@ def test_tune_finds_the_optimum_of_a_toy(tmp_path) -> None:
     assert res.n_evals == len(res.history) <= 5 * (8 + 1)
     assert min(h["cost"] for h in res.history) == pytest.approx(res.cost)
     assert res.failed == 0 and res.wall_time > 0
+
+
+def test_tune_reports_convergence_or_the_budget_running_out(tmp_path) -> None:
+    """A loose tolerance (0.5: the population's cost spread within half its mean) is met on the
+    toy within its budget, and the result says so and in how many generations; an unreachable
+    one (1e-12) with one generation says the budget ran out, also in the include's comment,
+    which names --tol."""
+    conv = st.tune(_toy(tmp_path), "g", {"gain": (0.1, 10.0)}, truth="src.ys", estimate="g.yv",
+                   after=0.0, maxiter=30, popsize=5, seed=1, tol=0.5, progress=False)
+    assert conv.converged and 1 <= conv.generations < 30 and conv.tol == 0.5 and conv.maxiter == 30
+    assert st.convergence(conv) == f"converged (tol 0.5) in {conv.generations} of 30 generations"
+    assert conv.to_json()["converged"] is True
+    from orchestration.cli import main
+    assert main(["study", "tune", str(_toy(tmp_path)), "--estimator", "g", "--truth", "src.ys", "--estimate", "g.yv",
+                 "--param", "gain=0.1:10", "--after", "0", "--maxiter", "1", "--popsize", "3", "--tol", "1e-12",
+                 "--workers", "1", "--no-progress", "--engine", "fmu", "--out", str(tmp_path / "o")]) == 0
+    text = (tmp_path / "o" / "tuned_g.toml").read_text()
+    assert "--tol 1e-12" in text and "NOT converged: the budget of 1 generations ran out" in text
+    assert json.loads((tmp_path / "o" / "tune_g.json").read_text())["converged"] is False
 
 
 def test_tune_on_the_study_executor_and_include(tmp_path) -> None:

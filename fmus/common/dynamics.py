@@ -25,117 +25,34 @@ import math
 
 import numpy as np
 
-from fmus.common.jit import kernel
+from fmus.common import cython_kernels
 from fmus.common.parameters import as_array
 from fmus.common.robot_params import RobotParameters
 
 
-@kernel
-def spring_scalar(k_hi: float, k_soft: float, delta: float, D: float) -> float:
-    """Gearbox spring torque ``tau_s(D) = k_hi D - (k_hi - k_lo) delta tanh(D / delta)`` [N.m] of
-    one joint on floats (``k_soft = k_hi - k_lo``), the deflection ``D`` [rad]: the one
-    definition of kernels (the plant's chain) and of :meth:`ArmConstants.spring`."""
-    return k_hi * D - k_soft * delta * math.tanh(D / delta)
+# compiled (common/dynamics_kernels.pyx): the gearbox spring (common/gearbox.pxd, the one
+# definition), the rates of eqs. 10-11 and their RK4 step, on :attr:`ArmConstants.packed` (the
+# fields of its struct ``Arm``, in the array's order); the tests hold them to their Python forms.
+_kernels = cython_kernels.load("common.dynamics_kernels")
+#: ``spring_scalar(k_hi, k_soft, delta, D)``: the gearbox spring torque
+#: ``tau_s(D) = k_hi D - (k_hi - k_lo) delta tanh(D / delta)`` [N.m] of one joint on floats
+#: (``k_soft = k_hi - k_lo``, deflection ``D`` [rad])
+spring_scalar = _kernels.spring_scalar
+#: ``flex_rates(s, tau1, tau2, fx, fz, K)``: ``x_dot`` (8-tuple) of eqs. 10-11 at the state ``s``
+#: (8-tuple), motor torques [N.m], tool force [N], constants ``K`` (:attr:`ArmConstants.packed`)
+flex_rates = _kernels.flex_rates
+#: ``flex_step(s, tau1, tau2, fx, fz, dt, substeps, K)``: ``substeps`` RK4 steps over ``dt`` [s]
+#: of :func:`flex_rates`, the inputs held: the new state (8-tuple)
+flex_step = _kernels.flex_step
 
 
-_spring_py = getattr(spring_scalar, "py_func", spring_scalar)    # plain Python: no dispatch cost
-
-
-@kernel(aot="float64(float64, float64, float64, float64, float64, boolean)")
-def spring_inverse(k_hi: float, k_soft: float, delta: float, tau: float, D: float, guess: bool) -> float:
-    """The deflection ``D`` [rad] of one gearbox spring (``k_hi``, ``k_soft = k_hi - k_lo``
-    [N.m/rad], ``delta`` [rad]) carrying the torque ``tau`` [N.m]: Newton's method on
-    ``tau_s(D) = tau`` (:func:`spring_deflection` for one joint, each joint stopping on its own),
-    from ``D`` when ``guess``, else from the high-stiffness asymptote shifted by the soft zone."""
-    if not guess:
-        D = (tau + math.copysign(k_soft * delta * math.tanh(abs(tau) / (k_hi * delta)), tau)) / k_hi
-    tol = 1e-12 * max(1.0, abs(tau))
-    for _ in range(50):
-        th = math.tanh(D / delta)
-        f = k_hi * D - k_soft * delta * th - tau
-        D -= f / (k_hi - k_soft * (1.0 - th * th))    # sech^2, no overflow
-        if abs(f) <= tol:
-            break
-    return D
-
-
-@kernel(aot="UniTuple(float64, 2)(float64, float64, float64, float64)")
-def gravity_torques(g1: float, g2: float, q1: float, q2: float) -> tuple[float, float]:
-    """Gravity torques of eq. 11 [N.m] on floats (:func:`gravity_torque`): the constants ``g1``,
-    ``g2`` of :class:`ArmConstants` [N.m], the arm angles ``q1``, ``q2`` [rad]."""
-    cp = math.cos(q1 + q2)
-    return -g1 * math.sin(q1) - g2 * cp, -g2 * cp
-
-
-@kernel(aot="UniTuple(float64, 8)(UniTuple(float64, 8), float64, float64, float64, float64, "
-            "float64[:])")
-def flex_rates(s, tau1: float, tau2: float, fx: float, fz: float, K: np.ndarray) -> tuple:
-    """``x_dot`` of the flexible-joint model (eqs. 10-11) as a tuple of 8 floats at the state
-    ``s`` (8 floats: ``q_a``, ``q_m``, ``dq_a``, ``dq_m``), with the motor torques ``tau1``,
-    ``tau2`` [N.m, motor side], the external tool force ``fx``, ``fz`` [N, world x, z] and the
-    constants ``K`` (:attr:`ArmConstants.packed`)."""
-    q1, q2, qm1, qm2, dq1, dq2, dqm1, dqm2 = s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7]
-    s1, c1 = math.sin(q1), math.cos(q1)
-    phi = q1 + q2
-    sp, cp = math.sin(phi), math.cos(phi)
-    s2, c2 = math.sin(q2), math.cos(q2)
-    b = -K[2] * s2
-    bd = -K[2] * c2                           # db/dq2
-    m11, m12, m22 = K[0] + 2.0 * b, K[1] + b, K[1]
-    r1, r2 = K[7], K[8]
-    D1, D2 = qm1 / r1 - q1, qm2 / r2 - q2
-    t1 = spring_scalar(K[9], K[11], K[13], D1) + K[15] * (dqm1 / r1 - dq1)
-    t2 = spring_scalar(K[10], K[12], K[14], D2) + K[16] * (dqm2 / r2 - dq2)
-    l1, l2, g1, g2 = K[5], K[6], K[3], K[4]
-    # J_tool^T f_ext
-    e1 = fx * (l1 * c1 - l2 * sp) - fz * (l1 * s1 + l2 * cp)
-    e2 = -l2 * (fx * sp + fz * cp)
-    rhs1 = t1 + e1 - bd * (2.0 * dq1 * dq2 + dq2 * dq2) + g1 * s1 + g2 * cp
-    rhs2 = t2 + e2 + bd * dq1 * dq1 + g2 * cp
-    det = m11 * m22 - m12 * m12
-    ddq1 = (m22 * rhs1 - m12 * rhs2) / det
-    ddq2 = (m11 * rhs2 - m12 * rhs1) / det
-    ddqm1 = (tau1 - K[17] * dqm1 - K[19] * math.tanh(dqm1 / K[21]) - t1 / r1) / K[23]
-    ddqm2 = (tau2 - K[18] * dqm2 - K[20] * math.tanh(dqm2 / K[22]) - t2 / r2) / K[24]
-    return dq1, dq2, dqm1, dqm2, ddq1, ddq2, ddqm1, ddqm2
-
-
-@kernel
-def rk4_stage(x: np.ndarray, a: float, k: tuple, y: np.ndarray) -> None:
-    """``y = x + a k``: the state of an RK4 stage (``k`` the rates of the one before, a tuple)."""
-    for i in range(x.size):
-        y[i] = x[i] + a * k[i]
-
-
-@kernel
-def rk4_update(x: np.ndarray, h6: float, k1: tuple, k2: tuple, k3: tuple, k4: tuple) -> None:
-    """``x += h6 (k1 + 2 k2 + 2 k3 + k4)`` in place: the end of an RK4 step (``h6 = h / 6``)."""
-    for i in range(x.size):
-        x[i] = x[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-
-
-@kernel(aot="UniTuple(float64, 8)(UniTuple(float64, 8), float64, float64, float64, float64, "
-            "float64, int64, float64[:])")
-def flex_step(s: tuple, tau1: float, tau2: float, fx: float, fz: float, dt: float, substeps: int,
-              K: np.ndarray) -> tuple:
-    """``substeps`` RK4 steps over ``dt`` [s] of :func:`flex_rates` from the state ``s`` (8-tuple)
-    with the inputs ``tau1``, ``tau2`` [N.m], ``fx``, ``fz`` [N] held and the constants ``K``:
-    the new state (8-tuple), :meth:`FlexibleRobotModel.step`'s operations in the same order."""
-    h = dt / substeps
-    hh, h6 = 0.5 * h, h / 6.0
-    x, y = np.empty(8), np.empty(8)
-    for i in range(8):
-        x[i] = s[i]
-    for _ in range(substeps):
-        k1 = flex_rates(x, tau1, tau2, fx, fz, K)
-        rk4_stage(x, hh, k1, y)
-        k2 = flex_rates(y, tau1, tau2, fx, fz, K)
-        rk4_stage(x, hh, k2, y)
-        k3 = flex_rates(y, tau1, tau2, fx, fz, K)
-        rk4_stage(x, h, k3, y)
-        k4 = flex_rates(y, tau1, tau2, fx, fz, K)
-        rk4_update(x, h6, k1, k2, k3, k4)
-    return x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7]
+#: ``spring_inverse(k_hi, k_soft, delta, tau, D, guess)``: the deflection ``D`` [rad] of one
+#: gearbox spring carrying the torque ``tau`` [N.m] (Newton's method on ``tau_s(D) = tau``, from
+#: ``D`` when ``guess``; :func:`spring_deflection` for one joint; common/gearbox.pxd)
+spring_inverse = _kernels.spring_inverse
+#: ``gravity_torques(g1, g2, q1, q2)``: the gravity torques of eq. 11 [N.m] on floats
+#: (:func:`gravity_torque`; the constants ``g1``, ``g2`` of :class:`ArmConstants`; common/planar_arm.pxd)
+gravity_torques = _kernels.gravity_torques
 
 
 class ArmConstants:
@@ -179,7 +96,7 @@ class ArmConstants:
     def spring(self, i: int, D: float) -> float:
         """Gearbox spring torque ``tau_s(D)`` [N.m] of joint ``i`` at the deflection ``D`` [rad]
         (:func:`spring_torque` on a float)."""
-        return _spring_py(self.k_hi[i], self.k_soft[i], self.delta[i], D)
+        return spring_scalar(self.k_hi[i], self.k_soft[i], self.delta[i], D)
 
     def deflection(self, i: int, tau: float, D0: float | None = None) -> float:
         """:func:`spring_deflection` of joint ``i`` on a float: the deflection [rad] carrying the
@@ -196,7 +113,7 @@ class ArmConstants:
         """``x_dot`` as a tuple of 8 floats (eqs. 10-11) at the state ``s`` (8 floats, the
         module's ``x``), with the motor torques ``tau1``, ``tau2`` [N.m, motor side] and the
         external tool force ``fx``, ``fz`` [N, world x, z] (:func:`flex_rates`, compiled)."""
-        return flex_rates(tuple(s), tau1, tau2, fx, fz, self.packed)   # a tuple: its aot= type
+        return flex_rates(tuple(s), tau1, tau2, fx, fz, self.packed)   # a tuple: the kernel's type
 
 
 _CACHE: dict[int, ArmConstants] = {}

@@ -62,12 +62,15 @@ BUNDLE_ID_FILE = "BUNDLE_ID"
 COMPILED_MODULE = "_compiled"         # the ahead-of-time kernels' extension module
 
 
+KERNEL_SUFFIXES = (".pyx", ".pxd", ".pxi")     # the Cython kernels' sources (fmus/common/cython_kernels.py)
+
+
 def package_sources(root: Path) -> list[Path]:
     """The source files below the package folder ``root`` that its bundle id covers: every
-    ``*.py`` but the FMU scripts (each FMU carries its own script beside the shared package),
-    sorted."""
-    return sorted(p for p in root.rglob("*.py")
-                  if not p.name.endswith("_fmu.py") and "__pycache__" not in p.parts)
+    ``*.py`` but the FMU scripts (each FMU carries its own script beside the shared package), and
+    the Cython kernels' sources (:data:`KERNEL_SUFFIXES`); sorted."""
+    return sorted(p for p in root.rglob("*") if "__pycache__" not in p.parts and (
+        (p.suffix == ".py" and not p.name.endswith("_fmu.py")) or p.suffix in KERNEL_SUFFIXES))
 
 
 def package_digest(root: Path) -> str:
@@ -249,7 +252,7 @@ def compile_package(output_dir: Path | None = None) -> list[str]:
     cc.output_dir = str(output_dir or PACKAGE)
     exported: list[str] = []
     for source in package_sources(PACKAGE):
-        if "@kernel" not in source.read_text():
+        if source.suffix != ".py" or "@kernel" not in source.read_text():
             continue
         module = importlib.import_module(
             ".".join((PACKAGE.name, *source.relative_to(PACKAGE).with_suffix("").parts)))

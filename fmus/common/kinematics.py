@@ -66,8 +66,10 @@ def tool_position(q, p) -> np.ndarray:
 
 @kernel
 def tool_point(q1: float, q2: float, l1: float, l2: float) -> tuple[float, float]:
-    """:func:`tool_position` on floats (compiled: the rigid baseline's every step): world x, z
-    [m] of the tool at the arm angles ``q1``, ``q2`` [rad] of links ``l1``, ``l2`` [m]."""
+    """:func:`tool_position` on floats (compiled, for the numba kernels of the controller and the
+    2012 EKF; the Cython kernels have it from common/planar_arm.pxd, held equal by
+    tests/test_compiled_kernels.py until these move too): world x, z [m] of the tool at the arm
+    angles ``q1``, ``q2`` [rad] of links ``l1``, ``l2`` [m]."""
     phi = q1 + q2
     return l1 * math.sin(q1) + l2 * math.cos(phi), l1 * math.cos(q1) - l2 * math.sin(phi)
 

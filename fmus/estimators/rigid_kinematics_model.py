@@ -18,11 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fmus.common import dynamics, kinematics
-from fmus.common.jit import kernel
+from fmus.common import cython_kernels, dynamics, kinematics
 from fmus.common.parameters import param
 from fmus.common.robot_params import RobotParameters
-from fmus.common.sample_time import TIME_TOL
 
 
 @dataclass(frozen=True)
@@ -52,21 +50,9 @@ def arm_angles(q_m, robot: RobotParameters, gravity_compensation: bool = False) 
     return _compensated(m1, m2, k.static)
 
 
-@kernel(aot="UniTuple(float64, 2)(float64, float64, float64[:])")
-def _compensated(m1: float, m2: float, K: np.ndarray) -> tuple[float, float]:
-    """The fixed point of :func:`arm_angles` from ``q_m / r = (m1, m2)``, with the constants
-    ``K`` of :attr:`fmus.common.dynamics.ArmConstants.static`."""
-    q1, q2, D1, D2, guess = m1, m2, 0.0, 0.0, False
-    for _ in range(8):
-        G1, G2 = dynamics.gravity_torques(K[0], K[1], q1, q2)
-        D1 = dynamics.spring_inverse(K[2], K[4], K[6], G1, D1, guess)
-        D2 = dynamics.spring_inverse(K[3], K[5], K[7], G2, D2, guess)
-        guess = True                             # each inversion starts from the last one
-        n1, n2 = m1 - D1, m2 - D2
-        if abs(n1 - q1) <= 1e-11 and abs(n2 - q2) <= 1e-11:      # error left: about 1e-14 rad
-            return n1, n2
-        q1, q2 = n1, n2
-    return q1, q2
+# compiled (estimators/rigid_kinematics_kernels.pyx): the fixed point of arm_angles, the FMU's estimate
+_kernels = cython_kernels.load("estimators.rigid_kinematics_kernels")
+_compensated = _kernels.compensated
 
 
 def constants(robot: RobotParameters, gravity_compensation: bool = False) -> np.ndarray:
@@ -78,31 +64,11 @@ def constants(robot: RobotParameters, gravity_compensation: bool = False) -> np.
                      *k.static])
 
 
-@kernel(aot="float64(float64[:], float64, float64, float64[:], float64[:], float64[:], int64)")
-def estimate(q_m, t_m, now, consts, samples, out, first):
-    """The RigidKinematics FMU's estimate at ``now`` [s] from the motor angles ``q_m`` [rad]
-    stamped ``t_m`` [s]: :func:`arm_angles` (``consts`` of :func:`constants`), extrapolated to
-    ``now`` at the velocity of the last two distinct samples when the sample is older (the
-    latency compensation of a robot controller; ``samples``: their count, then (time, q_a) of
-    the one before and of the last, updated), then the tool position
-    (:func:`fmus.common.kinematics.tool_point`). Writes ``q_a_hat``, ``p_tool_hat`` into
-    ``out[first:first + 4]``; returns the tool angle ``q_a_hat[0] + q_a_hat[1]``."""
-    q1, q2 = q_m[0] / consts[0], q_m[1] / consts[1]
-    if consts[2] != 0.0:
-        q1, q2 = _compensated(q1, q2, consts[5:])
-    if samples[0] > 0 and t_m <= samples[4] + TIME_TOL:       # the same sample (or set again)
-        samples[4], samples[5], samples[6] = t_m, q1, q2
-    else:
-        samples[1], samples[2], samples[3] = samples[4], samples[5], samples[6]
-        samples[4], samples[5], samples[6] = t_m, q1, q2
-        samples[0] = min(samples[0] + 1.0, 2.0)
-    if now > t_m + TIME_TOL and samples[0] == 2.0:
-        t0, a0, b0, t1, a1, b1 = samples[1], samples[2], samples[3], samples[4], samples[5], samples[6]
-        f = (now - t1) / (t1 - t0)
-        q1, q2 = a1 + (a1 - a0) * f, b1 + (b1 - b0) * f
-    x, z = kinematics.tool_point(q1, q2, consts[3], consts[4])
-    out[first], out[first + 1], out[first + 2], out[first + 3] = q1, q2, x, z
-    return q1 + q2
+#: ``estimate(q_m, t_m, now, consts, samples, out, first)``: the RigidKinematics FMU's estimate
+#: at ``now`` [s] from the motor angles ``q_m`` [rad] stamped ``t_m`` [s] (:func:`arm_angles` with
+#: the ``consts`` of :func:`constants`, extrapolated to ``now`` from the last two distinct
+#: ``samples``, then the tool position) into ``out[first:first + 4]``; returns the tool angle
+estimate = _kernels.estimate
 
 
 def tool_position(q_m, robot: RobotParameters, gravity_compensation: bool = False) -> np.ndarray:

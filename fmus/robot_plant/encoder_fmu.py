@@ -1,13 +1,12 @@
-"""FMU adapter of the motor-side angle encoders of joints 2 and 3 (math in
-:mod:`fmus.robot_plant.sensor_model`)."""
+"""FMU adapter of the motor-side angle encoders of joints 2 and 3: :class:`fmus.robot_plant.
+encoder_fmu_base.EncoderSlave` with two channels (math in :mod:`fmus.robot_plant.sensor_model`)."""
 from __future__ import annotations
 
-from fmus.common.fmi import FlexFusionSlave
-from fmus.robot_plant.sensor_model import (EncoderParameters, SensorChannels, T_TRUTH_DESCRIPTION,
-                                           UNSTAMPED, input_time, reseed)
+from fmus.robot_plant import encoder_fmu_base as base
+from fmus.robot_plant.sensor_model import EncoderParameters
 
 
-class Encoder(FlexFusionSlave):
+class Encoder(base.EncoderSlave):
     """Motor angle measurement ``q_m_meas`` of joints 2 and 3 (quantised, noisy, sampled).
 
     No direct feedthrough: the reading at ``t + dt`` is the sample of the input set before
@@ -23,32 +22,7 @@ class Encoder(FlexFusionSlave):
     """
     role = "sensor"
     batched = "Encoder"
+    axes = 2
 
     parameters_class = EncoderParameters
     description = "Motor-side angle encoders of joints 2 and 3: quantisation, noise, sample-and-hold"
-
-    def __init__(self, **kwargs) -> None:
-        super().__init__(**kwargs)
-        self.input("q_m", 2, unit="rad", description="true motor angle, motor side")
-        self.input("t_truth", unit="s", start=UNSTAMPED, description=T_TRUTH_DESCRIPTION)
-        self.output("q_m_meas", 2, unit="rad", description="measured motor angle, motor side")
-        self.output("t_meas", unit="s", description="time the held sample was taken (the time "
-                    "its input stands for)")
-        self.channels: SensorChannels | None = None
-
-    def setup(self, p: EncoderParameters) -> None:
-        self.channels = SensorChannels(
-            2, seed=p.seed, stream="encoder", noise=p.noise, bias=p.bias, bias_rw=p.bias_rw,
-            scale=p.scale, resolution=p.resolution, sample_rate=p.sample_rate, cutoff=p.cutoff,
-            filter_order=p.filter_order, out=self.q_m_meas)
-        self.channels.initial(self.q_m, input_time(self._time, 0.0, self.t_truth))
-        self.t_meas = self.channels.t_meas
-        self.tuned("reseed")
-
-    def tuned(self, name: str) -> None:
-        if name == "reseed":
-            reseed(self.params.reseed, self.channels)
-
-    def step(self, t: float, dt: float) -> None:
-        self.channels.step(self.q_m, dt, input_time(t, dt, self.t_truth))     # into q_m_meas
-        self.t_meas = self.channels.t_meas

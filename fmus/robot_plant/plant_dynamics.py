@@ -49,9 +49,10 @@ with the generalised forces ``Q_j = g g_j sin psi_j + L_j (f_x cos psi_j - f_z s
 on body ``j``): the gearbox torque ``tau_s(D) + d D_dot`` of eq. 11, or ``-(k_b b + d_b b_dot)``
 at a bending joint. The motors follow eq. 10 with the applied torque of item 2.
 
-The hot path is plain-float Python like :class:`fmus.common.dynamics.ArmConstants`: for the
-four-body chain written out (an LDL^T solve of the 4x4 system), in loops for a chain of rigid
-links (``link_bending = false``).
+The hot path: the four-body chain's equations written out (an LDL^T solve of the 4x4 system)
+and compiled (robot_plant/plant_kernels.pyx, Cython); plain-float Python loops over the bodies
+for a chain of rigid links (``link_bending = false``), which the tests also hold the compiled
+chain to.
 """
 from __future__ import annotations
 
@@ -60,8 +61,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fmus.common import dynamics, kinematics
-from fmus.common.jit import kernel
+from fmus.common import cython_kernels, dynamics, kinematics
 from fmus.common.parameters import ParameterError
 
 HALF_PI = 0.5 * math.pi
@@ -101,166 +101,13 @@ def split_link(p, i: int) -> tuple[tuple, tuple]:
 
 
 # ---- the four-body chain, compiled (the default plant's hot path) -----------------------------
-# The constants of :meth:`PlantChain._pack`, one float array ``P``, in this order:
-# offsets o_1, o_3 | gear ratios r | k_hi | k_hi - k_lo | delta | gearbox damping d | f_v | f_c |
-# w_c | J_m | bending k_b, d_b of link 1, then of link 2 | h12 h13 h14 h23 h24 h34 | g g_k (4) |
-# L_k (4) | M_kk (4) | 1 + torque-constant error (2) | ripple amplitude (2) | ripple periods (2) |
-# sensor offset (x, z) | sum of the offsets o_k.
-
-@kernel
-def _spring4(P, i, D):
-    """The gearbox spring ``tau_s(D)`` of joint ``i`` (:func:`fmus.common.dynamics.spring_scalar`)."""
-    return dynamics.spring_scalar(P[4 + i], P[6 + i], P[8 + i], D)
-
-
-@kernel
-def _applied4(P, i, tau, qm):
-    """The torque motor ``i`` applies for the command ``tau`` at the motor angle ``qm``
-    (:meth:`PlantChain.applied_torque`)."""
-    return P[42 + i] * tau + P[44 + i] * math.sin(P[46 + i] * qm)
-
-
-@kernel(aot="UniTuple(UniTuple(float64, 4), 5)(UniTuple(float64, 12), float64, float64, "
-            "float64[:])")
-def _chain4(s, fx, fz, P):
-    """:meth:`PlantChain.arm` of the four-body chain, written out (LDL^T solve of the 4x4
-    system): the absolute angles' sines, cosines, rates and accelerations, and the joint
-    torques, at the state ``s`` (tuple or array) with the tool force ``(fx, fz)``."""
-    q1, b1, q2, b2, qm1, qm2, dq1, db1, dq2, db2, dqm1, dqm2 = (s[0], s[1], s[2], s[3], s[4], s[5], s[6],
-                                                                s[7], s[8], s[9], s[10], s[11])
-    p1 = q1 + P[0]
-    p2 = p1 + b1
-    p3 = p2 + q2 + P[1]
-    p4 = p3 + b2
-    s1, c1, s2, c2 = math.sin(p1), math.cos(p1), math.sin(p2), math.cos(p2)
-    s3, c3, s4, c4 = math.sin(p3), math.cos(p3), math.sin(p4), math.cos(p4)
-    w1 = dq1
-    w2 = w1 + db1
-    w3 = w2 + dq2
-    w4 = w3 + db2
-    r1, r2 = P[2], P[3]
-    t1 = _spring4(P, 0, qm1 / r1 - q1) + P[10] * (dqm1 / r1 - dq1)
-    t3 = _spring4(P, 1, qm2 / r2 - q2) + P[11] * (dqm2 / r2 - dq2)
-    t2 = -(P[20] * b1 + P[21] * db1)
-    t4 = -(P[22] * b2 + P[23] * db2)
-    h12, h13, h14, h23, h24, h34 = P[24], P[25], P[26], P[27], P[28], P[29]
-    # M_jk = h_jk cos(psi_j - psi_k); velocity terms h_jk sin(psi_j - psi_k) w_k^2
-    c12, s12 = c1 * c2 + s1 * s2, s1 * c2 - c1 * s2
-    c13, s13 = c1 * c3 + s1 * s3, s1 * c3 - c1 * s3
-    c14, s14 = c1 * c4 + s1 * s4, s1 * c4 - c1 * s4
-    c23, s23 = c2 * c3 + s2 * s3, s2 * c3 - c2 * s3
-    c24, s24 = c2 * c4 + s2 * s4, s2 * c4 - c2 * s4
-    c34, s34 = c3 * c4 + s3 * s4, s3 * c4 - c3 * s4
-    ww1, ww2, ww3, ww4 = w1 * w1, w2 * w2, w3 * w3, w4 * w4
-    g1, g2, g3, g4, L1, L2, L3, L4 = P[30], P[31], P[32], P[33], P[34], P[35], P[36], P[37]
-    y1 = g1 * s1 + L1 * (fx * c1 - fz * s1) + t1 - t2 - (h12 * s12 * ww2 + h13 * s13 * ww3 + h14 * s14 * ww4)
-    y2 = g2 * s2 + L2 * (fx * c2 - fz * s2) + t2 - t3 - (-h12 * s12 * ww1 + h23 * s23 * ww3 + h24 * s24 * ww4)
-    y3 = g3 * s3 + L3 * (fx * c3 - fz * s3) + t3 - t4 - (-h13 * s13 * ww1 - h23 * s23 * ww2 + h34 * s34 * ww4)
-    y4 = g4 * s4 + L4 * (fx * c4 - fz * s4) + t4 + (h14 * s14 * ww1 + h24 * s24 * ww2 + h34 * s34 * ww3)
-    m11, m22, m33, m44 = P[38], P[39], P[40], P[41]
-    m12, m13, m14, m23, m24, m34 = h12 * c12, h13 * c13, h14 * c14, h23 * c23, h24 * c24, h34 * c34
-    # M = L D L^T
-    l21, l31, l41 = m12 / m11, m13 / m11, m14 / m11
-    d2 = m22 - l21 * m12
-    l32, l42 = (m23 - l31 * m12) / d2, (m24 - l41 * m12) / d2
-    d3 = m33 - l31 * m13 - l32 * l32 * d2
-    l43 = (m34 - l41 * m13 - l42 * l32 * d2) / d3
-    d4 = m44 - l41 * m14 - l42 * l42 * d2 - l43 * l43 * d3
-    y2 -= l21 * y1
-    y3 -= l31 * y1 + l32 * y2
-    y4 -= l41 * y1 + l42 * y2 + l43 * y3
-    a4 = y4 / d4
-    a3 = y3 / d3 - l43 * a4
-    a2 = y2 / d2 - l32 * a3 - l42 * a4
-    a1 = y1 / m11 - l21 * a2 - l31 * a3 - l41 * a4
-    return (s1, s2, s3, s4), (c1, c2, c3, c4), (w1, w2, w3, w4), (a1, a2, a3, a4), (t1, t2, t3, t4)
-
-
-@kernel(aot="UniTuple(float64, 12)(UniTuple(float64, 12), float64, float64, float64, float64, "
-            "float64[:])")
-def _chain4_rates(s, tau1, tau2, fx, fz, P):
-    """:meth:`PlantChain.derivatives` of the four-body chain: ``x_dot`` as a 12-tuple."""
-    _, _, _, A, T = _chain4(s, fx, fz, P)
-    qm1, qm2, dqm1, dqm2 = s[4], s[5], s[10], s[11]
-    ddqm1 = (_applied4(P, 0, tau1, qm1) - P[12] * dqm1 - P[14] * math.tanh(dqm1 / P[16]) - T[0] / P[2]) / P[18]
-    ddqm2 = (_applied4(P, 1, tau2, qm2) - P[13] * dqm2 - P[15] * math.tanh(dqm2 / P[17]) - T[2] / P[3]) / P[19]
-    a1, a2, a3, a4 = A
-    return (s[6], s[7], s[8], s[9], s[10], s[11], a1, a2 - a1, a3 - a2, a4 - a3, ddqm1, ddqm2)
-
-
-@kernel(aot="UniTuple(float64, 12)(UniTuple(float64, 12), float64, float64, float64, float64, "
-            "float64, int64, float64[:])")
-def chain4_step(s, tau1, tau2, fx, fz, dt, substeps, P):
-    """``substeps`` RK4 steps over ``dt`` [s] of the four-body chain from the state ``s``
-    (12-tuple), the motor torques ``tau1``, ``tau2`` [N m] and the tool force ``fx``, ``fz`` [N]
-    held; ``P`` the chain's constants (:meth:`PlantChain._pack`). Returns the new state
-    (12-tuple): the operations of :meth:`fmus.common.dynamics.FlexibleRobotModel.step`, in the
-    same order."""
-    h = dt / substeps
-    hh, h6 = 0.5 * h, h / 6.0
-    x, y = np.empty(12), np.empty(12)
-    for i in range(12):
-        x[i] = s[i]
-    for _ in range(substeps):                   # dynamics.flex_step's RK4 on the chain's rates
-        k1 = _chain4_rates(x, tau1, tau2, fx, fz, P)
-        dynamics.rk4_stage(x, hh, k1, y)
-        k2 = _chain4_rates(y, tau1, tau2, fx, fz, P)
-        dynamics.rk4_stage(x, hh, k2, y)
-        k3 = _chain4_rates(y, tau1, tau2, fx, fz, P)
-        dynamics.rk4_stage(x, h, k3, y)
-        k4 = _chain4_rates(y, tau1, tau2, fx, fz, P)
-        dynamics.rk4_update(x, h6, k1, k2, k3, k4)
-    return (x[0], x[1], x[2], x[3], x[4], x[5], x[6], x[7], x[8], x[9], x[10], x[11])
-
-
-@kernel(aot="UniTuple(float64, 24)(UniTuple(float64, 12), float64, float64, float64[:])")
-def chain4_outputs(s, fx, fz, P):
-    """:meth:`PlantChain.outputs` of the four-body chain (24 floats, the same operations) at the
-    state ``s`` with the tool force ``fx``, ``fz`` [N]; ``P`` the chain's constants."""
-    S, C, W, A, _ = _chain4(s, fx, fz, P)
-    px = pz = vx = vz = ax = az = 0.0
-    for k in range(4):
-        L = P[34 + k]
-        px += L * S[k]
-        pz += L * C[k]
-        vx += L * W[k] * C[k]
-        vz -= L * W[k] * S[k]
-        ax += L * (A[k] * C[k] - W[k] * W[k] * S[k])
-        az -= L * (A[k] * S[k] + W[k] * W[k] * C[k])
-    # sensor: p_tool + R(phi) o with phi = psi_last - pi/2 (cos phi = sin psi, sin phi = -cos psi)
-    cphi, sphi, w, a = S[3], -C[3], W[3], A[3]
-    ox, oz = P[48], P[49]
-    rx, rz = cphi * ox + sphi * oz, -sphi * ox + cphi * oz
-    ex, ez = -sphi * ox + cphi * oz, -cphi * ox - sphi * oz        # d(R o)/d phi
-    phi = 0.0 + s[0] + s[1] + s[2] + s[3] + P[50] - HALF_PI         # sum(s[:4]) as Python adds
-    qm1, qm2 = s[4], s[5]
-    return (s[0], s[2], s[6], s[8], A[0] - 0.0, A[2] - A[1], qm1, qm2, s[10], s[11],
-            px, pz, vx, vz, ax, az, phi, w, px + rx, pz + rz,
-            ax + a * ex - w * w * rx, az + a * ez - w * w * rz,
-            _spring4(P, 0, qm1 / P[2] - s[0]), _spring4(P, 1, qm2 / P[3] - s[2]))
-
-
-@kernel(aot="Tuple((UniTuple(float64, 12), float64, float64))(UniTuple(float64, 12), float64[:], float64[:], "
-            "float64, int64, float64[:], float64[:], int64[:])")
-def chain4_advance(s, tau, f, dt, substeps, P, out, at):
-    """A plant step in one call: :func:`chain4_step` over ``dt`` [s] (``substeps`` RK4 steps)
-    from the state ``s`` with the motor torques ``tau`` [N m] and the tool force ``f`` [N]
-    (arrays of 2) held and the chain's constants ``P`` (:meth:`PlantChain._pack`), then the
-    outputs at the new state (the 24 of :func:`chain4_outputs`, then the 2 applied torques of
-    ``tau``, :meth:`ExtendedRobotModel.applied_torques`): value ``i`` of these 26 into
-    ``out[at[i]]`` unless ``at[i]`` is negative. Returns the new state, the tool angle and its
-    rate (outputs 16 and 17)."""
-    tau1, tau2, fx, fz = tau[0], tau[1], f[0], f[1]
-    s = chain4_step(s, tau1, tau2, fx, fz, dt, substeps, P)
-    y = chain4_outputs(s, fx, fz, P)
-    for i in range(24):
-        if at[i] >= 0:
-            out[at[i]] = y[i]
-    if at[24] >= 0:
-        out[at[24]] = _applied4(P, 0, tau1, s[4])
-    if at[25] >= 0:
-        out[at[25]] = _applied4(P, 1, tau2, s[5])
-    return s, y[16], y[17]
+# robot_plant/plant_kernels.pyx: the chain's equations written out (an LDL^T solve of the 4x4
+# system) on its constants ``P`` (:meth:`PlantChain._pack`; the fields of its struct ``Chain4``,
+# in the array's order); the tests hold them to PlantChain's loops over the bodies.
+_kernels = cython_kernels.load("robot_plant.plant_kernels")
+chain4_step = _kernels.chain4_step
+chain4_outputs = _kernels.chain4_outputs
+chain4_advance = _kernels.chain4_advance
 
 
 class PlantChain:
@@ -312,7 +159,12 @@ class PlantChain:
         self.P = self._pack() if n == 4 else None
 
     def _pack(self) -> np.ndarray:
-        """The constants of the four-body chain in the kernels' order (see ``_chain4``)."""
+        """The constants of the four-body chain in the kernels' order (the struct ``Chain4`` of
+        robot_plant/plant_kernels.pyx): offsets o_1, o_3 | gear ratios r | k_hi | k_hi - k_lo |
+        delta | gearbox damping d | f_v | f_c | w_c | J_m | bending k_b, d_b of link 1, then of
+        link 2 | h12 h13 h14 h23 h24 h34 | g g_k (4) | L_k (4) | M_kk (4) | 1 + torque-constant
+        error (2) | ripple amplitude (2) | ripple periods (2) | sensor offset (x, z) | sum of the
+        offsets o_k."""
         k = self.k
         return np.array([self.offsets[0], self.offsets[2], *k.r, *k.k_hi, *k.k_soft, *k.delta, *k.d, *k.f_v,
                          *k.f_c, *k.w_c, *k.jm, *self.kinds[1][1:], *self.kinds[3][1:], *self.h[0][1:],
@@ -328,9 +180,9 @@ class PlantChain:
     def arm(self, s, fx: float, fz: float) -> tuple:
         """Absolute angles' sines, cosines, rates and accelerations of the bodies, and the joint
         torques, at state ``s`` with the tool force ``(fx, fz)`` (any number of bodies; the
-        four-body chain's written out in ``_chain4``)."""
+        four-body chain's compiled: ``plant_kernels.chain4_arm``)."""
         if self.P is not None:
-            return _chain4(s, fx, fz, self.P)
+            return _kernels.chain4_arm(s, fx, fz, self.P)
         n = self.n
         k = self.k
         qm, dqm = s[n:n + 2], s[2 * n + 2:2 * n + 4]
@@ -369,7 +221,7 @@ class PlantChain:
     def derivatives(self, s, tau1: float, tau2: float, fx: float, fz: float) -> tuple:
         """``x_dot`` as a tuple of floats (the same call as ``dynamics.ArmConstants.derivatives``)."""
         if self.P is not None:
-            return _chain4_rates(s, tau1, tau2, fx, fz, self.P)
+            return _kernels.chain4_rates(s, tau1, tau2, fx, fz, self.P)
         n, k = self.n, self.k
         _, _, _, A, tj = self.arm(s, fx, fz)
         qm1, qm2, dqm1, dqm2 = s[n], s[n + 1], s[2 * n + 2], s[2 * n + 3]

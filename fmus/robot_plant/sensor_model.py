@@ -18,8 +18,8 @@ from typing import Sequence
 
 import numpy as np
 
+from fmus.common import cython_kernels, irb4600, quaternion
 from fmus.common.frames import G, rot_rpy, sensor_rotation
-from fmus.common.jit import kernel
 from fmus.common.noise import make_rng, normal_rows, reseed_param, reseeded_rng
 from fmus.common.parameters import ParameterError, param
 from fmus.common.sample_time import UNSTAMPED, measurement_time
@@ -106,80 +106,12 @@ _TABLE = _COEF + 5
 _GAIN, _BIAS, _RW, _NOISE, _RES, _LIM = range(6)
 
 
-@kernel(aot="void(float64[:], float64[:], float64[:], float64[:, :], int64, int64, boolean, boolean, boolean)")
-def _channels_kernel(x, work, out, rows, row, order, reset, sample, noisy):
-    """One step of :class:`SensorChannels` (its steps 1 and 3-7) on its ``work`` array, the
-    numbers of the former elementwise numpy code operation by operation (no fastmath: same
-    rounding).
-
-    ``out`` holds ``runs * n`` values (one sensor: ``runs = 1``), element ``k`` of channel
-    ``k % n``; the input ``x`` holds ``runs * n`` or ``n`` values (one input for every run).
-    ``order`` 0: no filter; ``reset``: start the filter in steady state at ``x``; ``sample``:
-    form the reading into ``out`` and the saturation flags; ``noisy``: with the bias-walk step
-    ``rows[row, k]`` and the white noise ``rows[row, runs * n + k]`` (standard normal numbers)
-    scaled by the table's rows.
-    """
-    n, size = int(work[_N]), out.size
-    z0 = _TABLE + 6 * n
-    z1, walk, saturated = z0 + size, z0 + 2 * size, z0 + 3 * size
-    b0, b1, b2, a1, a2 = work[_COEF], work[_COEF + 1], work[_COEF + 2], work[_COEF + 3], work[_COEF + 4]
-    for k in range(size):
-        j = _TABLE + k % n
-        y = x[k % x.size]
-        if order > 0:
-            u = y
-            if reset:                            # steady state for a constant input
-                if order == 2:
-                    work[z1 + k] = (b2 - a2) * u
-                work[z0 + k] = (1.0 - b0) * u
-            y = b0 * u + work[z0 + k]            # direct form II transposed
-            if order == 1:
-                work[z0 + k] = b1 * u - a1 * y
-            else:
-                work[z0 + k] = b1 * u - a1 * y + work[z1 + k]
-                work[z1 + k] = b2 * u - a2 * y
-        if sample:
-            if noisy:
-                work[walk + k] = work[walk + k] + work[j + _RW * n] * rows[row, k]
-                y = (work[j + _GAIN * n] * y + work[j + _BIAS * n] + work[walk + k]
-                     + work[j + _NOISE * n] * rows[row, size + k])
-            else:
-                y = work[j + _GAIN * n] * y + work[j + _BIAS * n] + work[walk + k]
-            res = work[j + _RES * n]
-            if res > 0.0:
-                y = np.rint(y / res) * res       # numpy's round half to even
-            lim = work[j + _LIM * n]
-            work[saturated + k] = 1.0 if abs(y) >= lim else 0.0
-            if y > lim:
-                y = lim
-            elif y < -lim:
-                y = -lim
-            out[k] = y
-
-
+# compiled (robot_plant/sensor_kernels.pyx: its names of the work array's parts are these;
+# tests/test_compiled_kernels.py holds them equal): one step of the channels on the work array
+_kernels = cython_kernels.load("robot_plant.sensor_kernels")
+_channels_kernel = _kernels.channels_kernel
+_channels_step = _kernels.channels_step
 _HELD, _SAMPLED, _USED_UP = 0, 1, 2       # what _channels_step returns
-
-
-@kernel(aot="int64(float64[:], float64[:], float64[:], float64[:, :])")
-def _channels_step(x, work, out, rows):
-    """:meth:`SensorChannels.step` after its checks, in one call: the low-pass (started in
-    steady state at its first step), and at a sample (no step since the last) a reading into
-    ``out`` with the next row of the drawn standard normal numbers ``rows``
-    (:func:`_channels_kernel`); then the counters move on. Returns ``_HELD``, ``_SAMPLED`` or
-    ``_USED_UP`` (sampled with the last row)."""
-    sample = work[_COUNT] == 0.0
-    order = int(work[_ORDER])
-    reset = order > 0 and work[_STARTED] == 0.0
-    if order > 0:
-        work[_STARTED] = 1.0
-    row = int(work[_ROW])
-    if sample:
-        work[_ROW] = row + 1
-    _channels_kernel(x, work, out, rows, row, order, reset, sample, sample)
-    work[_COUNT] = (work[_COUNT] + 1.0) % work[_PERIOD]
-    if not sample:
-        return _HELD
-    return _USED_UP if row + 1 == rows.shape[0] else _SAMPLED
 
 
 class SensorChannels:
@@ -409,20 +341,11 @@ def mount_matrix(mount_rpy: tuple) -> np.ndarray:
     return np.ascontiguousarray(rot_rpy(mount_rpy), dtype=float).reshape(-1)
 
 
-@kernel(aot="void(float64[:], float64, float64, float64[:], float64, float64[:], float64[:])")
-def imu_reading_into(a_world_xz, phi, omega, mount, g, acc, gyro):
-    """:func:`imu_reading` of ``a_world_xz``, ``phi``, ``omega`` and ``g`` into the arrays
-    ``acc`` and ``gyro`` (3 each), with the mount matrix ``mount`` of :func:`mount_matrix`:
-    the same operations."""
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = (mount[0], mount[1], mount[2], mount[3], mount[4], mount[5],
-                                                   mount[6], mount[7], mount[8])
-    c, s = math.cos(phi), math.sin(phi)
-    ax, vz = a_world_xz[0], a_world_xz[1] + g          # a - g_vec, y = 0
-    # rows 0 and 2 of R_s (row 1 is R_mount's): acc = R_s^T (ax, 0, vz), gyro = R_s^T (0, omega, 0)
-    r00, r01, r02 = c * m00 + s * m20, c * m01 + s * m21, c * m02 + s * m22
-    r20, r21, r22 = c * m20 - s * m00, c * m21 - s * m01, c * m22 - s * m02
-    acc[0], acc[1], acc[2] = r00 * ax + r20 * vz, r01 * ax + r21 * vz, r02 * ax + r22 * vz
-    gyro[0], gyro[1], gyro[2] = m10 * omega, m11 * omega, m12 * omega
+#: ``imu_reading_into(a_world_xz, phi, omega, mount, g, acc, gyro)``: :func:`imu_reading` of
+#: ``a_world_xz``, ``phi``, ``omega`` and ``g`` into the float arrays ``acc`` and ``gyro`` (3
+#: each), with the mount matrix ``mount`` of :func:`mount_matrix`: the same operations, compiled
+#: (robot_plant/sensor_kernels.pyx)
+imu_reading_into = _kernels.imu_reading_into
 
 
 def imu_reading(a_world_xz: Sequence[float], phi: float, omega: float, mount_rpy: Sequence[float],
@@ -449,6 +372,50 @@ def imu_reading(a_world_xz: Sequence[float], phi: float, omega: float, mount_rpy
     imu_reading_into(np.asarray(a_world_xz, dtype=float).reshape(-1), float(phi), float(omega),
                      mount_matrix(tuple(mount_rpy)), float(g), acc, gyro)
     return acc, gyro
+
+
+def imu_reading_3d(a_world: Sequence[float], quat_tool: Sequence[float], omega_world: Sequence[float],
+                   mount: np.ndarray, g: float = G) -> tuple[np.ndarray, np.ndarray]:
+    """Ideal accelerometer and gyro readings in the sensor frame of a tool moving in 3-D (the
+    six-axis robot's IMU): the 2012 paper's accelerometer model (Axelsson et al. 2012,
+    eqs. 17-19) with the tool's full orientation, ``acc_s = R_s^T (a - g_vec)`` and
+    ``gyro_s = R_s^T omega``, ``R_s = R_tool R_mount``, ``g_vec = (0, 0, -g)``.
+
+    Parameters
+    ----------
+    a_world
+        Kinematic acceleration of the mount point, world x, y, z [m/s2] (no gravity).
+    quat_tool
+        Tool orientation, unit quaternion (w, x, y, z), tool frame to world.
+    omega_world
+        The tool's angular velocity, world axes [rad/s].
+    mount
+        Mounting rotation, sensor to tool (3x3, or the flat 9 of :func:`mount_matrix`).
+    g
+        Gravity [m/s2].
+    """
+    R = quaternion.to_matrix(quat_tool) @ np.asarray(mount, float).reshape(3, 3)
+    a = np.asarray(a_world, float)
+    f = np.array([a[0], a[1], a[2] + g])
+    return R.T @ f, R.T @ np.asarray(omega_world, float)
+
+
+def arm_plane_reading(acc_s: Sequence[float], gyro_s: Sequence[float], q_wrist: Sequence[float],
+                      mount: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The six-axis robot's IMU readings ``acc_s``, ``gyro_s`` (sensor frame) expressed in the
+    frame the axis-2/3 estimators take, as on the real robots: the sensor frame of a tool at
+    wrist angles zero, ``R_3 R_mount`` (``R_3``: link 3's frame, x along the forearm and z in
+    the plane of axes 2-3, y along axes 2-3), from the wrist's angles ``q_wrist`` (axes 4-6
+    [rad], measured: the encoders over the gear ratios) and the nominal ``mount`` (sensor to
+    tool, 3x3 or flat 9): ``R_mount^T W R_mount acc_s`` with ``W = Rx(q4) Ry(q5) Rx(q6)``
+    (the wrist's rotation, :mod:`fmus.common.irb4600`). Their x and z components lie in the
+    plane of axes 2-3 (with ``mount`` the identity); y is out of it.
+    """
+    M = np.asarray(mount, float).reshape(3, 3)
+    rot = irb4600.rotation
+    W = rot(0, float(q_wrist[0])) @ rot(1, float(q_wrist[1])) @ rot(0, float(q_wrist[2]))
+    T = M.T @ W @ M
+    return T @ np.asarray(acc_s, float), T @ np.asarray(gyro_s, float)
 
 
 def force_sensor_reading(f_ext_xz: Sequence[float], a_tool_xz: Sequence[float], phi: float,
@@ -575,6 +542,28 @@ class EncoderParameters:
                                source="2009 and 2012 papers: 2 kHz")
     seed: int = param(1, "1", "seed of the noise streams", low=0)
     reseed: int = reseed_param()
+
+
+@dataclass(frozen=True)
+class Encoder6Parameters(EncoderParameters):
+    """Parameters of the Encoder6 FMU: the Encoder's, bias and scale per axis 1-6."""
+
+    bias: tuple = param((0.0,) * 6, "rad", "constant offset per axis (calibrated: 0)")
+    scale: tuple = param((0.0,) * 6, "1", "scale-factor error per axis (reading = (1+scale) q)",
+                         low=-0.5, high=0.5)
+
+
+@dataclass(frozen=True)
+class ArmPlaneImuParameters:
+    """Parameters of the ArmPlaneImu FMU: what the robot's controller knows of the wrist and
+    the sensor's mounting."""
+
+    gear_ratio: tuple = param(tuple(irb4600.arm().gear_ratio[3:]), "1", "gear ratios of axes 4-6 "
+                              "(motor angle / arm angle)", low=0.0, low_inclusive=False,
+                              source="irb4600.arm() (docs/six_axis.md, drive train)")
+    mount_rpy: tuple = param((0.0, 0.0, 0.0), "rad", "nominal mounting roll, pitch, yaw of the IMU on "
+                             "the tool (the controller's knowledge; the Imu3D's true mount may differ)",
+                             low=-math.pi, high=math.pi)
 
 
 MEMS = ("16-bit MEMS IMU class (e.g. Bosch BMI160 / TDK ICM-20948 data sheets: +-16 g, "

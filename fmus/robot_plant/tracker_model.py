@@ -22,7 +22,7 @@ from typing import Sequence
 
 import numpy as np
 
-from fmus.common.jit import kernel
+from fmus.common import cython_kernels
 from fmus.common.noise import make_rng, normal_rows, reseed_param, reseeded_rng
 from fmus.common.parameters import param
 
@@ -34,58 +34,9 @@ _DONE, _FULL, _DRAWN = 0, 1, 2           # what tracker_update returns
 _FLOAT = np.dtype(float)
 
 
-@kernel
-def _position(hist, m, t):
-    """True position at ``t`` by linear interpolation in the ``m`` entries ``(t, x, z)`` of
-    ``hist`` (held before the first and after the last)."""
-    if t <= hist[0, 0]:
-        return hist[0, 1], hist[0, 2]
-    for i in range(m - 1):
-        ta, xa, za, tb, xb, zb = hist[i, 0], hist[i, 1], hist[i, 2], hist[i + 1, 0], hist[i + 1, 1], hist[i + 1, 2]
-        if t <= tb:
-            w = (t - ta) / (tb - ta) if tb > ta else 1.0
-            return xa + w * (xb - xa), za + w * (zb - za)
-    return hist[m - 1, 1], hist[m - 1, 2]
-
-
-@kernel(aot="int64(float64, float64[:], boolean, float64[:, :], float64[:], float64[:], float64[:, :], float64[:])")
-def tracker_update(t, p, append, hist, state, consts, rows, p_meas):
-    """:meth:`TrackerModel.update` on arrays: append ``(t, p)`` to the history ``hist`` (with
-    ``append``), take every sample due by ``t`` into ``p_meas`` (``consts``: first instant,
-    period, skew, noise; ``state``: the layout above), drop the history no later sample needs.
-    Returns ``_FULL`` (nothing
-    done: the history needs room), ``_DRAWN`` (the random numbers ``rows`` are used up: call
-    again with new ones, without ``append``) or ``_DONE``."""
-    m = int(state[_ENTRIES])
-    if append:
-        if m == hist.shape[0]:
-            return _FULL
-        hist[m, 0], hist[m, 1], hist[m, 2] = t, p[0], p[1]
-        m += 1
-        state[_ENTRIES] = m
-    t0, period, skew, noise = consts[0], consts[1], consts[2], consts[3]
-    while True:
-        t_k = t0 + state[_NEXT] * period
-        if t_k > t + 1e-9 * period:
-            break
-        row = int(state[_ROW])
-        if row == rows.shape[0]:
-            return _DRAWN
-        x, z = _position(hist, m, t_k - skew)
-        p_meas[0], p_meas[1] = x + noise * rows[row, 0], z + noise * rows[row, 1]   # drawn even when noise = 0
-        state[_ROW] = row + 1
-        state[_T_MEAS] = t_k
-        state[_NEXT] += 1.0
-    # keep what the next sample can need: back to one entry at or before (next t_k - skew)
-    oldest = t0 + state[_NEXT] * period - skew
-    d = 0
-    while m - d > 1 and hist[d + 1, 0] <= oldest:
-        d += 1
-    if d:
-        for i in range(m - d):
-            hist[i, 0], hist[i, 1], hist[i, 2] = hist[i + d, 0], hist[i + d, 1], hist[i + d, 2]
-        state[_ENTRIES] = m - d
-    return _DONE
+# compiled (robot_plant/tracker_kernels.pyx: its names of the state's parts and of what it
+# returns are these; tests/test_compiled_kernels.py holds them equal)
+tracker_update = cython_kernels.load("robot_plant.tracker_kernels").tracker_update
 
 
 class TrackerModel:
@@ -109,13 +60,15 @@ class TrackerModel:
     seed, stream
         Seed and stream name of the noise (:func:`fmus.common.noise.make_rng`).
     out
-        Float array of 2 the samples :attr:`p_meas` are written into (an FMU's output), or None.
+        Float array of ``dims`` the samples :attr:`p_meas` are written into (an FMU's output), or None.
+    dims
+        Coordinates of a position: 2 (world x, z; the planar arm) or 3 (x, y, z; the six-axis arm).
     """
 
     BLOCK = 256       # samples per draw of the random numbers
 
     def __init__(self, noise: float, sample_rate: float, skew: float, seed: int = 0,
-                 stream: str = "tracker", out: np.ndarray | None = None) -> None:
+                 stream: str = "tracker", out: np.ndarray | None = None, dims: int = 2) -> None:
         if not sample_rate > 0.0:
             raise ValueError(f"sample_rate must be > 0, got {sample_rate!r}")
         if not skew >= 0.0:
@@ -123,9 +76,10 @@ class TrackerModel:
         self.noise, self.period, self.skew = float(noise), 1.0 / float(sample_rate), float(skew)
         self.stream = stream
         self._consts = np.array([0.0, self.period, self.skew, self.noise])
-        self._hist = np.zeros((8, 3))            # (t, x, z) entries, grown when full
+        self.dims = int(dims)
+        self._hist = np.zeros((8, 1 + self.dims))   # (t, x, z) entries, grown when full
         self._state = np.zeros(4)
-        self.p_meas = np.zeros(2) if out is None else out
+        self.p_meas = np.zeros(self.dims) if out is None else out
         self._rng = make_rng(seed, stream)
         self._draw()
 
@@ -135,7 +89,7 @@ class TrackerModel:
         return float(self._state[_T_MEAS])
 
     def _draw(self) -> None:
-        self._rows = normal_rows(self._rng, 2, self.BLOCK)
+        self._rows = normal_rows(self._rng, self.dims, self.BLOCK)
         self._state[_ROW] = 0
 
     def reseed(self, seed: int) -> None:

@@ -48,6 +48,9 @@ reachable by the arm with ``l1 = 0.9 m``, ``l2 = 1.2 m`` whose home pose puts th
     with brief stops at the corners ("high precision mode"), twice around.
 ``csv``
     User waypoints from a CSV file (:func:`from_csv`, format documented there).
+
+The builder and the time law are not planar: lines between points of any dimension make the
+six-axis robot's 3-D tool paths and joint-space moves (:mod:`fmus.robot_plant.trajectory6`).
 """
 from __future__ import annotations
 
@@ -82,6 +85,12 @@ def _S_d2(x: np.ndarray) -> np.ndarray:
     return 60.0 * x * (1.0 - x) * (1.0 - 2.0 * x)
 
 
+def _norm(v: np.ndarray) -> float:
+    """Euclidean length of ``v``: ``np.hypot`` in the plane (the planar paths' numbers since
+    they were written), ``math.hypot`` in more dimensions."""
+    return float(np.hypot(*v)) if v.shape[0] == 2 else math.hypot(*v)
+
+
 # ---- move geometries ------------------------------------------------------------------------
 class _Line:
     """Straight line of length ``length`` along unit vector ``d``."""
@@ -94,11 +103,11 @@ class _Line:
         self.curvature = 0.0
 
     def derivatives(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """g(s), g'(s), g''(s), g'''(s), each (n, 2)."""
-        n = s.shape[0]
+        """g(s), g'(s), g''(s), g'''(s), each (n, dim) (dim: the size of ``d``)."""
+        n, dim = s.shape[0], self.d.shape[0]
         g0 = s[:, None] * self.d
-        g1 = np.broadcast_to(self.d, (n, 2))
-        zero = np.zeros((n, 2))
+        g1 = np.broadcast_to(self.d, (n, dim))
+        zero = np.zeros((n, dim))
         return g0, g1, zero, zero
 
     def end_tangent(self) -> np.ndarray:
@@ -226,7 +235,7 @@ class Trajectory:
         self.start = np.asarray(self.start, dtype=float)
         self.waypoints = np.asarray(self.waypoints, dtype=float)
         self._t_end = np.array([m.t_end for m in self.moves])
-        disp = [np.zeros(2)]
+        disp = [np.zeros(self.start.shape[0])]
         for m in self.moves:
             g0 = m.geometry.derivatives(np.array([m.geometry.length]))[0][0]  # type: ignore[attr-defined]
             disp.append(disp[-1] + g0)
@@ -311,7 +320,9 @@ class PathBuilder:
     Parameters
     ----------
     start
-        Start point (x, z) [m].
+        Start point (x, z) [m]; or a point of any dimension (3-D tool positions, joint
+        angles for joint-space moves: :mod:`fmus.robot_plant.trajectory6`), whose moves are
+        then straight lines only (speed and acceleration in its units per s).
     speed, accel
         Default cruise speed [m/s] and path acceleration limit [m/s^2] of the moves.
     blend
@@ -333,8 +344,8 @@ class PathBuilder:
     def __init__(self, start: Sequence[float], *, speed: float, accel: float, blend: float = 1.0,
                  hold: float = 0.0, name: str = "path", start_label: str = "start") -> None:
         self.name = name
-        self._start = np.asarray(start, dtype=float).reshape(2)
-        if not np.all(np.isfinite(self._start)):
+        self._start = np.asarray(start, dtype=float).reshape(-1)
+        if self._start.shape[0] < 2 or not np.all(np.isfinite(self._start)):
             raise ValueError(f"path '{name}': start point {tuple(start)} is not finite")
         self._pos = self._start.copy()
         self._speed = self._check_pos("speed", speed)
@@ -368,12 +379,12 @@ class PathBuilder:
     def line_to(self, p: Sequence[float], *, speed: float | None = None, accel: float | None = None,
                 dwell: float = 0.0, blend: float | None = None, label: str | None = None) -> "PathBuilder":
         """Straight move to ``p``; ``dwell`` > 0 stops there for that long (no blending)."""
-        target = np.asarray(p, dtype=float).reshape(2)
-        label = label or f"waypoint {len(self._waypoints)} ({target[0]:.4g}, {target[1]:.4g})"
+        target = np.asarray(p, dtype=float).reshape(self._start.shape[0])
+        label = label or f"waypoint {len(self._waypoints)} ({', '.join(f'{c:.4g}' for c in target)})"
         if not np.all(np.isfinite(target)):
             raise ValueError(f"path '{self.name}': {label} is not finite")
         delta = target - self._pos
-        length = float(np.hypot(*delta))
+        length = _norm(delta)
         if length < 1e-9:
             # same point again: only a dwell
             return self.dwell(dwell) if dwell > 0 else self
@@ -393,6 +404,8 @@ class PathBuilder:
         A positive angle turns from +x towards +z; ``2 pi`` is a full circle. The arc's speed is
         limited so that its centripetal acceleration stays below the move's ``accel``.
         """
+        if self._start.shape[0] != 2:
+            raise ValueError(f"path '{self.name}': arcs are planar (x, z) only")
         c = np.asarray(center, dtype=float).reshape(2)
         rel = self._pos - c
         rho = float(np.hypot(*rel))
@@ -445,7 +458,7 @@ class PathBuilder:
         """Append the moves built so far ``n - 1`` more times (the path must be closed)."""
         if n < 1:
             raise ValueError(f"path '{self.name}': repeat count must be >= 1, got {n}")
-        if np.hypot(*(self._pos - self._start)) > 1e-9:
+        if _norm(self._pos - self._start) > 1e-9:
             raise ValueError(f"path '{self.name}': only a closed path can be repeated")
         base = [list(m) for m in self._pending]
         wps, labels = self._waypoints[1:], self._labels[1:]

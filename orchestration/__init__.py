@@ -14,10 +14,27 @@ import os
 # the user chose (only read if numpy is not loaded yet).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from .master import CouplingWarning, Interrupted, RunError, run
-from .results import OutputError, Result, ResultWarning
-from .roles import HonestSignalWarning
-from .scenario import ScenarioError, load_scenario
+# The package's names are loaded on first use (PEP 562), not on import: the ``flexfusion``
+# command imports ``orchestration.cli`` first, which must be quick so that its Ctrl-C handler
+# (``cli.console_main``) is in place before numpy, fmpy and the master load (a Ctrl-C during
+# that 0.3-0.7 s ended in a traceback).
+_EXPORTS = {"run": "master", "RunError": "master", "Interrupted": "master", "CouplingWarning": "master",
+            "Result": "results", "OutputError": "results", "ResultWarning": "results",
+            "HonestSignalWarning": "roles", "ScenarioError": "scenario", "load_scenario": "scenario"}
 
 __all__ = ["run", "Result", "ScenarioError", "RunError", "OutputError", "Interrupted", "ResultWarning",
            "CouplingWarning", "HonestSignalWarning", "load_scenario"]
+
+
+def __getattr__(name: str) -> object:
+    """``orchestration.run`` and the other names of ``__all__``, imported on first use."""
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

@@ -299,7 +299,9 @@ def cmd_cache(args: argparse.Namespace) -> int:
 
 def cmd_check_estimator(args: argparse.Namespace) -> int:
     from .contract import main as check
-    return check(args.fmus)
+    if not args.time_limit > 0:         # (also NaN)
+        return _error(f"--time-limit {args.time_limit:g}: a positive number of seconds")
+    return check(args.fmus, time_limit=args.time_limit)
 
 
 def add_verbosity_arguments(parser: argparse.ArgumentParser) -> None:
@@ -315,6 +317,7 @@ def add_verbosity_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from .contract import RUN_TIME_LIMIT
     from .ssp import HOSTS
 
     # -v/-q/--log-level before or after the sub-command (SUPPRESS: a sub-command's parser does
@@ -382,6 +385,9 @@ def main(argv: list[str] | None = None) -> int:
     p_check = sub.add_parser("check-estimator", help="check FMUs against the estimator contract "
                              "(docs/estimator_contract.md): one line per failed rule, exit 2 if any")
     p_check.add_argument("fmus", type=Path, nargs="+", metavar="FILE.fmu")
+    p_check.add_argument("--time-limit", type=float, metavar="SECONDS", default=RUN_TIME_LIMIT,
+                         help="wall-clock limit of the 'runs' rule, which runs the FMU's code in "
+                              "a child process (default %(default)g s); past it the rule fails")
 
     p_study = sub.add_parser("study", help="studies: Monte Carlo, tuning, robustness, ...", parents=[common])
     kinds = p_study.add_subparsers(dest="study", required=True, metavar="KIND")

@@ -650,8 +650,9 @@ def run_loaded(sc: Scenario, folder: RunFolder | None = None, progress: bool = F
     from contextlib import nullcontext
 
     t0 = time.perf_counter()
-    with (folder.stepping(t0) if folder is not None else nullcontext(_Recorder())) as recorder, \
-            _progress_bar(sc, progress) as report:
+    recording = (folder.stepping(t0) if folder is not None
+                 else nullcontext(_Recorder(capacity=_row_capacity(sc))))
+    with recording as recorder, _progress_bar(sc, progress) as report:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CouplingWarning)
             recorder.notes = simulate(sc, recorder, report, hook, schedule)
@@ -674,27 +675,57 @@ def run_loaded(sc: Scenario, folder: RunFolder | None = None, progress: bool = F
     return result
 
 
+def _row_capacity(sc: Scenario) -> int:
+    """The most rows a run of ``sc`` records: one every ``record_every`` base steps, and the
+    start's."""
+    return sc.n_steps // max(sc.record_every, 1) + 2
+
+
 class _Recorder:
     """The sink of a run: every recorded row kept in memory and, with a ``writer``
     (:class:`~orchestration.results.CsvWriter`), written to disk as it comes; ``notes`` the
-    run's coupling warnings once it has stepped to its end."""
+    run's coupling warnings once it has stepped to its end.
 
-    def __init__(self, writer: Sink | None = None) -> None:
+    The rows go into one array allocated for ``capacity`` rows at the first row (its pages are
+    taken from the system only as rows fill them, so a run's memory grows by the recorded
+    columns' own size, 8 bytes a value, and the result is a view of it, not a copy); past the
+    capacity, or where so large an array cannot be reserved, it grows by doubling."""
+
+    def __init__(self, writer: Sink | None = None, capacity: int = 1024) -> None:
         self.writer = writer
-        self.times: list[float] = []
-        self.rows: list[np.ndarray] = []
+        self.capacity = max(int(capacity), 1)
+        self.n = 0
+        self._times = np.empty(0)
+        self._data: np.ndarray | None = None
         self.notes: list[str] = []
 
     def __call__(self, t: float, values: np.ndarray) -> None:
-        self.times.append(t)
-        self.rows.append(np.array(values, dtype=float))
+        if self._data is None or self.n == len(self._times):
+            self._grow(len(values))
+        self._times[self.n] = t
+        self._data[self.n] = values       # type: ignore[index]
+        self.n += 1
         if self.writer is not None:
             self.writer(t, values)
 
+    def _grow(self, width: int) -> None:
+        size = self.capacity if self._data is None else 2 * len(self._times)
+        try:
+            times, data = np.empty(size), np.empty((size, width))
+        except MemoryError:
+            if self._data is not None or size <= 1024:
+                raise
+            size = 1024
+            times, data = np.empty(size), np.empty((size, width))
+        if self._data is not None:
+            times[:self.n], data[:self.n] = self._times[:self.n], self._data[:self.n]
+        self._times, self._data = times, data
+
     def result(self, columns: list[str], wall: float) -> "Result":
         from .results import Result
-        data = np.array(self.rows).reshape(len(self.rows), len(columns))
-        return Result(None, np.array(self.times), columns, data, warnings=self.notes, wall_time=wall)
+        data = self._data[:self.n] if self._data is not None else np.empty((0, len(columns)))
+        return Result(None, self._times[:self.n], columns, data.reshape(self.n, len(columns)),
+                      warnings=self.notes, wall_time=wall)
 
 
 @contextmanager
@@ -732,7 +763,7 @@ class RunFolder:
                                      "versions": None, "status": "running", "error": None,
                                      "rows": 0, "time_reached": None, "units": sc.column_units()}
         self.writer: Any = None
-        self.recorder = _Recorder()
+        self.recorder = _Recorder(capacity=_row_capacity(sc))
         self.t0 = 0.0                       # perf_counter() when the stepping began
 
     @contextmanager

@@ -359,6 +359,8 @@ def _read_xml(where: str, path: Path) -> Element:
         return parse(path).getroot()
     except ParseError as exc:
         raise ScenarioError(f"{where}: malformed XML: {exc}") from None
+    except (LookupError, ValueError) as exc:     # an XML declaration naming no known encoding
+        raise ScenarioError(f"{where}: malformed XML: {exc}") from None
     except OSError as exc:
         raise ScenarioError(f"{where}: cannot read: {exc}") from None
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import re
+import time
 import zipfile
 from pathlib import Path
 
@@ -92,6 +93,74 @@ def test_not_an_fmu_is_one_line_and_exit_2(tmp_path: Path, capsys) -> None:
     out, err = capsys.readouterr()
     assert out.count("\n") == 1 and "co-simulation: cannot read the modelDescription" in out
     assert err.strip() == f"error: {tmp_path / 'missing.fmu'}: no such file"
+
+
+MISCHIEF = {      # a line of Python the stand-in runs first in each step, and the cause to report
+    "abort": ("import os; os.abort()", "aborted (SIGABRT)"),
+    "segfault": ("import ctypes; ctypes.string_at(0)", "segmentation fault (SIGSEGV)"),
+    "hang": ("while True: pass", "within the time limit of 5 s"),
+    "exit": ("import os; os._exit(3)", "exited with status 3 before it finished"),
+}
+
+
+def _misbehaving(good: Path, dest: Path, line: str) -> Path:
+    """``good`` (the third-party toy) whose ``do_step`` runs ``line`` first: its script replaced
+    in the archive (and its compiled copy left out, so the changed source is what runs)."""
+    with zipfile.ZipFile(good) as src, zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as dst:
+        for item in src.infolist():
+            name = item.filename
+            if name.startswith("resources/__pycache__/third_party_estimator_fmu"):
+                continue
+            data = src.read(item)
+            if re.fullmatch(r"resources/third_party_estimator_fmu_\w+\.py", name):
+                head = "    def do_step(self, current_time, step_size):\n"
+                assert data.decode().count(head) == 1
+                data = data.decode().replace(head, head + f"        {line}\n").encode()
+            dst.writestr(item, data)
+    return dest
+
+
+@pytest.mark.parametrize("how", sorted(MISCHIEF))
+def test_an_estimator_that_crashes_or_hangs_fails_the_runs_rule_within_the_limit(
+        how: str, toys, tmp_path: Path, capsys) -> None:
+    """check-estimator runs the FMU's code in a child process: an abort, a segfault or an
+    endless loop there is one ``runs:`` line naming the cause, exit 2, within the time limit
+    (the checker itself survives to report it)."""
+    line, cause = MISCHIEF[how]
+    path = _misbehaving(toys["ThirdPartyEstimator"], tmp_path / f"{how}.fmu", line)
+    # the hang: 5 s (the child's start-up takes 1-3 s under load); the crashes: the default
+    limit = 5.0 if how == "hang" else contract.RUN_TIME_LIMIT
+    t0 = time.monotonic()
+    assert main(["check-estimator", "--time-limit", str(limit), str(path)]) == 2
+    elapsed = time.monotonic() - t0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"{path}: runs: "), lines
+    assert cause in lines[0]
+    assert elapsed < limit + 5.0          # the hang is killed at the limit (+5 s: extraction, cleanup)
+    if how == "hang":
+        assert elapsed >= limit and "killed after" in lines[0]
+
+
+def test_an_fmi1_fmu_is_one_error_line(tmp_path: Path, capsys) -> None:
+    """FMI 1.0 is another interface: no rule is checked (nor its code run), one error line."""
+    md = ('<?xml version="1.0" encoding="UTF-8"?>\n<fmiModelDescription fmiVersion="1.0" '
+          'modelName="Old" modelIdentifier="Old" guid="{8c4e810f-3df3-4a00-8276-176fa3c9f000}" '
+          'numberOfContinuousStates="0" numberOfEventIndicators="0"><ModelVariables>'
+          '<ScalarVariable name="p_tool_hat[1]" valueReference="0" causality="output"><Real/>'
+          '</ScalarVariable></ModelVariables><Implementation><CoSimulation_StandAlone>'
+          '<Capabilities/></CoSimulation_StandAlone></Implementation></fmiModelDescription>')
+    with zipfile.ZipFile(tmp_path / "Old.fmu", "w") as z:
+        z.writestr("modelDescription.xml", md)
+    assert main(["check-estimator", str(tmp_path / "Old.fmu")]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err == (f"error: {tmp_path / 'Old.fmu'}: an FMI 1.0 FMU; the estimator contract is FMI "
+                   "2.0 co-simulation (export it as FMI 2.0)\n")
+
+
+def test_a_time_limit_must_be_positive(capsys) -> None:
+    assert main(["check-estimator", "--time-limit", "0", "x.fmu"]) == 2
+    assert capsys.readouterr().err == "error: --time-limit 0: a positive number of seconds\n"
 
 
 def test_a_third_party_estimator_runs_on_a_replayed_log(toys, tmp_path: Path) -> None:

@@ -136,6 +136,37 @@ def test_hdf5_without_h5py_is_a_clear_error(tmp_path: Path, monkeypatch) -> None
         read_columns(tmp_path / "log.h5", ["t"])
 
 
+@pytest.mark.parametrize("time_data, match", [
+    (np.array([b"0", b"1", b"2"]), r"dataset 't' holds \|S1 values, not numbers"),
+    (np.zeros(3, dtype=[("a", "f8"), ("b", "i4")]), r"dataset 't' holds \[\('a', '<f8'\), .* values, not numbers"),
+    (np.arange(3.0) + 0j, r"dataset 't' holds complex128 values, not numbers"),
+    (np.array([False, True, True]), r"dataset 't' holds bool values, not numbers"),
+])
+def test_an_hdf5_dataset_of_another_type_is_named(tmp_path: Path, time_data: np.ndarray, match: str) -> None:
+    """Text, compound, complex or boolean data was a ValueError, a TypeError or silently cast."""
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(tmp_path / "log.h5", "w") as f:
+        f["t"] = time_data
+        f["a"] = [0.0, 1.0, 2.0]
+    with pytest.raises(ParameterError, match=rf"log '.*log.h5': {match} \(float or integer\)"):
+        _log(tmp_path / "log.h5", "phi_fk = a", time_column="t", max_gap=5.0)
+
+
+@pytest.mark.parametrize("name, content, match", [
+    ("log.h5", bytes(range(256)) * 8, r"not a readable HDF5 file \(.*file signature not found"),
+    ("log.h5", b"", r"not a readable HDF5 file"),
+    ("log.csv", bytes(range(128, 256)) * 8, r"not a CSV file of UTF-8 text \(near line 1: invalid start byte\)"),
+    ("log.csv", b"time,a\n0," + b"9" * 200_000 + b"\n", r"line 2: not CSV: field larger than field limit"),
+])
+def test_a_file_that_is_not_a_log_is_named(tmp_path: Path, name: str, content: bytes, match: str) -> None:
+    """A binary file (as HDF5 or CSV) or an oversized CSV field was an OSError, a
+    UnicodeDecodeError or a csv.Error."""
+    pytest.importorskip("h5py")
+    (tmp_path / name).write_bytes(content)
+    with pytest.raises(ParameterError, match=rf"log '.*{name}': {match}"):
+        _log(tmp_path / name, "phi_fk = a")
+
+
 # ---- through the master -------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -188,6 +219,14 @@ def test_a_missing_column_stops_the_run_naming_it(live: Result, tmp_path: Path) 
              'log.columns="q_m_meas = encoder.q_m_meas; acc_s = imu.acc; '
              'dddq_a_ref = controller.dddq_a_ref; p_tool = plant.p_tool; q_a = plant.q_a"'],
             out_dir=tmp_path)
+
+
+def test_a_binary_file_as_the_log_stops_the_run_in_one_line(tmp_path: Path) -> None:
+    (tmp_path / "log.h5").write_bytes(bytes(range(256)) * 8)
+    with pytest.raises(RunError, match=r"component 'log'.*log '.*log.h5': not a readable HDF5 file") as info:
+        run(SCENARIOS / "replay_log.toml", ["scenario.stop_time=0.6", f"log.log_file={str(tmp_path / 'log.h5')!r}"],
+            out_dir=tmp_path / "out")
+    assert "\n" not in str(info.value) and "Traceback" not in str(info.value)
 
 
 def test_an_unmapped_output_that_is_read_stops_the_run_naming_it(tmp_path: Path) -> None:

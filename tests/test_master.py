@@ -425,3 +425,25 @@ def test_a_run_frees_its_instances_and_unloads_their_libraries(tmp_path, monkeyp
         run(scenario, out_dir=tmp_path / "o")
     assert {Path(p).name for p in set().union(*loaded_at_close)} == {"Failing.so", "Gain.so"}   # were loaded
     assert set().union(*map(loaded_from, fmu_store._EXTRACTED.values())) == set()
+
+
+def test_the_recorder_keeps_rows_in_one_array_that_grows_past_its_capacity():
+    """The run's rows go into one preallocated array (its memory is the columns' own size, the
+    result a view, not a copy: benchmarks/memory.py); past the capacity it doubles, keeping
+    every row; a run that recorded nothing gives an empty result of its columns."""
+    from orchestration.master import _Recorder
+    rec = _Recorder(capacity=2)
+    rows = np.arange(15.0).reshape(5, 3)
+    for k, row in enumerate(rows):
+        rec(0.1 * k, row)
+    rows[:] = -1.0                                # the recorder copied each row
+    r = rec.result(["a", "b", "c"], wall=0.0)
+    assert_array_equal(r.data, np.arange(15.0).reshape(5, 3))
+    assert_array_equal(r.time, 0.1 * np.arange(5))
+    assert len(rec._times) == 8                   # 2 -> 4 -> 8
+    whole = _Recorder(capacity=5)
+    for k, row in enumerate(np.arange(15.0).reshape(5, 3)):
+        whole(0.1 * k, row)
+    assert whole.result(["a", "b", "c"], 0.0).data.base is whole._data      # a view: no copy
+    empty = _Recorder(capacity=4).result(["a", "b"], wall=0.0)
+    assert empty.data.shape == (0, 2) and empty.time.shape == (0,)

@@ -233,6 +233,10 @@ def test_bad_parameters_name_the_parameter(params, tmp_path: Path) -> None:
         mcm.build_controller(replace(params, path="csv", csv_file=str(bad)))
     with pytest.raises(ParameterError, match="parameter 'path' = 'p9' is not one of"):
         replace(params, path="p9")
+    slow = tmp_path / "slow.csv"          # 1e11 s of path: refused before its table is allocated
+    slow.write_text("x,z,speed\n1.2,0.9,\n1.3,0.9,1e-12\n")
+    with pytest.raises(ParameterError, match=r"path 'csv:slow.csv' lasts 1e\+11 s, longer than the 1200 s"):
+        mcm.build_controller(replace(params, path="csv", csv_file=str(slow)))
     with pytest.raises(ParameterError, match="kp\\[2\\]"):
         replace(params, kp=(1.0, -1.0))
 

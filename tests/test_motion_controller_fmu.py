@@ -110,6 +110,20 @@ def test_bad_parameters_rejected_naming_the_parameter(fmu: Path, params: dict, f
     s.fmu.freeInstance()
 
 
+def test_a_move_too_slow_to_tabulate_is_named_not_a_memory_error(fmu: Path, tmp_path: Path) -> None:
+    """A waypoint speed of 1e-12 m/s: a path of 1e11 s, whose reference table (1.4 PiB) was a
+    MemoryError with a traceback; now the parameter and the path's length, before allocating."""
+    slow = tmp_path / "slow.csv"
+    slow.write_text("x,z,speed,dwell\n1.2,0.9,,0.2\n1.3,0.9,1e-12,0\n")
+    s = Slave(fmu, {"path": "csv", "csv_file": str(slow)}, instance_name="mc")
+    with pytest.raises(Exception):
+        s.fmu.exitInitializationMode()
+    assert any(f"parameter 'csv_file' = '{slow}' with 'path_start' = default: path 'csv:slow.csv' "
+               "lasts 1e+11 s, longer than the 1200 s the controller tabulates" in m for m in s.log), s.log
+    assert not any("MemoryError" in m or "Traceback" in m for m in s.log), s.log
+    s.fmu.freeInstance()
+
+
 def test_bad_csv_row_is_named(fmu: Path, tmp_path: Path) -> None:
     bad = tmp_path / "bad.csv"
     bad.write_text("x,z,speed\n1.2,0.9,\n1.3,0.9,fast\n")

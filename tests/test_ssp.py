@@ -623,6 +623,7 @@ def test_without_step_annotations_the_base_step_is_the_documented_default(tmp_pa
     (lambda t: t.replace('name="gain"><pv:Real', 'name="gian"><pv:Real'),
      "component 'gain' has no parameter 'gian'"),
     (lambda t: t.replace("<Elements>", "<Elements><Connector>"), "malformed XML"),
+    (lambda t: t.replace('encoding="UTF-8"', 'encoding="U0TF-8"'), "malformed XML: unknown encoding: U0TF-8"),
     (lambda t: t.replace('startTime="0.0"', 'startTime="1.0"'), "startTime = 1: our master starts at 0"),
     (lambda t: t.replace('<Component name="sink"', '<Component name="gain"'),
      "two components are named 'gain'"),

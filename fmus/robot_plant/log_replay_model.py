@@ -22,9 +22,10 @@ from __future__ import annotations
 
 import csv
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -137,28 +138,37 @@ def column_names(path: Path) -> list[str]:
     if path.suffix.lower() in HDF5_SUFFIXES:
         h5py = _h5py(path)
         names: list[str] = []
-        with h5py.File(path, "r") as f:
+        with _hdf5(path) as f, _hdf5_errors(path):
             f.visititems(lambda name, obj: names.append(name)
                          if isinstance(obj, h5py.Dataset) and obj.ndim == 1 else None)
         return names
-    with _open_csv(path) as fh:
-        return [c.strip() for c in next(csv.reader(fh), [])]
+    with _csv_reader(path) as reader:
+        return [c.strip() for c in next(reader, [])]
+
+
+#: HDF5 dataset kinds read as numbers (numpy ``dtype.kind``): float, signed and unsigned integer.
+HDF5_NUMBER_KINDS = "fiu"
 
 
 def read_columns(path: Path, names: Sequence[str]) -> dict[str, np.ndarray]:
     """The columns ``names`` of the log file ``path`` as float arrays; an empty or non-numeric
-    cell is an error naming its column and row (data rows count from 1, the header excluded)."""
+    cell (CSV) or a dataset of another type than float or integer (HDF5: text, complex,
+    compound, boolean) is an error naming its column (and row)."""
     if path.suffix.lower() in HDF5_SUFFIXES:
-        h5py = _h5py(path)
-        with h5py.File(path, "r") as f:
-            out = {n: np.asarray(f[n][()], dtype=float) for n in names}
+        out = {}
+        with _hdf5(path) as f, _hdf5_errors(path):
+            for n in names:
+                dataset = f[n]
+                if dataset.dtype.kind not in HDF5_NUMBER_KINDS:
+                    raise ParameterError(f"log '{path}': dataset '{n}' holds {dataset.dtype} values, "
+                                         "not numbers (float or integer)")
+                out[n] = np.asarray(dataset[()], dtype=float)
         lengths = {len(v) for v in out.values()}
         if len(lengths) > 1:
             raise ParameterError(f"log '{path}': the datasets {', '.join(names)} differ in length "
                                  f"({', '.join(f'{n}: {len(v)}' for n, v in out.items())})")
     else:
-        with _open_csv(path) as fh:
-            reader = csv.reader(fh)
+        with _csv_reader(path) as reader:
             header = [c.strip() for c in next(reader, [])]
             idx = [header.index(n) for n in names]
             rows: list[list[float]] = []
@@ -191,11 +201,44 @@ def _is_float(text: str) -> bool:
         return False
 
 
-def _open_csv(path: Path):
+@contextmanager
+def _csv_reader(path: Path) -> Iterator[Any]:
+    """A ``csv.reader`` of the log ``path`` (UTF-8 text); what is not (a binary file, a field
+    past the csv module's limit, a NUL byte in a quoted field) is a :class:`ParameterError`."""
     try:
-        return open(path, newline="")
+        fh = open(path, newline="", encoding="utf-8")
     except OSError as exc:
         raise ParameterError(f"log '{path}': cannot read: {exc.strerror or exc}") from None
+    with fh:
+        reader = csv.reader(fh)
+        try:
+            yield reader
+        except UnicodeDecodeError as exc:
+            raise ParameterError(f"log '{path}': not a CSV file of UTF-8 text (near line "
+                                 f"{reader.line_num + 1}: {exc.reason})") from None
+        except csv.Error as exc:
+            raise ParameterError(f"log '{path}': line {reader.line_num}: not CSV: {exc}") from None
+
+
+def _hdf5(path: Path) -> Any:
+    """The HDF5 file ``path``, open for reading; :class:`ParameterError` if it is not one."""
+    h5py = _h5py(path)
+    try:
+        return h5py.File(path, "r")
+    except (OSError, ValueError) as exc:
+        raise ParameterError(f"log '{path}': not a readable HDF5 file ({' '.join(str(exc).split())})") from None
+
+
+@contextmanager
+def _hdf5_errors(path: Path) -> Iterator[None]:
+    """h5py's errors of a damaged file (a broken link, an unreadable chunk) as :class:`ParameterError`."""
+    try:
+        yield
+    except ParameterError:
+        raise
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+        raise ParameterError(f"log '{path}': cannot read the HDF5 file ({type(exc).__name__}: "
+                             f"{' '.join(str(exc).split())})") from None
 
 
 def _h5py(path: Path):

@@ -92,6 +92,7 @@ DT_GRID = 5e-4          #: reference table resolution [s]
 T_MARGIN = 1.0          #: table length after the path has ended [s]
 SIN_Q2_MAX = 0.98       #: |sin q2| limit: keeps 11 deg away from the stretched/folded arm
 TABLES_KEPT = 16        #: reference tables kept in the disk cache (about 5 MB for 11 s of path)
+MAX_PATH_DURATION = 1200.0  #: longest path tabulated [s]: its table is 2.4 M rows of 208 bytes, 0.5 GB
 
 # Default PID gains (motor side), see MotionControllerParameters.
 DEFAULT_KP = (5.3, 3.9)
@@ -181,6 +182,10 @@ class ReachError(ValueError):
     """A waypoint or path point the arm cannot reach; the message names it."""
 
 
+class PathTooLong(ValueError):
+    """A path longer than :data:`MAX_PATH_DURATION` (its reference table would not fit)."""
+
+
 # columns of the reference table
 _P, _V, _A = slice(0, 2), slice(2, 4), slice(4, 6)
 _Q, _DQ, _DDQ, _DDDQ = slice(6, 8), slice(8, 10), slice(10, 12), slice(12, 14)
@@ -260,6 +265,9 @@ class MotionControlModel:
     ------
     ReachError
         If a waypoint or a point of the path is out of the arm's reach, naming it.
+    PathTooLong
+        If the path lasts longer than :data:`MAX_PATH_DURATION` (e.g. a move at a speed of
+        1e-12 m/s), before anything is allocated.
     """
 
     def __init__(self, trajectory: Trajectory, robot: RobotParameters, gains: PidGains,
@@ -271,6 +279,10 @@ class MotionControlModel:
         self.l1, self.l2 = self.view.l1, self.view.l2
         self.r = self.view.r
         self.dt = float(dt_grid)
+        if not trajectory.duration <= MAX_PATH_DURATION:          # (also NaN)
+            raise PathTooLong(f"path '{trajectory.name}' lasts {trajectory.duration:.4g} s, longer than "
+                              f"the {MAX_PATH_DURATION:g} s the controller tabulates (its references "
+                              f"every {self.dt * 1e3:g} ms); is a speed or an acceleration too small?")
         self._check_waypoints()
         n = int(math.ceil((trajectory.duration + T_MARGIN) / self.dt)) + 2
         self.t_grid = np.arange(n) * self.dt
@@ -827,14 +839,14 @@ def build_controller(params: MotionControllerParameters) -> MotionController:
     Raises
     ------
     ParameterError
-        Naming the parameter: a bad waypoint file (``csv_file``) or a waypoint out of reach
-        (``path`` / ``path_start``).
+        Naming the parameter: a bad waypoint file (``csv_file``), a waypoint out of reach
+        (``path`` / ``path_start``) or a path too long to tabulate.
     """
     traj = build_trajectory(params)
     gains = PidGains.from_values(params.kp, params.kd, params.ti, params.tau_max)
     try:
         model = MotionControlModel(traj, params.robot(), gains)
-    except ReachError as exc:
+    except (ReachError, PathTooLong) as exc:
         start = "default" if params.start is None else f"{tuple(params.path_start)}"
         names = "'csv_file'" if params.path == "csv" else "'path'"
         raise ParameterError(f"parameter {names} = '{params.csv_file if params.path == 'csv' else params.path}'"

@@ -16,6 +16,8 @@ a folder that does not exist for the whole run, so a scenario test that forgets 
 """
 from __future__ import annotations
 
+import os
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -85,3 +87,27 @@ def third_party_fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path
     from toys import TOYS
     return {p.stem: p for p in build_all(tmp_path_factory.mktemp("third_party"), quiet=True,
                                          scripts=sorted((TOYS / "third_party").glob("*_fmu.py")))}
+
+
+# ---- the test process's own exit ----------------------------------------------------------------
+# An open defect (session 8, not yet explained): after every test has passed and pytest has
+# printed its summary, the whole suite's process (hundreds of FMU instances, builds and compiled
+# kernel modules loaded into one interpreter) can die with SIGSEGV in glibc's _dl_fini, calling a
+# library's finaliser at an unmapped address (gdb: _dl_fini -> _dl_call_fini -> 0x41d0). It began
+# with the Cython kernels; a scenario run, fmpy's simulate_fmu and every test module alone exit 0.
+# Until it is found, the suite's process leaves with pytest's own exit status without running the
+# C libraries' finalisers; FLEXFUSION_TEST_NORMAL_EXIT=1 keeps the normal exit, to reproduce it.
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    session.config.stash[_EXIT_STATUS] = int(exitstatus)
+
+
+_EXIT_STATUS = pytest.StashKey[int]()
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_unconfigure(config: pytest.Config) -> None:
+    status = config.stash.get(_EXIT_STATUS, None)
+    if status is not None and os.environ.get("FLEXFUSION_TEST_NORMAL_EXIT") != "1":
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
